@@ -1,0 +1,31 @@
+# Two commands a new user needs: `make demo` and `make test`.
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SETUP := host/pyproject.toml target/camera/pyproject.toml simulator/pyproject.toml requirements-dev.txt
+
+.PHONY: demo test lint bench clean
+
+$(STAMP): $(SETUP)
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e target/camera -e host -e simulator -r requirements-dev.txt
+	touch $@
+
+demo: $(STAMP)
+	$(BIN)/python -m elphel_sim.demo --out out
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/mypy
+
+# pytest exits 5 when it collected no tests; make treats that as a failure, as it should.
+test: $(STAMP) lint
+	$(BIN)/pytest
+
+bench: $(STAMP)
+	@for b in bench/*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) out .mypy_cache .ruff_cache .pytest_cache

@@ -1,0 +1,1 @@
+"""Sensor register tables and drivers."""
