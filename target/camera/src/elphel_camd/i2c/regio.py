@@ -69,7 +69,12 @@ class RegisterIO:
                 self.nak_count += 1
                 log.warning(
                     "%s: device 0x%02x register 0x%x: %s (attempt %d of %d)",
-                    self.bus_name, self.address, register, e, attempt + 1, self.retries + 1,
+                    self.bus_name,
+                    self.address,
+                    register,
+                    e,
+                    attempt + 1,
+                    self.retries + 1,
                 )
                 last = e
         raise I2CError(

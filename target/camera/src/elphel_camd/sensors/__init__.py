@@ -1,1 +1,22 @@
-"""Sensor register tables and drivers."""
+"""Sensor register tables and drivers, and detection of which sensor sits on a port."""
+
+from __future__ import annotations
+
+from elphel_camd.i2c.bus import I2CBus
+from elphel_camd.sensors.base import SensorDriver
+from elphel_camd.sensors.mt9p006 import MT9P006
+
+# Tried in this order on every port.
+DRIVERS: tuple[type[SensorDriver], ...] = (MT9P006,)
+
+
+def detect(bus: I2CBus, *, bus_name: str) -> SensorDriver | None:
+    """The driver of the first known sensor that answers on the bus, or None."""
+    for driver in DRIVERS:
+        found = driver.probe(bus, bus_name=bus_name)
+        if found is not None:
+            return found
+    return None
+
+
+__all__ = ["DRIVERS", "MT9P006", "SensorDriver", "detect"]

@@ -1,0 +1,60 @@
+"""The `elphel` command: one entry point, one subcommand per area.
+
+Each area module exposes ``register(subparsers)``, which adds its subcommand and sets
+``func`` on the parser to a function ``(args) -> int``. Conventions for every command:
+``--json`` prints exactly one JSON object on stdout; exit 0 on success, 1 on failure with
+a one-line error on stderr, 2 on a usage error (argparse's own code).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from elphel_host import __version__
+from elphel_host.errors import ElphelError
+
+# Area modules, each with register(subparsers). Add a module here to add a subcommand.
+AREAS = ("elphel_host.camera.cli", "elphel_host.stage.cli")
+
+
+def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
+    """Print a command's result: one JSON object with --json, else the human text."""
+    if getattr(args, "json", False):
+        print(json.dumps(result, sort_keys=True))
+    else:
+        print(human)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="elphel",
+        description="Control Elphel-style cameras and a burst stage; process their images.",
+    )
+    parser.add_argument("--version", action="version", version=f"elphel {__version__}")
+    sub = parser.add_subparsers(dest="area", required=True, metavar="AREA")
+    for name in AREAS:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code: int = args.func(args)
+    except KeyboardInterrupt:
+        print("elphel: interrupted", file=sys.stderr)
+        return 130
+    except (ElphelError, OSError, ValueError) as e:
+        print(f"elphel: {e}", file=sys.stderr)
+        return 1
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

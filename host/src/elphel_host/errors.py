@@ -1,0 +1,76 @@
+"""Exception tree of the host library: a domain base plus the built-in each error behaves like."""
+
+from __future__ import annotations
+
+
+class ElphelError(Exception):
+    """Base of every error the host library raises on purpose."""
+
+
+class CameraClientError(ElphelError, RuntimeError):
+    """The camera daemon refused a request or could not be reached."""
+
+
+class CameraAuthError(CameraClientError, PermissionError):
+    """The daemon answered 401/403: missing or wrong token."""
+
+
+class InputFormatError(ElphelError, ValueError):
+    """A file or directory given as input does not have the documented format."""
+
+
+class StageError(ElphelError):
+    """The linear stage failed or refused an operation."""
+
+
+class StageConnectionError(StageError, ConnectionError):
+    """The link to the stage board could not be opened or was lost."""
+
+
+class StageTimeout(StageError, TimeoutError):  # noqa: N818 - the name users expect
+    """The stage did not answer or finish within the deadline."""
+
+
+class StageProtocolError(StageError):
+    """A reply was garbled, truncated or not what the protocol allows."""
+
+
+class StageCommandError(StageError):
+    """The board answered a command with an error code (see docs/stage-protocol.md)."""
+
+    def __init__(self, message: str, *, code: int = 0, keyword: str = "") -> None:
+        super().__init__(message)
+        self.code = code
+        self.keyword = keyword
+
+
+class StageLimitError(StageCommandError, ValueError):
+    """A target lies outside the stage's soft limits."""
+
+
+class StageBusyError(StageCommandError):
+    """The stage is moving or homing; stop it first."""
+
+
+class StageNotHomedError(StageCommandError):
+    """The stage does not know its position: home it (or re-sync from the caliper)."""
+
+
+class StageAlarmError(StageCommandError):
+    """A limit switch closed or homing failed; HOME clears it."""
+
+
+class StageCaliperError(StageCommandError):
+    """The caliper gave no frame, a frame that failed to decode, or unstable readings."""
+
+
+class StageResetError(StageError):
+    """The board reset (a new boot id): its step position is no longer known."""
+
+
+class StageStallError(StageError):
+    """The caliper did not confirm a commanded move: motor stalled or steps were lost."""
+
+
+class StageClosedLoopError(StageError):
+    """A closed-loop move could not reach the tolerance within its attempts."""

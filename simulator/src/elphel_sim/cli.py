@@ -1,0 +1,40 @@
+"""The `elphel-sim` command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from elphel_sim import __version__
+from elphel_sim.scenarios import SCENARIOS
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="elphel-sim", description="Simulated Elphel rig.")
+    p.add_argument("--version", action="version", version=f"elphel-sim {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    up = sub.add_parser("up", help="serve a simulated camera board (and stage) until stopped")
+    up.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
+    up.add_argument("--seed", type=int, default=0, help="seed of every noise source")
+    up.add_argument("--camera-port", type=int, default=0, help="camera REST port (0 = free port)")
+    up.add_argument("--stage-port", type=int, default=0, help="stage TCP port (0 = free port)")
+    up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from elphel_sim.launcher import up
+
+    try:
+        return up(
+            scenario=args.scenario, seed=args.seed, camera_port=args.camera_port, as_json=args.json
+        )
+    except OSError as e:
+        print(f"elphel-sim: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

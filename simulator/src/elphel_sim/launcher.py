@@ -1,0 +1,132 @@
+"""`elphel-sim up`: serve a simulated rig (camera REST, inspection endpoint) until stopped.
+
+The camera board is served by the real daemon application (elphel_camd.api) on top of
+the simulated board. A second, loopback-only server is the simulator's own inspection
+endpoint (``sim_url``): it tells the truth the host cannot see, for tests and demos.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import secrets
+import signal
+import socket
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import uvicorn
+from fastapi import FastAPI
+
+from elphel_camd.api import create_app
+from elphel_camd.board import Camera
+from elphel_sim.board import SimBoard
+from elphel_sim.scenarios import build
+
+
+def create_sim_app(board: SimBoard) -> FastAPI:
+    """The inspection API: what the simulator knows to be true."""
+    app = FastAPI(title="elphel-sim inspection")
+
+    @app.get("/world")
+    def world() -> dict[str, Any]:
+        """Carriage position and the scene's planes."""
+        w = board.world
+        return {
+            "carriage_mm": w.rig.carriage_mm,
+            "axis": list(w.rig.axis),
+            "planes": [
+                {"origin": list(p.origin), "albedo_rgb": list(p.albedo_rgb)} for p in w.scene.planes
+            ],
+            "ports": {
+                str(port): {"model": spec.model, "mount": spec.mount}
+                for port, spec in board.ports.items()
+            },
+        }
+
+    return app
+
+
+def bind_loopback(port: int, host: str = "127.0.0.1") -> socket.socket:
+    """A listening TCP socket on loopback; port 0 picks a free one."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    sock.listen(128)
+    sock.setblocking(False)
+    return sock
+
+
+class _Server(uvicorn.Server):
+    """A uvicorn server that leaves signal handling to the launcher (it runs several)."""
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        yield
+
+
+@dataclass
+class Served:
+    app: FastAPI
+    sock: socket.socket
+
+    @property
+    def url(self) -> str:
+        host, port = self.sock.getsockname()[:2]
+        return f"http://{host}:{port}"
+
+
+async def serve_all(served: list[Served]) -> None:
+    """Run every app on its socket until SIGINT or SIGTERM."""
+    servers = [_Server(uvicorn.Config(s.app, log_level="warning", lifespan="off")) for s in served]
+    loop = asyncio.get_running_loop()
+
+    def stop() -> None:
+        for server in servers:
+            server.should_exit = True
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop)
+    await asyncio.gather(
+        *(srv.serve(sockets=[s.sock]) for srv, s in zip(servers, served, strict=True))
+    )
+
+
+def up(*, scenario: str, seed: int, camera_port: int, as_json: bool) -> int:
+    board = SimBoard(build(scenario, seed=seed), seed=seed)
+    camera = Camera(board)
+    token = secrets.token_urlsafe(24)
+    camera_served = Served(create_app(camera, token=token), bind_loopback(camera_port))
+    sim_served = Served(create_sim_app(board), bind_loopback(0))
+    announce = {
+        "camera_url": camera_served.url,
+        "token": token,
+        "stage_url": None,
+        "stage_pty": None,
+        "sim_url": sim_served.url,
+    }
+    if as_json:
+        print(json.dumps(announce), flush=True)
+    else:
+        print(f"simulated rig up (scenario {scenario}, seed {seed}); Ctrl-C stops it", flush=True)
+        for key, value in announce.items():
+            print(f"  {key:11s} {value}", flush=True)
+        print(
+            f"  try: elphel camera info --url {camera_served.url} --token {token}",
+            flush=True,
+        )
+    try:
+        asyncio.run(serve_all([camera_served, sim_served]))
+    finally:
+        camera.close()
+        for s in (camera_served, sim_served):
+            s.sock.close()
+    print("elphel-sim: stopped", file=sys.stderr)
+    return 0

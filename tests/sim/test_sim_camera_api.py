@@ -1,0 +1,122 @@
+"""The real daemon application on the simulated board, through FastAPI's test client."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+import tifffile
+from fastapi.testclient import TestClient
+
+from elphel_camd.api import create_app
+from elphel_camd.board import Camera, board_factories
+from elphel_sim.board import SimBoard, make_sim_board
+from elphel_sim.scenarios import build
+
+TOKEN = "test-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+@pytest.fixture
+def board():
+    return SimBoard(build("default", seed=1), seed=1)
+
+
+@pytest.fixture
+def client(board):
+    with TestClient(create_app(Camera(board), token=TOKEN)) as c:
+        yield c
+
+
+def test_info_reports_the_sensor_read_over_simulated_i2c(client, board):
+    board.bus(0).log_transfers = True
+    info = client.get("/api/v1/info").json()
+    assert info["board"] == "sim"
+    (port,) = info["ports"]
+    assert port["port"] == 0
+    assert port["sensor"]["model"] == "MT9P006"
+    assert port["sensor"]["chip_id"] == 0x1801
+    # The chip id was read now, over the bus, as a combined write+read to 0x48.
+    assert (0x48, "w", b"\x00") in board.bus(0).transfers
+    assert (0x48, "r", b"\x18\x01") in board.bus(0).transfers
+
+
+def test_capture_returns_16bit_tiff_with_metadata(client):
+    r = client.post("/api/v1/ports/0/capture", headers=AUTH)
+    assert r.status_code == 200
+    assert r.headers["content-type"] == "image/tiff"
+    with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
+        image = tif.asarray()
+        meta = json.loads(tif.pages.first.description)
+    assert image.dtype == np.uint16 and image.shape == (1944, 2592)
+    assert 0 < image.mean() < 4095
+    assert int(r.headers["X-Frame-Number"]) == meta["frame"]
+    for key in ("frame", "timestamp_ns", "port", "sensor", "bayer", "EXPOS", "GAINR", "WOI_WIDTH"):
+        assert key in meta
+    assert meta["sensor"] == "MT9P006" and meta["bayer"] == "GRBG"
+    assert (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (2592, 1944)
+    second = client.post("/api/v1/ports/0/capture", headers=AUTH)
+    assert int(second.headers["X-Frame-Number"]) == meta["frame"] + 1
+
+
+@pytest.mark.parametrize(
+    "headers", [{}, {"Authorization": "Bearer wrong"}, {"Authorization": TOKEN}]
+)
+def test_writes_without_the_token_get_401(client, headers):
+    r = client.post("/api/v1/ports/0/capture", headers=headers)
+    assert r.status_code == 401
+    assert "Bearer" in r.json()["detail"]
+    assert r.headers["www-authenticate"] == "Bearer"
+
+
+def test_unknown_port_is_404_and_bad_port_is_422(client):
+    r = client.post("/api/v1/ports/7/capture", headers=AUTH)
+    assert r.status_code == 404
+    assert "port 7" in r.json()["detail"]
+    assert client.post("/api/v1/ports/x/capture", headers=AUTH).status_code == 422
+
+
+def test_register_state_forms_the_frame(board):
+    camera = Camera(board)
+    driver = camera.sensor(0)
+    driver.write("row_size", 99)
+    driver.write("column_size", 199)
+    frame, meta = camera.capture(0)
+    assert frame.image.shape == (100, 200)
+    assert (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (200, 100)
+    before = frame.image.astype(float).mean()
+    driver.write("global_gain", 0x0010)  # 2x on all four colours
+    assert board.chips[0].peek("red_gain") == 0x0010
+    _, meta2 = camera.capture(0)
+    assert meta2["GAINR"] == 2 * 0x10000
+    after = camera.capture(0)[0].image.astype(float).mean()
+    assert after == pytest.approx(2 * before, rel=0.02)
+
+
+def test_sim_board_is_registered_for_the_daemon():
+    factories = board_factories()
+    assert factories["sim"] is make_sim_board
+    assert "i2c" in factories
+
+
+def test_stuck_bus_surfaces_as_503_naming_the_port(board):
+    with TestClient(create_app(Camera(board), token=TOKEN)) as c:
+        board.bus(0).sim_stuck()
+        r = c.get("/api/v1/info")
+        assert r.status_code == 503
+        assert "port 0" in r.json()["detail"] and "0x48" in r.json()["detail"]
+        board.bus(0).sim_stuck(False)
+        assert c.get("/api/v1/info").status_code == 200
+
+
+def test_missing_sensor_reported_as_empty_port():
+    from elphel_sim.scenarios import PortSpec
+
+    scenario = build("default", seed=0)
+    scenario.ports.append(PortSpec(None, "cam0", scenario.ports[0].intrinsics))
+    camera = Camera(SimBoard(scenario))
+    info = camera.info()
+    assert info["ports"][1]["sensor"] is None
+    with TestClient(create_app(camera, token=TOKEN)) as c:
+        r = c.post("/api/v1/ports/1/capture", headers=AUTH)
+        assert r.status_code == 404 and "no sensor" in r.json()["detail"]
