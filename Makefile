@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SETUP := host/pyproject.toml target/camera/pyproject.toml simulator/pyproject.toml requirements-dev.txt
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean flash-stage
 
 $(STAMP): $(SETUP)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -29,3 +29,11 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out .mypy_cache .ruff_cache .pytest_cache
+
+# Copy the stage firmware onto an ESP8266 that already runs MicroPython:
+#   make flash-stage PORT=/dev/ttyUSB0 [CONFIG=stage.json]   (see docs/stage.md)
+MPREMOTE ?= mpremote
+STAGE_FW := $(filter-out target/esp8266/stage.json.example,$(wildcard target/esp8266/*.py))
+flash-stage:
+	@test -n "$(PORT)" || { echo "usage: make flash-stage PORT=/dev/ttyUSB0 [CONFIG=stage.json]" >&2; exit 2; }
+	$(MPREMOTE) connect $(PORT) cp $(STAGE_FW) : $(if $(CONFIG),+ cp $(CONFIG) :stage.json) + reset

@@ -76,21 +76,42 @@ def test_unknown_port_is_404_and_bad_port_is_422(client):
     assert client.post("/api/v1/ports/x/capture", headers=AUTH).status_code == 422
 
 
-def test_register_state_forms_the_frame(board):
-    camera = Camera(board)
-    driver = camera.sensor(0)
-    driver.write("row_size", 99)
-    driver.write("column_size", 199)
-    frame, meta = camera.capture(0)
-    assert frame.image.shape == (100, 200)
-    assert (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (200, 100)
-    before = frame.image.astype(float).mean()
-    driver.write("global_gain", 0x0010)  # 2x on all four colours
-    assert board.chips[0].peek("red_gain") == 0x0010
-    _, meta2 = camera.capture(0)
-    assert meta2["GAINR"] == 2 * 0x10000
-    after = camera.capture(0)[0].image.astype(float).mean()
-    assert after == pytest.approx(2 * before, rel=0.02)
+def test_patch_params_sets_window_and_gain_through_rest(client):
+    body = {"WOI_WIDTH": 200, "WOI_HEIGHT": 100, "WOI_LEFT": 1000, "WOI_TOP": 700}
+    r = client.patch("/api/v1/ports/0/params", json=body, headers=AUTH)
+    assert r.status_code == 200, r.text
+    target = r.json()["frame"]
+    assert r.json()["params"]["WOI_WIDTH"] == 200
+    shapes = []
+    while True:
+        c = client.post("/api/v1/ports/0/capture", headers=AUTH)
+        frame = int(c.headers["X-Frame-Number"])
+        shapes.append(tifffile.imread(io.BytesIO(c.content)).shape)
+        if frame >= target:
+            break
+    assert shapes[-1] == (100, 200)
+    now = client.get("/api/v1/ports/0/frame").json()["frame"]
+    r = client.patch("/api/v1/ports/0/params?frame=%2B5", json={"GAINR": 0x20000}, headers=AUTH)
+    assert r.json()["frame"] == now + 5
+    r = client.patch("/api/v1/ports/0/params?ahead=4", json={"GAINB": 0x20000}, headers=AUTH)
+    assert r.json()["frame"] == now + 4
+    assert client.get(f"/api/v1/ports/0/params?frame={now + 5}").json()["GAINR"] == 0x20000
+
+
+def test_patch_errors_are_422_with_the_parameter_value_and_range(client):
+    r = client.patch("/api/v1/ports/0/params", json={"WOI_WIDTH": 3000}, headers=AUTH)
+    assert r.status_code == 422
+    body = r.json()
+    assert body["parameter"] == "WOI_WIDTH" and body["value"] == 3000
+    assert "2..2592" in body["allowed"] and "WOI_WIDTH" in body["detail"]
+    r = client.patch("/api/v1/ports/0/params?ahead=1", json={"EXPOS": 100}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["error"] == "frame_too_late"
+    r = client.patch("/api/v1/ports/0/params?ahead=15", json={"EXPOS": 100}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["error"] == "frame_too_early"
+    r = client.patch("/api/v1/ports/0/params?frame=soon", json={"EXPOS": 100}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["parameter"] == "frame"
+    r = client.patch("/api/v1/ports/0/params", json={"EXPOS": 100})
+    assert r.status_code == 401
 
 
 def test_sim_board_is_registered_for_the_daemon():

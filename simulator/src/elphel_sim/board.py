@@ -1,23 +1,41 @@
-"""The simulated camera board: per port a simulated I2C bus with a chip, and an image path.
+"""The simulated camera board: I2C buses with chips, FPGA timing and trigger, image path.
+
+Per port a simulated I2C bus with a chip, the FPGA's frame timing and trigger, and an
+image path.
 
 It implements the daemon's `Board` protocol, so the real daemon runs on it unchanged; the
 daemon finds it as ``--board sim`` through the ``elphel_camd.boards`` entry point.
+
+Time is virtual. Tests step it (`sim_advance`, or a capture that waits for the next frame
+advances it); `start_clock` runs it against the wall clock for a served rig.
 """
 
 from __future__ import annotations
 
+import math
 import threading
-from collections.abc import Mapping
+import time
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
 from elphel_camd.board import Frame
-from elphel_camd.errors import CaptureUnavailableError, PortError
+from elphel_camd.errors import CaptureUnavailableError, FrameNotAvailableError, PortError
 from elphel_camd.i2c.bus import I2CBus
+from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.mt9p006 import SimMT9P006
-from elphel_sim.fpga import SensorTiming, mt9p006_frame
+from elphel_sim.fpga import (
+    Camsync,
+    FrameRecord,
+    PortFPGA,
+    form_image,
+    is_snapshot,
+    sensor_timing,
+)
 from elphel_sim.scenarios import PortSpec, Scenario, build
+
+FrameSync = Callable[[int, int, int], None]
 
 
 class SimBoard:
@@ -28,37 +46,44 @@ class SimBoard:
     scenario
         The world and the ports.
     seed
-        Seed of the sensor noise (each port draws from its own stream).
+        Seed of the sensor noise (each frame of each port draws from its own stream).
     noise
         False renders the noise-free expectation (exact tests).
     """
 
     name = "sim"
+    capabilities = frozenset({"frames", "capture", "trigger", "photofinish"})
 
     def __init__(self, scenario: Scenario, *, seed: int = 0, noise: bool = True) -> None:
         self.world = scenario.world
+        self.seed = seed
+        self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
         self._buses: dict[int, SimI2CBus] = {}
         self.chips: dict[int, SimMT9P006] = {}
-        self._frame = dict.fromkeys(self.ports, 0)
-        self._time_s = dict.fromkeys(self.ports, 0.0)
-        seeds = np.random.SeedSequence(seed).spawn(len(self.ports))
-        self._rng = {
-            port: np.random.default_rng(s) if noise else None
-            for port, s in zip(self.ports, seeds, strict=True)
-        }
-        self._lock = threading.Lock()
+        self.fpga: dict[int, PortFPGA] = {}
+        self.camsync = Camsync()
+        self.now_s = 0.0
+        self._subscribers: list[FrameSync] = []
+        self._cond = threading.Condition(threading.RLock())
+        self._clock: threading.Thread | None = None
+        self._stop = threading.Event()
         for port, spec in self.ports.items():
             bus = SimI2CBus(f"port {port}")
             if spec.model == "MT9P006":
                 chip = SimMT9P006()
                 bus.attach(chip.address, chip)
                 self.chips[port] = chip
+                self.fpga[port] = PortFPGA()
             elif spec.model is not None:
                 raise ValueError(
                     f"port {port}: simulated sensor {spec.model!r}; allowed: MT9P006 or None"
                 )
             self._buses[port] = bus
+        for port in self.fpga:
+            self._schedule_next(port)
+
+    # -- the Board protocol ----------------------------------------------------------------
 
     def buses(self) -> Mapping[int, I2CBus]:
         return self._buses
@@ -66,37 +91,210 @@ class SimBoard:
     def bus(self, port: int) -> SimI2CBus:
         return self._buses[port]
 
-    def capture(self, port: int) -> Frame:
+    def on_frame_sync(self, callback: FrameSync) -> None:
+        """Call ``callback(port, frame, timestamp_ns)`` at every frame start."""
+        self._subscribers.append(callback)
+
+    def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
+        """FPGA-side settings of a function, taking effect at the state's target frame."""
+        fpga = self.fpga.get(port)
+        if fpga is None:
+            return
+        target = state.get("FRAME", 0)
+        with self._cond:
+            if function == TRIGSEQ:
+                fpga.pending.append((target, "delay_10ns", state["TRIG_DELAY"]))
+                fpga.pending.append((target, "decimate", state["TRIG_DECIMATE"]))
+                if port == state["TRIG_MASTER"]:
+                    fpga.pending.append((target, "camsync", state["TRIG_PERIOD"]))
+            elif function == TRIGGERMODE:
+                fpga.pending.append((target, "snapshot", int(bool(state["TRIG"] & TRIG_SNAPSHOT))))
+            elif function == WINDOW:
+                pf = state["PF_HEIGHT"]
+                fpga.pending.append((target, "pf_strips", state["WOI_HEIGHT"] // pf if pf else 0))
+            if target <= fpga.frame:
+                self._apply_pending(port)
+                self._schedule_next(port)
+
+    def capture(self, port: int, *, frame: int | None = None, timeout_s: float = 10.0) -> Frame:
+        """The next frame of a port, or frame ``frame`` from the ring buffer."""
         if port not in self.ports:
             raise PortError(f"port {port} does not exist; ports: {sorted(self.ports)}")
-        chip = self.chips.get(port)
-        if chip is None:
+        fpga = self.fpga.get(port)
+        if fpga is None:
             raise CaptureUnavailableError(f"port {port}: no sensor on this simulated port")
-        spec = self.ports[port]
-        with self._lock:
-            timing = SensorTiming(
-                width=chip.peek("column_size") + 1,
-                height=chip.peek("row_size") + 1,
-                vertical_blank=chip.peek("vertical_blank"),
-            )
-            self._frame[port] += 1
-            self._time_s[port] += timing.frame_s
-            frame, time_s = self._frame[port], self._time_s[port]
-            image = mt9p006_frame(
-                chip,
-                self.world,
-                intrinsics=spec.intrinsics,
-                mount=spec.mount,
-                model=spec.sensor,
-                rng=self._rng[port],
-                time_s=time_s,
-            )
-        return Frame(image=image, frame=frame, timestamp_ns=round(time_s * 1e9))
+        wanted = fpga.frame + 1 if frame is None else frame
+        record = self._wait_for(port, wanted, timeout_s)
+        return Frame(
+            image=self._image(record), frame=record.frame, timestamp_ns=record.timestamp_ns
+        )
 
     def close(self) -> None:
-        """Nothing to release: the simulated buses hold no OS resources."""
+        self.stop_clock()
+
+    # -- time ------------------------------------------------------------------------------
+
+    def _apply_pending(self, port: int) -> None:
+        fpga = self.fpga[port]
+        due = [p for p in fpga.pending if p[0] <= fpga.frame]
+        fpga.pending = [p for p in fpga.pending if p[0] > fpga.frame]
+        for _, key, value in due:
+            if key == "camsync":
+                self.camsync.program(value, self.now_s)
+                for other in self.fpga:
+                    if other != port:
+                        self._schedule_next(other)
+            else:
+                setattr(fpga, key, value)
+
+    def _schedule_next(self, port: int) -> None:
+        """When the port's next frame starts, from its sensor and FPGA state in effect."""
+        fpga, chip = self.fpga[port], self.chips[port]
+        row_s, rows, _ = sensor_timing(chip)
+        strips = max(fpga.pf_strips, 1)
+        if fpga.snapshot and is_snapshot(chip):
+            every = fpga.decimate + 1
+            ready = max(fpga.busy_until_s, self.now_s if fpga.frame else 0.0)
+            delay_s = fpga.delay_10ns / 1e8
+            trigger = self.camsync.next_trigger(ready - delay_s, every=every)
+            if trigger is None:
+                fpga.next_start_s = math.inf
+            else:
+                fpga.next_start_s = trigger + delay_s
+                fpga.next_timestamp_s = trigger
+        else:
+            start = fpga.last_start_s + rows * row_s * strips if fpga.frame else 0.0
+            fpga.next_start_s = start
+            fpga.next_timestamp_s = start
+
+    def _start_frame(self, port: int) -> tuple[int, int]:
+        fpga, chip = self.fpga[port], self.chips[port]
+        self.now_s = fpga.next_start_s
+        self.world.time_s = self.now_s
+        fpga.frame += 1
+        fpga.last_start_s = self.now_s
+        with self._buses[port].lock:
+            chip.latch(fpga.frame)
+        self._apply_pending(port)
+        row_s, rows, shutter = sensor_timing(chip)
+        strips = fpga.pf_strips
+        snapshot = fpga.snapshot and is_snapshot(chip)
+        if strips and snapshot and self.camsync.period_10ns > 1:
+            strip_period_s = self.camsync.period_10ns * (fpga.decimate + 1) / 1e8
+        else:
+            strip_period_s = rows * row_s
+        sensor_busy = (shutter + (chip.image_register("row_size") + 1) + 9) * row_s
+        fpga.busy_until_s = self.now_s + sensor_busy + strip_period_s * max(strips - 1, 0)
+        timestamp_ns = round(fpga.next_timestamp_s * 1e9)
+        spec = self.ports[port]
+        fpga.ring.append(
+            FrameRecord(
+                port=port,
+                frame=fpga.frame,
+                start_s=self.now_s,
+                timestamp_ns=timestamp_ns,
+                registers={r.name: chip.image_register(r.name) for r in chip.table},
+                pose=self.world.camera_pose(spec.mount),
+                strips=strips,
+                strip_period_s=strip_period_s,
+            )
+        )
+        self._schedule_next(port)
+        return fpga.frame, timestamp_ns
+
+    def sim_step(self) -> tuple[int, int, int]:
+        """Start the next frame on whichever port is due first; return (port, frame, ts)."""
+        with self._cond:
+            if not self.fpga:
+                raise CaptureUnavailableError("the simulated board has no sensor")
+            port = min(self.fpga, key=lambda p: self.fpga[p].next_start_s)
+            if math.isinf(self.fpga[port].next_start_s):
+                raise CaptureUnavailableError(
+                    "no port will start a frame: every port waits for a trigger that is stopped"
+                )
+            frame, ts = self._start_frame(port)
+        for callback in self._subscribers:
+            callback(port, frame, ts)
+        with self._cond:
+            self._cond.notify_all()
+        return port, frame, ts
+
+    def sim_advance(self, *, frames: int = 1, port: int | None = None) -> None:
+        """Run until ``frames`` more frames started (on ``port``, or on any port)."""
+        done = 0
+        while done < frames:
+            p, _, _ = self.sim_step()
+            if port is None or p == port:
+                done += 1
+
+    def _wait_for(self, port: int, frame: int, timeout_s: float) -> FrameRecord:
+        fpga = self.fpga[port]
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with self._cond:
+                for record in fpga.ring:
+                    if record.frame == frame:
+                        return record
+                if frame <= fpga.frame:
+                    raise FrameNotAvailableError(
+                        f"port {port}: frame {frame} is no longer in the ring buffer "
+                        f"(frames {fpga.ring[0].frame}..{fpga.frame})"
+                    )
+                if self._clock is not None:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise TimeoutError(
+                            f"port {port}: frame {frame} did not come in {timeout_s} s"
+                        )
+                    self._cond.wait(min(remaining, 0.5))
+                    continue
+            self.sim_step()
+
+    def _image(self, record: FrameRecord) -> np.ndarray:
+        with self._cond:
+            if record.image is None:
+                spec = self.ports[record.port]
+                rng = (
+                    np.random.default_rng([self.seed, record.port, record.frame])
+                    if self.noise
+                    else None
+                )
+                record.image = form_image(
+                    record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+                )
+            return record.image
+
+    # -- real time -------------------------------------------------------------------------
+
+    def start_clock(self, *, time_scale: float = 1.0) -> None:
+        """Run virtual time against the wall clock in a thread (``time_scale`` x real time)."""
+        if self._clock is not None:
+            return
+        self._stop.clear()
+        origin_wall, origin_sim = time.monotonic(), self.now_s
+
+        def run() -> None:
+            while not self._stop.is_set():
+                with self._cond:
+                    due = min((f.next_start_s for f in self.fpga.values()), default=math.inf)
+                wait = (due - origin_sim) / time_scale - (time.monotonic() - origin_wall)
+                if math.isinf(wait) or wait > 0:
+                    self._stop.wait(0.05 if math.isinf(wait) else min(wait, 0.05))
+                    continue
+                self.sim_step()
+
+        self._clock = threading.Thread(target=run, name="sim-frame-clock", daemon=True)
+        self._clock.start()
+
+    def stop_clock(self) -> None:
+        if self._clock is not None:
+            self._stop.set()
+            self._clock.join(timeout=5)
+            self._clock = None
 
 
 def make_sim_board(*, scenario: str = "default", seed: int = 0, noise: bool = True) -> SimBoard:
     """Entry point for ``elphel-camd --board sim`` (options from ``--config``)."""
-    return SimBoard(build(scenario, seed=seed), seed=seed, noise=noise)
+    board = SimBoard(build(scenario, seed=seed), seed=seed, noise=noise)
+    board.start_clock()
+    return board

@@ -29,7 +29,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         return up(
-            scenario=args.scenario, seed=args.seed, camera_port=args.camera_port, as_json=args.json
+            scenario=args.scenario,
+            seed=args.seed,
+            camera_port=args.camera_port,
+            stage_port=args.stage_port,
+            as_json=args.json,
         )
     except OSError as e:
         print(f"elphel-sim: {e}", file=sys.stderr)

@@ -1,81 +1,143 @@
-"""The camera board's image path: forms each frame from the sensor's register state.
+"""The camera board's FPGA: frame timing, the common trigger, and image formation.
 
-A frame is rendered from the world as the registers of the chip say it was taken: window
-origin and size, exposure (shutter rows x row time), per-colour analog gains, mirroring
-and the Bayer phase that follows from them.
+Each port's frame starts are events on one virtual timeline. In free-run a port starts its
+next frame one frame period (set by its sensor's registers in effect) after the last; in
+snapshot mode it starts on a trigger of the common trigger generator (camsync), after its
+own delay, on every (decimate + 1)-th trigger, once the sensor is ready again; a frame's
+timestamp is then the trigger time, the same on every port. In photo-finish a frame is a
+composite of strips, each strip one sensor frame. At each frame start the sensor latches
+the register writes due, and the frame is recorded with the register state in effect; its
+image is formed from that record only when someone asks for it (ring buffer, lazily).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd.sensors import mt9p006 as spec
-from elphel_sim.chips.mt9p006 import SimMT9P006
-from elphel_sim.render import Intrinsics, SensorModel, bayer_channels, expose, render_radiance
-from elphel_sim.world import World
+from elphel_sim.chips.mt9p006 import SNAPSHOT_BIT, SimMT9P006
+from elphel_sim.render import (
+    Intrinsics,
+    SensorModel,
+    bayer_channels,
+    expose,
+    render_strips,
+)
+from elphel_sim.world import Pose, World
+
+RING_FRAMES = 64
+CAMSYNC_HZ = 100_000_000  # TRIG_PERIOD and TRIG_DELAY count 10 ns ticks
 
 
-@dataclass(frozen=True)
-class SensorTiming:
-    """Frame timing implied by a window, as the MT9P006 runs it at the sensor clock."""
+@dataclass
+class Camsync:
+    """The common trigger generator: a period, started at a time; 0 = stopped, 1 = single."""
 
-    width: int
-    height: int
-    vertical_blank: int
+    period_10ns: int = 0
+    start_s: float = 0.0
 
-    @property
-    def row_s(self) -> float:
-        return spec.row_time_s(self.width)
+    def program(self, period_10ns: int, now_s: float) -> None:
+        if period_10ns != self.period_10ns:
+            self.period_10ns = period_10ns
+            self.start_s = now_s
 
-    @property
-    def frame_s(self) -> float:
-        return self.row_s * (self.height + max(self.vertical_blank, 9))
+    def next_trigger(self, after_s: float, *, every: int) -> float | None:
+        """First trigger at or after ``after_s`` whose index is a multiple of ``every``."""
+        if self.period_10ns == 0:
+            return None
+        if self.period_10ns == 1:  # a single trigger at the moment it was programmed
+            return self.start_s if self.start_s >= after_s - 1e-12 else None
+        period_s = self.period_10ns / CAMSYNC_HZ
+        k = max(0, math.ceil((after_s - self.start_s) / period_s - 1e-9))
+        k = ((k + every - 1) // every) * every
+        return self.start_s + k * period_s
 
 
-def mt9p006_frame(
-    chip: SimMT9P006,
+@dataclass
+class FrameRecord:
+    """What the FPGA knows of one frame: enough to form its image later."""
+
+    port: int
+    frame: int
+    start_s: float
+    timestamp_ns: int
+    registers: dict[str, int]
+    pose: Pose
+    strips: int  # 0 = a normal frame; else photo-finish strips in this composite
+    strip_period_s: float
+    image: NDArray[np.uint16] | None = None
+
+
+@dataclass
+class PortFPGA:
+    """Per-port FPGA settings (programmed by the daemon through the board) and frame state."""
+
+    snapshot: bool = False
+    delay_10ns: int = 0
+    decimate: int = 0
+    pf_strips: int = 0
+    frame: int = 0
+    last_start_s: float = 0.0
+    busy_until_s: float = 0.0
+    next_start_s: float = 0.0
+    next_timestamp_s: float = 0.0
+    pending: list[tuple[int, str, int]] = field(default_factory=list)
+    ring: deque[FrameRecord] = field(default_factory=lambda: deque(maxlen=RING_FRAMES))
+
+
+def sensor_timing(chip: SimMT9P006) -> tuple[float, int, int]:
+    """Row time (s), rows per sensor frame, and exposure rows, from the registers in effect."""
+    width = chip.image_register("column_size") + 1
+    row_s = (width + 2 * chip.image_register("horizontal_blank")) / spec.SENSOR_CLOCK_HZ
+    height = chip.image_register("row_size") + 1
+    shutter = (chip.image_register("shutter_width_upper") << 16) | chip.image_register(
+        "shutter_width_lower"
+    )
+    rows = max(height + chip.image_register("vertical_blank"), shutter + 1)
+    return row_s, rows, shutter
+
+
+def is_snapshot(chip: SimMT9P006) -> bool:
+    return bool(chip.image_register("read_mode_1") & SNAPSHOT_BIT)
+
+
+def form_image(
+    record: FrameRecord,
     world: World,
     *,
     intrinsics: Intrinsics,
-    mount: str,
     model: SensorModel,
     rng: np.random.Generator | None,
-    time_s: float,
 ) -> NDArray[np.uint16]:
-    """Render one MT9P006 frame from the chip's registers and the world at ``time_s``.
-
-    The ``intrinsics`` describe the full pixel array (``spec.ARRAY_WIDTH`` x
-    ``spec.ARRAY_HEIGHT``), so register window coordinates address it directly.
-    """
-    left = chip.peek("column_start")
-    top = chip.peek("row_start")
-    width = chip.peek("column_size") + 1
-    height = chip.peek("row_size") + 1
-    width = min(width, intrinsics.width - left)
-    height = min(height, intrinsics.height - top)
-    shutter_rows = (chip.peek("shutter_width_upper") << 16) | chip.peek("shutter_width_lower")
-    exposure_us = shutter_rows * spec.row_time_s(width) * 1e6
-    read_mode_2 = chip.peek("read_mode_2")
-    fliph, flipv = bool(read_mode_2 >> 14 & 1), bool(read_mode_2 >> 15 & 1)
-
-    pose = world.camera_pose(mount)
-    rgb = render_radiance(world, intrinsics, pose, window=(left, top, width, height), time_s=time_s)
+    """Render a recorded MT9P006 frame: window, exposure, gains, flips, photo-finish."""
+    r = record.registers
+    left, top = r["column_start"], r["row_start"]
+    width = min(r["column_size"] + 1, intrinsics.width - left)
+    height = min(r["row_size"] + 1, intrinsics.height - top)
+    row_s = (width + 2 * r["horizontal_blank"]) / spec.SENSOR_CLOCK_HZ
+    shutter = (r["shutter_width_upper"] << 16) | r["shutter_width_lower"]
+    exposure_us = shutter * row_s * 1e6
+    strips = max(record.strips, 1)
+    times = record.start_s + record.strip_period_s * np.arange(strips, dtype=np.float64)
+    rgb = render_strips(
+        world, intrinsics, record.pose, window=(left, top, width, height), times_s=times
+    )
     channels = bayer_channels(spec.BAYER, (height, width), row0=top, col0=left)
-    radiance = np.take_along_axis(rgb, channels[..., None], axis=2)[..., 0]
     gains = np.array(
-        [spec.decode_gain(chip.peek(name)) for name in ("red_gain", "green1_gain", "blue_gain")]
+        [spec.decode_gain(r[name]) for name in ("red_gain", "green1_gain", "blue_gain")]
     )
     gain = gains[channels]
-    # The second green sits on the rows of blue.
     rows_with_blue = (channels == 2).any(axis=1)
-    green2 = (channels == 1) & rows_with_blue[:, None]
-    gain[green2] = spec.decode_gain(chip.peek("green2_gain"))
-    image = expose(radiance, exposure_us=exposure_us, gain=gain, model=model, rng=rng)
-    if fliph:
-        image = image[:, ::-1]
-    if flipv:
-        image = image[::-1, :]
-    return np.ascontiguousarray(image)
+    gain[(channels == 1) & rows_with_blue[:, None]] = spec.decode_gain(r["green2_gain"])
+    radiance = np.take_along_axis(rgb, channels[None, ..., None], axis=3)[..., 0]
+    image = expose(radiance, exposure_us=exposure_us, gain=gain[None], model=model, rng=rng)
+    if r["read_mode_2"] >> 14 & 1:
+        image = image[:, :, ::-1]
+    if r["read_mode_2"] >> 15 & 1:
+        image = image[:, ::-1, :]
+    return np.ascontiguousarray(image.reshape(strips * height, width))

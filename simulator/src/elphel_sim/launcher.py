@@ -19,17 +19,25 @@ from dataclasses import dataclass
 from typing import Any
 
 import uvicorn
-from fastapi import FastAPI
+from fastapi import FastAPI, HTTPException
 
 from elphel_camd.api import create_app
 from elphel_camd.board import Camera
 from elphel_sim.board import SimBoard
 from elphel_sim.scenarios import build
+from elphel_sim.stage_server import SimStage
 
 
-def create_sim_app(board: SimBoard) -> FastAPI:
+def create_sim_app(board: SimBoard, stage: SimStage | None = None) -> FastAPI:
     """The inspection API: what the simulator knows to be true."""
     app = FastAPI(title="elphel-sim inspection")
+
+    @app.get("/stage")
+    def stage_state() -> dict[str, Any]:
+        """The carriage's true position and the simulated mechanics."""
+        if stage is None:
+            raise HTTPException(status_code=404, detail="this rig has no simulated stage")
+        return stage.sim_state()
 
     @app.get("/world")
     def world() -> dict[str, Any]:
@@ -99,17 +107,19 @@ async def serve_all(served: list[Served]) -> None:
     )
 
 
-def up(*, scenario: str, seed: int, camera_port: int, as_json: bool) -> int:
+def up(*, scenario: str, seed: int, camera_port: int, stage_port: int, as_json: bool) -> int:
     board = SimBoard(build(scenario, seed=seed), seed=seed)
     camera = Camera(board)
+    board.start_clock()
+    stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     token = secrets.token_urlsafe(24)
     camera_served = Served(create_app(camera, token=token), bind_loopback(camera_port))
-    sim_served = Served(create_sim_app(board), bind_loopback(0))
+    sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
     announce = {
         "camera_url": camera_served.url,
         "token": token,
-        "stage_url": None,
-        "stage_pty": None,
+        "stage_url": stage.tcp_url,
+        "stage_pty": stage.pty_path,
         "sim_url": sim_served.url,
     }
     if as_json:
@@ -125,6 +135,7 @@ def up(*, scenario: str, seed: int, camera_port: int, as_json: bool) -> int:
     try:
         asyncio.run(serve_all([camera_served, sim_served]))
     finally:
+        stage.close()
         camera.close()
         for s in (camera_served, sim_served):
             s.sock.close()

@@ -151,22 +151,28 @@ def _rays(intrinsics: Intrinsics, pose: Pose, window: Window) -> _Rays:
 
 
 def _plane_hit(
-    rays: _Rays, plane: Plane, time_s: float
+    rays: _Rays, plane: Plane, times_s: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Ray parameter and texture coordinates (mm) where each pixel's ray meets the plane."""
+    """Ray parameter and texture coordinates (mm) where each pixel's ray meets the plane.
+
+    Returns arrays of shape (len(times_s), height, width): moving planes are met at each time.
+    """
     u, v, n = plane.basis()
-    o = plane.origin_at(time_s)
-    xs = rays.xs[None, :]
-    ys = rays.ys[:, None]
+    velocity = np.asarray(plane.velocity_mm_s, dtype=np.float64)
+    o = np.asarray(plane.origin, dtype=np.float64)[None, :] + times_s[:, None] * velocity[None, :]
+    rel = rays.origin[None, :] - o  # camera centre relative to the plane origin, per time
+    xs = rays.xs[None, None, :]
+    ys = rays.ys[None, :, None]
 
     def dot(w: FloatArray) -> FloatArray:
         out: FloatArray = (w @ rays.a) + (w @ rays.bx) * xs + (w @ rays.by) * ys
         return out
 
+    k = np.newaxis
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (n @ (o - rays.origin)) / dot(n)
-    s_u = u @ (rays.origin - o) + t * dot(u)
-    s_v = v @ (rays.origin - o) + t * dot(v)
+        t = (-(rel @ n))[:, k, k] / dot(n)
+    s_u = (rel @ u)[:, k, k] + t * dot(u)
+    s_v = (rel @ v)[:, k, k] + t * dot(v)
     return t, s_u, s_v
 
 
@@ -175,10 +181,44 @@ def _footprint_mm(rays: _Rays, plane: Plane, time_s: float, x: float, y: float) 
     probe = _Rays(
         rays.origin, rays.a, rays.bx, rays.by, np.array([x, x + 1.0, x]), np.array([y, y + 1.0])
     )
-    _, su, sv = _plane_hit(probe, plane, time_s)
+    _, su, sv = _plane_hit(probe, plane, np.array([time_s]))
+    su, sv = su[0], sv[0]
     return np.array(
         [[su[0, 1] - su[0, 0], su[1, 0] - su[0, 0]], [sv[0, 1] - sv[0, 0], sv[1, 0] - sv[0, 0]]]
     )
+
+
+def _render(
+    world: World, intrinsics: Intrinsics, pose: Pose, win: Window, times_s: FloatArray
+) -> FloatArray:
+    rays = _rays(intrinsics, pose, win)
+    height, width = win[3], win[2]
+    out = np.full((len(times_s), height, width, 3), float(world.scene.background))
+    nearest = np.full((len(times_s), height, width), np.inf)
+    for plane in world.scene.planes:
+        t, s_u, s_v = _plane_hit(rays, plane, times_s)
+        visible = np.isfinite(t) & (t > 0) & (t < nearest)
+        if plane.half_extent_mm is not None:
+            hu, hv = plane.half_extent_mm
+            visible &= (np.abs(s_u) <= hu) & (np.abs(s_v) <= hv)
+        if not visible.any():
+            continue
+        k, rows, cols = np.nonzero(visible)
+        x_mid = float(rays.xs[int(np.median(cols))])
+        y_mid = float(rays.ys[int(np.median(rows))])
+        tex = plane.texture
+        grid_per_mm = tex.size / tex.period_mm
+        t_mid = float(times_s[int(np.median(k))])
+        footprint = _footprint_mm(rays, plane, t_mid, x_mid, y_mid) * grid_per_mm
+        coeffs = _filtered_coefficients(tex, footprint)
+        gx = np.mod(s_u[visible] * grid_per_mm, tex.size)
+        gy = np.mod(s_v[visible] * grid_per_mm, tex.size)
+        value = ndimage.map_coordinates(
+            coeffs, [gy, gx], order=3, mode="grid-wrap", prefilter=False
+        )
+        out[visible] = value[:, None] * np.asarray(plane.albedo_rgb, dtype=np.float64)
+        nearest[visible] = t[visible]
+    return out
 
 
 def render_radiance(
@@ -209,33 +249,18 @@ def render_radiance(
     """
     win = _check_window(intrinsics, window)
     t_now = world.time_s if time_s is None else time_s
-    rays = _rays(intrinsics, pose, win)
-    height, width = win[3], win[2]
-    out = np.full((height, width, 3), float(world.scene.background))
-    nearest = np.full((height, width), np.inf)
-    for plane in world.scene.planes:
-        t, s_u, s_v = _plane_hit(rays, plane, t_now)
-        visible = np.isfinite(t) & (t > 0) & (t < nearest)
-        if plane.half_extent_mm is not None:
-            hu, hv = plane.half_extent_mm
-            visible &= (np.abs(s_u) <= hu) & (np.abs(s_v) <= hv)
-        if not visible.any():
-            continue
-        rows, cols = np.nonzero(visible)
-        x_mid = float(rays.xs[int(np.median(cols))])
-        y_mid = float(rays.ys[int(np.median(rows))])
-        tex = plane.texture
-        grid_per_mm = tex.size / tex.period_mm
-        footprint = _footprint_mm(rays, plane, t_now, x_mid, y_mid) * grid_per_mm
-        coeffs = _filtered_coefficients(tex, footprint)
-        gx = np.mod(s_u[visible] * grid_per_mm, tex.size)
-        gy = np.mod(s_v[visible] * grid_per_mm, tex.size)
-        value = ndimage.map_coordinates(
-            coeffs, [gy, gx], order=3, mode="grid-wrap", prefilter=False
-        )
-        out[visible] = value[:, None] * np.asarray(plane.albedo_rgb, dtype=np.float64)
-        nearest[visible] = t[visible]
-    return out
+    return _render(world, intrinsics, pose, win, np.array([t_now], dtype=np.float64))[0]
+
+
+def render_strips(
+    world: World, intrinsics: Intrinsics, pose: Pose, *, window: Window, times_s: FloatArray
+) -> FloatArray:
+    """The same window seen at several times (photo-finish strips), shape (K, H, W, 3)."""
+    win = _check_window(intrinsics, window)
+    times = np.asarray(times_s, dtype=np.float64).ravel()
+    if times.size == 0:
+        raise ValueError("times_s is empty; allowed: one or more times")
+    return _render(world, intrinsics, pose, win, times)
 
 
 def bayer_channels(

@@ -26,6 +26,10 @@ class Scenario:
     ports: list[PortSpec]
 
 
+# A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
+LAB_LIGHT = SensorModel(bits=12, electrons_per_us=0.8, full_well_e=8000.0, dn_per_e=0.5)
+
+
 def mt9p006_intrinsics(focal_length_mm: float) -> Intrinsics:
     """The MT9P006's full pixel array with the optical centre on the default window's centre."""
     return Intrinsics(
@@ -46,7 +50,7 @@ def default(seed: int) -> Scenario:
         albedo_rgb=(0.9, 1.0, 0.8),
     )
     world = World(Scene([wall]), Rig(axis=(1.0, 0.0, 0.0), mounts={"cam0": CameraMount("cam0")}))
-    return Scenario(world, [PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5))])
+    return Scenario(world, [PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5), LAB_LIGHT)])
 
 
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}

@@ -50,7 +50,7 @@ class SimI2CBus:
         self._nak_remaining = 0
         self._nak_address: int | None = None
         self._stuck = False
-        self._lock = threading.Lock()
+        self.lock = threading.RLock()
 
     def attach(self, address: int, device: SimDevice) -> None:
         self.devices[address] = device
@@ -72,7 +72,7 @@ class SimI2CBus:
     # -- the smbus2 interface ------------------------------------------------------------
 
     def i2c_rdwr(self, *i2c_msgs: i2c_msg) -> None:
-        with self._lock:
+        with self.lock:
             if self._stuck:
                 raise OSError(errno.ETIMEDOUT, f"{self.name}: bus stuck (SDA low)")
             first = i2c_msgs[0].addr if i2c_msgs else None

@@ -1,1 +1,6 @@
-"""micropython."""
+"""Fake MicroPython ports (machine, time, network, socket, select) for unchanged firmware.
+
+`board.SimBoard` runs the files of ``target/esp8266`` in a thread against a virtual
+clock and simulated pins; ``clock.VirtualClock`` models physical time so a simulated
+move can run faster than real time.
+"""

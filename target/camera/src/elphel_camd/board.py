@@ -1,10 +1,12 @@
 """Boards and the camera service on top of them.
 
-A board supplies, per sensor port, an I2C bus and (where it has an image path) frames.
-`Camera` detects the sensor on every port and answers what the REST API asks. Boards are
-found by name: ``i2c`` is built in (sensors on Linux /dev/i2c-N buses, no image path);
-other packages add boards through the ``elphel_camd.boards`` entry-point group (the
-simulator registers ``sim``), so the daemon never imports them.
+A board supplies, per sensor port, an I2C bus and, where it has them, frame syncs, an
+FPGA (trigger generator, photo-finish) and an image path. `Camera` detects the sensor on
+every port, runs a frame sequencer per port, and answers what the REST API asks. Boards
+are found by name: ``i2c`` is built in (sensors on Linux /dev/i2c-N buses, no image path,
+no frame syncs: changes apply at once); other packages add boards through the
+``elphel_camd.boards`` entry-point group (the simulator registers ``sim``), so the daemon
+never imports them.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 from importlib.metadata import entry_points
 from typing import Any, Protocol
 
@@ -20,9 +23,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd import __version__
-from elphel_camd.errors import CaptureUnavailableError, PortError, SensorNotFoundError
+from elphel_camd.errors import (
+    CaptureUnavailableError,
+    ParameterRangeError,
+    PortError,
+    SensorNotFoundError,
+    UnsupportedError,
+)
 from elphel_camd.i2c.bus import I2CBus, open_bus
+from elphel_camd.params import COMMON_TRIGGER_PARAMS, PARAMS
 from elphel_camd.sensors import SensorDriver, detect
+from elphel_camd.sequencer import PortSequencer
+
+FrameSync = Callable[[int, int, int], None]
 
 
 @dataclass(frozen=True)
@@ -35,16 +48,30 @@ class Frame:
 
 
 class Board(Protocol):
-    """What the daemon needs from a camera board."""
+    """What the daemon needs from a camera board.
+
+    ``capabilities`` may hold ``"frames"`` (frame syncs: changes can be scheduled on
+    frames), ``"capture"`` (an image path), ``"trigger"`` (a common trigger generator) and
+    ``"photofinish"``.
+    """
 
     name: str
+    capabilities: frozenset[str]
 
     def buses(self) -> Mapping[int, I2CBus]:
         """Sensor port number -> the I2C bus of that port."""
         ...
 
-    def capture(self, port: int) -> Frame:
-        """The next frame of a port (raises CaptureUnavailableError without an image path)."""
+    def on_frame_sync(self, callback: FrameSync) -> None:
+        """Call ``callback(port, frame, timestamp_ns)`` at every frame start."""
+        ...
+
+    def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
+        """Program the board's own part of a function (trigger, photo-finish) for a state."""
+        ...
+
+    def capture(self, port: int, *, frame: int | None = None, timeout_s: float = 10.0) -> Frame:
+        """The next frame of a port, or a recent one by number."""
         ...
 
     def close(self) -> None:
@@ -62,6 +89,7 @@ class I2CBoard:
     """
 
     name = "i2c"
+    capabilities: frozenset[str] = frozenset()
 
     def __init__(self, bus_urls: list[str]) -> None:
         if not bus_urls:
@@ -71,7 +99,13 @@ class I2CBoard:
     def buses(self) -> Mapping[int, I2CBus]:
         return self._buses
 
-    def capture(self, port: int) -> Frame:
+    def on_frame_sync(self, callback: FrameSync) -> None:
+        """A bare I2C board sees no frame syncs; the callback is never called."""
+
+    def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
+        """No FPGA: nothing beyond the sensor to program."""
+
+    def capture(self, port: int, *, frame: int | None = None, timeout_s: float = 10.0) -> Frame:
         raise CaptureUnavailableError(
             f"port {port}: the i2c board controls sensors only; "
             "it has no image path to capture from"
@@ -95,16 +129,41 @@ def board_factories() -> dict[str, BoardFactory]:
     return found
 
 
+_NEEDS = {
+    "TRIG_PERIOD": "trigger",
+    "TRIG_DELAY": "trigger",
+    "TRIG_DECIMATE": "trigger",
+    "PF_HEIGHT": "photofinish",
+}
+
+
 class Camera:
-    """The daemon's view of a board: detected sensors per port and capture with metadata."""
+    """The daemon's view of a board: sensors, their sequencers, capture with metadata."""
 
     def __init__(self, board: Board) -> None:
         self.board = board
         self.sensors: dict[int, SensorDriver | None] = {
             port: detect(bus, bus_name=f"port {port}") for port, bus in board.buses().items()
         }
-        self._locks = {port: threading.Lock() for port in self.sensors}
+        self.sequencers: dict[int, PortSequencer] = {}
+        for port, driver in self.sensors.items():
+            if driver is not None:
+                seq = PortSequencer(port, driver, board_program=partial(board.program, port))
+                seq.start()
+                self.sequencers[port] = seq
         self.started_ns = time.time_ns()
+        self._common_lock = threading.Lock()
+        board.on_frame_sync(self._frame_sync)
+
+    def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
+        seq = self.sequencers.get(port)
+        if seq is not None:
+            seq.on_frame_sync(frame, timestamp_ns)
+
+    @property
+    def scheduled(self) -> bool:
+        """Whether changes can be scheduled on frames (the board delivers frame syncs)."""
+        return "frames" in self.board.capabilities
 
     def sensor(self, port: int) -> SensorDriver:
         """The driver on a port.
@@ -118,44 +177,102 @@ class Camera:
             raise SensorNotFoundError(f"port {port}: no sensor detected")
         return driver
 
+    def sequencer(self, port: int) -> PortSequencer:
+        self.sensor(port)
+        return self.sequencers[port]
+
     def info(self) -> dict[str, Any]:
         ports = []
         for port, driver in sorted(self.sensors.items()):
             entry: dict[str, Any] = {"port": port, "sensor": None}
             if driver is not None:
                 entry["sensor"] = driver.identity()
+                entry["frame"] = self.sequencers[port].this_frame
             ports.append(entry)
         return {
             "board": self.board.name,
             "daemon": "elphel-camd",
             "version": __version__,
+            "capabilities": sorted(self.board.capabilities),
             "ports": ports,
         }
 
-    def capture(self, port: int) -> tuple[Frame, dict[str, Any]]:
-        """The next frame of a port and its metadata (the parameters it was taken with)."""
+    # -- parameters ------------------------------------------------------------------------
+
+    def params(self, port: int, *, frame: int | None = None) -> dict[str, int]:
+        """The parameters in effect now (or for a recent or scheduled frame)."""
+        seq = self.sequencer(port)
+        state = seq.state_at(seq.this_frame if frame is None else frame)
+        state.update(self.sensor(port).actual_gains(state))
+        return {k: v for k, v in state.items() if k in PARAMS}
+
+    def set_params(
+        self,
+        port: int,
+        changes: Mapping[str, int],
+        *,
+        frame: int | None = None,
+        ahead: int | None = None,
+    ) -> int:
+        """Apply changes all-or-nothing; return the frame at which they are in effect.
+
+        Common trigger settings (TRIG_PERIOD) are accepted only on the TRIG_MASTER port and
+        copied to the other ports, as Elphel's drivers do.
+        """
+        seq = self.sequencer(port)
+        for name, value in changes.items():
+            need = _NEEDS.get(name)
+            if need and value and need not in self.board.capabilities:
+                raise UnsupportedError(f"{name}: board {self.board.name} has no {need} hardware")
+        if not self.scheduled and (frame is not None or ahead is not None):
+            raise UnsupportedError(
+                f"board {self.board.name} has no frame syncs: changes apply at once, "
+                "frame= and ahead= are not available"
+            )
+        common = {k: v for k, v in changes.items() if k in COMMON_TRIGGER_PARAMS}
+        with self._common_lock:
+            if common:
+                master = changes.get("TRIG_MASTER", seq.state_at(seq.this_frame)["TRIG_MASTER"])
+                if master != port:
+                    raise ParameterRangeError(
+                        "TRIG_PERIOD", common["TRIG_PERIOD"], f"set on the master port {master}"
+                    )
+                others = [s for p, s in self.sequencers.items() if p != port]
+                for other in others:  # check first: all ports or none
+                    other.check(common)
+            target = seq.request(changes, frame=frame, ahead=ahead)
+            if common:
+                for other in others:
+                    other.request(common)
+        if not self.scheduled:
+            seq.flush()
+        return target
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def capture(self, port: int, *, frame: int | None = None) -> tuple[Frame, dict[str, Any]]:
+        """The next frame of a port (or a recent one) and its metadata."""
         driver = self.sensor(port)
-        with self._locks[port]:
-            params = driver.read_params()
-            frame = self.board.capture(port)
+        got = self.board.capture(port, frame=frame)
+        params = self.params(port, frame=got.frame)
         metadata: dict[str, Any] = {
-            "frame": frame.frame,
-            "timestamp_ns": frame.timestamp_ns,
+            "frame": got.frame,
+            "timestamp_ns": got.timestamp_ns,
             "port": port,
             "sensor": driver.model,
-            "bayer": _bayer_after_flips(
+            "bayer": bayer_after_flips(
                 driver.bayer, params.get("FLIPH", 0), params.get("FLIPV", 0)
             ),
             **params,
         }
-        return frame, metadata
+        return got, metadata
 
     def close(self) -> None:
         self.board.close()
 
 
-def _bayer_after_flips(bayer: str | None, fliph: int, flipv: int) -> str | None:
-    """Bayer pattern of the first pixel once the readout is mirrored."""
+def bayer_after_flips(bayer: str | None, fliph: int, flipv: int) -> str | None:
+    """Bayer pattern of the first pixel once the readout is mirrored (even window sizes)."""
     if bayer is None:
         return None
     cell = [bayer[0:2], bayer[2:4]]

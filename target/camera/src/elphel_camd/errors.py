@@ -35,9 +35,36 @@ class ParameterRangeError(CameraError, ValueError):
         self.allowed = allowed
 
 
+class FrameScheduleError(CameraError, ValueError):
+    """A change was requested for a frame that cannot take it."""
+
+    def __init__(self, message: str, *, frame: int, this_frame: int, earliest: int, latest: int):
+        super().__init__(message)
+        self.frame = frame
+        self.this_frame = this_frame
+        self.earliest = earliest
+        self.latest = latest
+
+
+class FrameTooLateError(FrameScheduleError):
+    """The target frame is too close: its registers had to be written already (Elphel TOOLATE)."""
+
+
+class FrameTooEarlyError(FrameScheduleError):
+    """The target frame is more than 14 frames ahead (Elphel TOOEARLY)."""
+
+
+class FrameNotAvailableError(CameraError, LookupError):
+    """A frame that is no longer (or not yet) in the ring buffer."""
+
+
 class PortError(CameraError, LookupError):
     """A sensor port number that the board does not have."""
 
 
 class CaptureUnavailableError(CameraError, RuntimeError):
     """The board has no image path for this port (e.g. a bare I2C board)."""
+
+
+class UnsupportedError(CameraError, ValueError):
+    """The sensor or board cannot do what was asked (e.g. a window on the Lepton)."""

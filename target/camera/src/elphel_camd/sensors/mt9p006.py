@@ -6,7 +6,24 @@ datasheet, the Linux kernel driver and Elphel's driver, paraphrased).
 
 from __future__ import annotations
 
-from elphel_camd.sensors.base import SensorDriver
+import math
+from collections.abc import Mapping
+from typing import ClassVar
+
+from elphel_camd.errors import ParameterRangeError
+from elphel_camd.params import (
+    EXPOSURE,
+    GAINS,
+    LIMITFPS,
+    TRIG_PERIOD_MIN_REPEAT,
+    TRIG_SNAPSHOT,
+    TRIG_VALUES,
+    TRIGGERMODE,
+    TRIGSEQ,
+    WINDOW,
+    check_range,
+)
+from elphel_camd.sensors.base import SensorDriver, State
 from elphel_camd.sensors.registers import Access, Register, RegisterTable
 
 MODEL = "MT9P006"
@@ -126,14 +143,27 @@ TABLE = RegisterTable(
 )
 
 
-# Elphel's minimum horizontal blanking without binning, in pixel clocks per row side
-# (reference 1.4): a row lasts width + 2 * 450 pixel clocks.
-HORIZONTAL_BLANK_MIN = 450
+# A row lasts width + 2 * HORIZONTAL_BLANK pixel clocks; 450 is Elphel's minimum without
+# binning (reference 1.4). Vertical blanking is at least 9 rows.
+HORIZONTAL_BLANK = 450
+VERTICAL_BLANK_MIN = 9
+VERTICAL_BLANK_MAX = 2047
+SHUTTER_MAX = 0xFFFFF
+GAIN_MIN = 0x10000  # 1.0
+GAIN_MAX = 0xFC000  # 15.75, the largest analog code (x2 stage, 63/8)
+PF_COMPOSITE_MAX = 16384
+
+_GAIN_REGISTERS = {
+    "GAINR": "red_gain",
+    "GAING": "green1_gain",
+    "GAINGB": "green2_gain",
+    "GAINB": "blue_gain",
+}
 
 
-def row_time_s(width: int, *, clock_hz: int = SENSOR_CLOCK_HZ) -> float:
-    """Duration of one row at a window width, as Elphel's timing model gives it."""
-    return (width + 2 * HORIZONTAL_BLANK_MIN) / clock_hz
+def row_time_s(width: int, *, horizontal_blank: int = HORIZONTAL_BLANK) -> float:
+    """Duration of one row at a window width (Elphel's timing model)."""
+    return (width + 2 * horizontal_blank) / SENSOR_CLOCK_HZ
 
 
 def decode_gain(code: int) -> float:
@@ -142,6 +172,33 @@ def decode_gain(code: int) -> float:
     doubler = (code >> 6) & 1
     digital = (code >> 8) & 0x7F
     return (1 + digital / 8) * (1 + doubler) * analog / 8
+
+
+def encode_gain(gain_16_16: int) -> int:
+    """Analog-only gain code for a 16.16 gain, as Elphel programs it.
+
+    Up to 3.94x the x2 stage stays off and the analog field is gain*8; above it the x2
+    stage is on and the field is gain*4. The difference to the request is the residual.
+    """
+    gain = gain_16_16 / 0x10000
+    if gain <= 3.94:
+        return min(63, round(gain * 8))
+    return 0x40 | min(63, round(gain * 4))
+
+
+def sensor_height(state: Mapping[str, int]) -> int:
+    """Rows the sensor reads per frame: the strip height in photo-finish, else the window."""
+    return state["PF_HEIGHT"] or state["WOI_HEIGHT"]
+
+
+def vertical_blank(state: Mapping[str, int]) -> int:
+    """Rows of vertical blanking: the minimum, or more to hold the FP1000SLIM limit."""
+    blank = VERTICAL_BLANK_MIN
+    limit = state["FP1000SLIM"]
+    if state["FPSFLAGS"] & 1 and limit:
+        row_s = row_time_s(state["WOI_WIDTH"])
+        blank = max(blank, math.ceil(1000 / limit / row_s) - sensor_height(state))
+    return blank
 
 
 class MT9P006(SensorDriver):
@@ -156,32 +213,177 @@ class MT9P006(SensorDriver):
     sensor_code = SENSOR_CODE
     bayer = BAYER
     bits = BITS
-
-    def read_params(self) -> dict[str, int]:
-        words = self.io.read(0x01, 4)  # row start, column start, row size, column size
-        row_start, column_start, row_size, column_size = words
-        width = column_size + 1
-        shutter_rows = (self.read("shutter_width_upper") << 16) | self.read("shutter_width_lower")
-        read_mode_2 = self.read("read_mode_2")
-        gains = {
-            name: round(decode_gain(self.read(reg)) * 0x10000)
-            for name, reg in (
-                ("GAINR", "red_gain"),
-                ("GAING", "green1_gain"),
-                ("GAINGB", "green2_gain"),
-                ("GAINB", "blue_gain"),
-            )
+    # Elphel's mt9x001 ahead table (continuous SKIP=0, async SKIP=0 columns).
+    ahead: ClassVar[Mapping[str, tuple[int, int]]] = {
+        TRIGGERMODE: (2, 1),
+        WINDOW: (2, 1),
+        GAINS: (1, 1),
+        LIMITFPS: (2, 1),
+        EXPOSURE: (2, 1),
+        TRIGSEQ: (2, 1),
+    }
+    writable = frozenset(
+        {
+            "WOI_LEFT",
+            "WOI_TOP",
+            "WOI_WIDTH",
+            "WOI_HEIGHT",
+            "FLIPH",
+            "FLIPV",
+            "EXPOS",
+            "VEXPOS",
+            *_GAIN_REGISTERS,
+            "TRIG",
+            "TRIG_PERIOD",
+            "TRIG_MASTER",
+            "TRIG_DELAY",
+            "TRIG_DECIMATE",
+            "PF_HEIGHT",
+            "FP1000SLIM",
+            "FPSFLAGS",
         }
+    )
+
+    def init(self) -> None:
+        super().init()
+        self.write_if_changed("output_control", 0x1F82)
+        self.write_if_changed("reserved_7f", 0)  # against blue blooming columns
+
+    def defaults(self) -> State:
+        state = {
+            "WOI_LEFT": 0,
+            "WOI_TOP": 0,
+            "WOI_WIDTH": ACTIVE_WIDTH,
+            "WOI_HEIGHT": ACTIVE_HEIGHT,
+            "FLIPH": 0,
+            "FLIPV": 0,
+            "EXPOS": 10_000,
+            "VEXPOS": 0,
+            "GAINR": 0x10000,
+            "GAING": 0x10000,
+            "GAINGB": 0x10000,
+            "GAINB": 0x10000,
+            "TRIG": 0,
+            "TRIG_PERIOD": 0,
+            "TRIG_MASTER": 0,
+            "TRIG_DELAY": 0,
+            "TRIG_DECIMATE": 0,
+            "PF_HEIGHT": 0,
+            "FP1000SLIM": 0,
+            "FPSFLAGS": 0,
+        }
+        return self.normalize(state, frozenset({"EXPOS"}))
+
+    def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
+        s = dict(state)
+        check_range("WOI_WIDTH", s["WOI_WIDTH"], 2, ACTIVE_WIDTH, even=True)
+        check_range("WOI_LEFT", s["WOI_LEFT"], 0, ACTIVE_WIDTH - s["WOI_WIDTH"], even=True)
+        pf = s["PF_HEIGHT"]
+        if pf:
+            check_range("PF_HEIGHT", pf, 2, ACTIVE_HEIGHT, even=True)
+            check_range("WOI_HEIGHT", s["WOI_HEIGHT"], pf, PF_COMPOSITE_MAX)
+            if s["WOI_HEIGHT"] % pf:
+                raise ParameterRangeError(
+                    "WOI_HEIGHT", s["WOI_HEIGHT"], f"a multiple of PF_HEIGHT={pf} up to 16384"
+                )
+        else:
+            check_range("WOI_HEIGHT", s["WOI_HEIGHT"], 2, ACTIVE_HEIGHT, even=True)
+        height = sensor_height(s)
+        check_range("WOI_TOP", s["WOI_TOP"], 0, ACTIVE_HEIGHT - height, even=True)
+        for name in ("FLIPH", "FLIPV"):
+            check_range(name, s[name], 0, 1)
+        for name in _GAIN_REGISTERS:
+            check_range(name, s[name], GAIN_MIN, GAIN_MAX)
+        if s["TRIG"] not in TRIG_VALUES:
+            raise ParameterRangeError("TRIG", s["TRIG"], "0 (free-run), 4 (snapshot), 20 (GRR)")
+        check_range("FPSFLAGS", s["FPSFLAGS"], 0, 3)
+
+        row_s = row_time_s(s["WOI_WIDTH"])
+        if {"EXPOS", "VEXPOS"} <= changed:
+            raise ParameterRangeError("VEXPOS", s["VEXPOS"], "either EXPOS or VEXPOS, not both")
+        if "VEXPOS" in changed:
+            rows = s["VEXPOS"]
+            check_range("VEXPOS", rows, 1, SHUTTER_MAX)
+        else:
+            max_us = math.floor(SHUTTER_MAX * row_s * 1e6)
+            check_range("EXPOS", s["EXPOS"], 1, max_us)
+            rows = max(1, round(s["EXPOS"] / (row_s * 1e6)))
+        s["VEXPOS"] = rows
+        s["EXPOS"] = round(rows * row_s * 1e6)
+
+        blank = vertical_blank(s)
+        if blank > VERTICAL_BLANK_MAX:
+            lowest = math.ceil(1000 / (row_s * (height + VERTICAL_BLANK_MAX)))
+            raise ParameterRangeError(
+                "FP1000SLIM", s["FP1000SLIM"], f">= {lowest} at this window (or FPSFLAGS bit 0 off)"
+            )
+        if s["FPSFLAGS"] & 2 and rows >= height + blank:
+            longest = round((height + blank - 1) * row_s * 1e6)
+            raise ParameterRangeError(
+                "EXPOS", s["EXPOS"], f"1..{longest} us while FPSFLAGS bit 1 keeps the frame rate"
+            )
+
+        period = s["TRIG_PERIOD"]
+        if 1 < period < TRIG_PERIOD_MIN_REPEAT:
+            raise ParameterRangeError("TRIG_PERIOD", period, "0 (stop), 1 (single), >= 256")
+        check_range("TRIG_DECIMATE", s["TRIG_DECIMATE"], 0, 0xFFFF)
+        snapshot = bool(s["TRIG"] & TRIG_SNAPSHOT)
+        busy_10ns = math.ceil((rows + height + VERTICAL_BLANK_MIN) * row_s * 1e8)
+        if (
+            snapshot
+            and period >= TRIG_PERIOD_MIN_REPEAT
+            and period * (s["TRIG_DECIMATE"] + 1) < busy_10ns
+        ):
+            raise ParameterRangeError(
+                "TRIG_PERIOD",
+                period,
+                f">= {busy_10ns} (x10 ns: exposure plus readout at this window), 0 or 1",
+            )
+        if snapshot:
+            effective = period * (s["TRIG_DECIMATE"] + 1)
+            s["FP1000S"] = round(1e11 / effective) if period >= TRIG_PERIOD_MIN_REPEAT else 0
+        else:
+            s["FP1000S"] = round(1000 / self.frame_period_s(s))
+        s["SENSOR"] = SENSOR_CODE
+        s["COLOR"] = 15
+        s["BITS"] = 16
+        return s
+
+    def frame_period_s(self, state: Mapping[str, int]) -> float:
+        rows = max(sensor_height(state) + vertical_blank(state), state["VEXPOS"] + 1)
+        return rows * row_time_s(state["WOI_WIDTH"])
+
+    def registers(self, function: str, state: Mapping[str, int]) -> dict[str, int]:
+        if function == WINDOW:
+            flips = (state["FLIPH"] << 14) | (state["FLIPV"] << 15)
+            read_mode_2 = (self.shadow.get("read_mode_2", 0x0040) & 0x3FFF) | flips
+            return {
+                "row_start": CLEAR_TOP + state["WOI_TOP"],
+                "column_start": CLEAR_LEFT + state["WOI_LEFT"],
+                "row_size": sensor_height(state) - 1,
+                "column_size": state["WOI_WIDTH"] - 1,
+                "read_mode_2": read_mode_2,
+                "row_address_mode": 0,
+                "column_address_mode": 0,
+            }
+        if function == EXPOSURE:
+            rows = state["VEXPOS"]
+            return {"shutter_width_upper": rows >> 16, "shutter_width_lower": rows & 0xFFFF}
+        if function == GAINS:
+            return {reg: encode_gain(state[name]) for name, reg in _GAIN_REGISTERS.items()}
+        if function == TRIGGERMODE:
+            mode = self.shadow.get("read_mode_1", 0x4006) & ~0x0180
+            if state["TRIG"] & TRIG_SNAPSHOT:
+                mode |= 0x0100
+            if state["TRIG"] & 0x10:
+                mode |= 0x0080
+            return {"read_mode_1": mode}
+        if function == LIMITFPS:
+            return {"horizontal_blank": HORIZONTAL_BLANK, "vertical_blank": vertical_blank(state)}
+        return {}
+
+    def actual_gains(self, state: Mapping[str, int]) -> dict[str, int]:
+        """16.16 gains the register codes really give (the request minus its residual)."""
         return {
-            "WOI_LEFT": column_start - CLEAR_LEFT,
-            "WOI_TOP": row_start - CLEAR_TOP,
-            "WOI_WIDTH": width,
-            "WOI_HEIGHT": row_size + 1,
-            "VEXPOS": shutter_rows,
-            "EXPOS": round(shutter_rows * row_time_s(width) * 1e6),
-            "FLIPH": (read_mode_2 >> 14) & 1,
-            "FLIPV": (read_mode_2 >> 15) & 1,
-            "BITS": BITS,
-            "SENSOR": SENSOR_CODE,
-            **gains,
+            name: round(decode_gain(encode_gain(state[name])) * 0x10000) for name in _GAIN_REGISTERS
         }

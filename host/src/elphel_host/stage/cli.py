@@ -1,0 +1,229 @@
+"""`elphel stage ...`: status, move, home, zero, stop, calibrate, backlash, list.
+
+The stage URL is any pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, a pty path),
+from --url or the environment variable ELPHEL_STAGE_URL. Calibration results persist
+in a small JSON file (--model) so later closed-loop moves can use them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from elphel_host.cli import emit
+from elphel_host.errors import StageConnectionError
+from elphel_host.stage.client import StageClient
+from elphel_host.stage.discovery import find_stage_boards
+from elphel_host.stage.positioning import Positioner, StageModel
+
+ENV_URL = "ELPHEL_STAGE_URL"
+DEFAULT_MODEL = Path.home() / ".config" / "elphel" / "stage-model.json"
+
+
+def _url(args: argparse.Namespace) -> str:
+    url: str | None = args.url or os.environ.get(ENV_URL)
+    if not url:
+        raise StageConnectionError(f"no stage URL: pass --url or set {ENV_URL}")
+    return url
+
+
+def _load_model(path: Path) -> StageModel:
+    if not path.exists():
+        return StageModel()
+    data = json.loads(path.read_text())
+    return StageModel(
+        mm_per_step=float(data["mm_per_step"]),
+        offset_mm=data.get("offset_mm"),
+        backlash_mm=float(data.get("backlash_mm", 0.0)),
+        calibrated=True,
+        spread_mm_per_step=float(data.get("spread_mm_per_step", float("nan"))),
+    )
+
+
+def _save_model(path: Path, model: StageModel) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(
+        json.dumps(
+            {
+                "mm_per_step": model.mm_per_step,
+                "offset_mm": model.offset_mm,
+                "backlash_mm": model.backlash_mm,
+                "spread_mm_per_step": model.spread_mm_per_step,
+            },
+            indent=1,
+        )
+    )
+
+
+def _status(args: argparse.Namespace) -> int:
+    with StageClient(_url(args)) as client:
+        st = client.status()
+        caliper_mm = client.read_caliper_um() / 1000.0 if not st.moving else None
+        ident = client.identify()
+    result: dict[str, Any] = {
+        "state": st.state,
+        "steps": st.steps,
+        "target_steps": st.target_steps,
+        "homed": st.homed,
+        "caliper_mm": caliper_mm,
+        "alarm": st.alarm,
+        "limit_switches": st.limits,
+        "serial": ident.serial,
+        "firmware": ident.firmware,
+    }
+    cal = "moving" if caliper_mm is None else f"{caliper_mm:.3f} mm"
+    emit(args, result, f"{st.state} at step {st.steps} (homed: {st.homed}), caliper {cal}")
+    return 0
+
+
+def _move(args: argparse.Namespace) -> int:
+    model_path = Path(args.model)
+    with StageClient(_url(args)) as client:
+        pos = Positioner(client, _load_model(model_path))
+        target = args.position_mm
+        if args.relative:
+            target += pos.read_mm()
+        if args.open_loop:
+            r = pos.move_open_loop(target)
+        else:
+            r = pos.move_closed_loop(target, tolerance_mm=args.tolerance_mm)
+    result = {
+        "target_mm": r.target_mm,
+        "caliper_mm": r.caliper_mm,
+        "steps": r.steps,
+        "estimate_mm": r.estimate_mm,
+        "iterations": r.iterations,
+        "closed_loop": not args.open_loop,
+    }
+    emit(
+        args,
+        result,
+        f"at {r.caliper_mm:.3f} mm by caliper (step {r.steps}, target {r.target_mm} mm)",
+    )
+    return 0
+
+
+def _home(args: argparse.Namespace) -> int:
+    with StageClient(_url(args)) as client:
+        st = client.home().wait(args.timeout)
+        caliper_mm = client.read_caliper_um() / 1000.0
+    emit(
+        args,
+        {"steps": st.steps, "homed": st.homed, "caliper_mm": caliper_mm},
+        f"homed; caliper {caliper_mm:.3f} mm",
+    )
+    return 0
+
+
+def _zero(args: argparse.Namespace) -> int:
+    with StageClient(_url(args)) as client:
+        if args.caliper:
+            client.zero_caliper()
+        else:
+            client.zero()
+    what = "caliper display" if args.caliper else "step position"
+    emit(args, {"zeroed": "caliper" if args.caliper else "steps"}, f"{what} set to 0")
+    return 0
+
+
+def _stop(args: argparse.Namespace) -> int:
+    with StageClient(_url(args)) as client:
+        steps = client.stop()
+    emit(args, {"steps": steps}, f"stopped at step {steps}")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    model_path = Path(args.model)
+    with StageClient(_url(args)) as client:
+        pos = Positioner(client, StageModel())
+        cal = pos.calibrate(span_mm=args.span_mm, start_mm=args.start_mm, repeats=args.repeats)
+    _save_model(model_path, pos.model)
+    result = {
+        "mm_per_step": cal.mm_per_step,
+        "spread_mm_per_step": cal.spread_mm_per_step,
+        "runs": list(cal.runs),
+        "offset_mm": cal.offset_mm,
+        "span_mm": cal.span_mm,
+        "model": str(model_path),
+    }
+    emit(
+        args,
+        result,
+        f"{cal.mm_per_step:.7f} mm/step (spread {cal.spread_mm_per_step:.1e}, "
+        f"{len(cal.runs)} runs over {cal.span_mm} mm); saved to {model_path}",
+    )
+    return 0
+
+
+def _backlash(args: argparse.Namespace) -> int:
+    model_path = Path(args.model)
+    with StageClient(_url(args)) as client:
+        pos = Positioner(client, _load_model(model_path))
+        backlash_mm = pos.measure_backlash(at_mm=args.at_mm, repeats=args.repeats)
+    _save_model(model_path, pos.model)
+    emit(
+        args,
+        {"backlash_mm": backlash_mm, "mm_per_step": pos.model.mm_per_step},
+        f"backlash {backlash_mm:.4f} mm",
+    )
+    return 0
+
+
+def _list(args: argparse.Namespace) -> int:
+    boards = find_stage_boards()
+    result = {"boards": [asdict(b) for b in boards]}
+    lines = [
+        f"{b.port or '(no tty)'}  {b.bridge} {b.vid:04x}:{b.pid:04x}  serial={b.serial_number}"
+        for b in boards
+    ]
+    emit(args, result, "\n".join(lines) if lines else "no USB-UART stage bridges found")
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add `stage` and its subcommands to the `elphel` parser."""
+    p = subparsers.add_parser(
+        "stage", help="linear stage: move, calibrate, closed-loop positioning"
+    )
+    sub = p.add_subparsers(dest="stage_cmd", required=True, metavar="COMMAND")
+
+    def add(name: str, func: Any, help_text: str) -> argparse.ArgumentParser:
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        if name != "list":
+            sp.add_argument("--url", help=f"pyserial URL of the stage (default ${ENV_URL})")
+        sp.add_argument("--json", action="store_true", help="print one JSON object")
+        sp.set_defaults(func=func)
+        return sp
+
+    add("status", _status, "state, step position and a fresh caliper reading")
+    mv = add("move", _move, "move to POSITION_MM (caliper frame), closed loop unless --open-loop")
+    mv.add_argument("position_mm", type=float, metavar="POSITION_MM")
+    mv.add_argument("--relative", action="store_true", help="POSITION_MM is relative to here")
+    mv.add_argument("--open-loop", action="store_true", help="trust the step model, no correction")
+    mv.add_argument(
+        "--tolerance-mm",
+        type=float,
+        default=0.005,
+        help="extra tolerance beyond half a caliper LSB (default 0.005)",
+    )
+    mv.add_argument("--model", default=str(DEFAULT_MODEL), help="calibration file")
+    hm = add("home", _home, "home onto the min limit switch")
+    hm.add_argument("--timeout", type=float, default=120.0, help="seconds (default 120)")
+    zr = add("zero", _zero, "make the current position step 0 (or zero the caliper)")
+    zr.add_argument("--caliper", action="store_true", help="pulse the caliper's zero line instead")
+    add("stop", _stop, "stop the stage now")
+    cb = add("calibrate", _calibrate, "measure mm/step with the caliper (homes first if needed)")
+    cb.add_argument("--span-mm", type=float, default=80.0, help="move length (default 80)")
+    cb.add_argument("--start-mm", type=float, default=10.0, help="start position (default 10)")
+    cb.add_argument("--repeats", type=int, default=3, help="runs (default 3)")
+    cb.add_argument("--model", default=str(DEFAULT_MODEL), help="where to save the calibration")
+    bl = add("backlash", _backlash, "measure backlash with the caliper")
+    bl.add_argument("--at-mm", type=float, default=None, help="where (default: here)")
+    bl.add_argument("--repeats", type=int, default=4, help="repeats (default 4)")
+    bl.add_argument("--model", default=str(DEFAULT_MODEL), help="calibration file")
+    add("list", _list, "find stage boards (USB-UART bridges) and their serial ports")
