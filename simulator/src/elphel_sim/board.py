@@ -25,17 +25,14 @@ from elphel_camd.i2c.bus import I2CBus
 from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.mt9p006 import SimMT9P006
-from elphel_sim.fpga import (
-    Camsync,
-    FrameRecord,
-    PortFPGA,
-    form_image,
-    is_snapshot,
-    sensor_timing,
-)
+from elphel_sim.chips.sensor import SimSensor
+from elphel_sim.fpga import Camsync, FrameRecord, PortFPGA
 from elphel_sim.scenarios import PortSpec, Scenario, build
 
 FrameSync = Callable[[int, int, int], None]
+
+# Simulated chips by model name (PortSpec.model).
+SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {"MT9P006": SimMT9P006}
 
 
 class SimBoard:
@@ -60,7 +57,7 @@ class SimBoard:
         self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
         self._buses: dict[int, SimI2CBus] = {}
-        self.chips: dict[int, SimMT9P006] = {}
+        self.chips: dict[int, SimSensor] = {}
         self.fpga: dict[int, PortFPGA] = {}
         self.camsync = Camsync()
         self.now_s = 0.0
@@ -70,14 +67,15 @@ class SimBoard:
         self._stop = threading.Event()
         for port, spec in self.ports.items():
             bus = SimI2CBus(f"port {port}")
-            if spec.model == "MT9P006":
-                chip = SimMT9P006()
+            if spec.model in SIM_SENSORS:
+                chip = SIM_SENSORS[spec.model]()
                 bus.attach(chip.address, chip)
                 self.chips[port] = chip
                 self.fpga[port] = PortFPGA()
             elif spec.model is not None:
+                allowed = ", ".join([*SIM_SENSORS, "None"])
                 raise ValueError(
-                    f"port {port}: simulated sensor {spec.model!r}; allowed: MT9P006 or None"
+                    f"port {port}: simulated sensor {spec.model!r}; allowed: {allowed}"
                 )
             self._buses[port] = bus
         for port in self.fpga:
@@ -150,9 +148,9 @@ class SimBoard:
     def _schedule_next(self, port: int) -> None:
         """When the port's next frame starts, from its sensor and FPGA state in effect."""
         fpga, chip = self.fpga[port], self.chips[port]
-        row_s, rows, _ = sensor_timing(chip)
+        timing = chip.timing()
         strips = max(fpga.pf_strips, 1)
-        if fpga.snapshot and is_snapshot(chip):
+        if fpga.snapshot and chip.is_snapshot():
             every = fpga.decimate + 1
             ready = max(fpga.busy_until_s, self.now_s if fpga.frame else 0.0)
             delay_s = fpga.delay_10ns / 1e8
@@ -163,7 +161,7 @@ class SimBoard:
                 fpga.next_start_s = trigger + delay_s
                 fpga.next_timestamp_s = trigger
         else:
-            start = fpga.last_start_s + rows * row_s * strips if fpga.frame else 0.0
+            start = fpga.last_start_s + timing.frame_s * strips if fpga.frame else 0.0
             fpga.next_start_s = start
             fpga.next_timestamp_s = start
 
@@ -176,15 +174,14 @@ class SimBoard:
         with self._buses[port].lock:
             chip.latch(fpga.frame)
         self._apply_pending(port)
-        row_s, rows, shutter = sensor_timing(chip)
+        timing = chip.timing()
         strips = fpga.pf_strips
-        snapshot = fpga.snapshot and is_snapshot(chip)
+        snapshot = fpga.snapshot and chip.is_snapshot()
         if strips and snapshot and self.camsync.period_10ns > 1:
             strip_period_s = self.camsync.period_10ns * (fpga.decimate + 1) / 1e8
         else:
-            strip_period_s = rows * row_s
-        sensor_busy = (shutter + (chip.image_register("row_size") + 1) + 9) * row_s
-        fpga.busy_until_s = self.now_s + sensor_busy + strip_period_s * max(strips - 1, 0)
+            strip_period_s = timing.frame_s
+        fpga.busy_until_s = self.now_s + timing.busy_s + strip_period_s * max(strips - 1, 0)
         timestamp_ns = round(fpga.next_timestamp_s * 1e9)
         spec = self.ports[port]
         fpga.ring.append(
@@ -193,7 +190,7 @@ class SimBoard:
                 frame=fpga.frame,
                 start_s=self.now_s,
                 timestamp_ns=timestamp_ns,
-                registers={r.name: chip.image_register(r.name) for r in chip.table},
+                registers=chip.image_registers(),
                 pose=self.world.camera_pose(spec.mount),
                 strips=strips,
                 strip_period_s=strip_period_s,
@@ -259,6 +256,7 @@ class SimBoard:
                     if self.noise
                     else None
                 )
+                form_image = self.chips[record.port].form_image
                 record.image = form_image(
                     record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
                 )

@@ -1,5 +1,8 @@
 """The camera board's FPGA: frame timing, the common trigger, and image formation.
 
+The FPGA asks each port's simulated chip (`elphel_sim.chips.SimSensor`) for its timing
+and how it reads out a frame; the chip model knows its own registers.
+
 Each port's frame starts are events on one virtual timeline. In free-run a port starts its
 next frame one frame period (set by its sensor's registers in effect) after the last; in
 snapshot mode it starts on a trigger of the common trigger generator (camsync), after its
@@ -19,8 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_camd.sensors import mt9p006 as spec
-from elphel_sim.chips.mt9p006 import SNAPSHOT_BIT, SimMT9P006
 from elphel_sim.render import (
     Intrinsics,
     SensorModel,
@@ -90,23 +91,23 @@ class PortFPGA:
     ring: deque[FrameRecord] = field(default_factory=lambda: deque(maxlen=RING_FRAMES))
 
 
-def sensor_timing(chip: SimMT9P006) -> tuple[float, int, int]:
-    """Row time (s), rows per sensor frame, and exposure rows, from the registers in effect."""
-    width = chip.image_register("column_size") + 1
-    row_s = (width + 2 * chip.image_register("horizontal_blank")) / spec.SENSOR_CLOCK_HZ
-    height = chip.image_register("row_size") + 1
-    shutter = (chip.image_register("shutter_width_upper") << 16) | chip.image_register(
-        "shutter_width_lower"
-    )
-    rows = max(height + chip.image_register("vertical_blank"), shutter + 1)
-    return row_s, rows, shutter
+@dataclass(frozen=True)
+class Readout:
+    """How a Bayer sensor reads a frame, decoded from its registers in effect."""
+
+    left: int
+    top: int
+    width: int
+    height: int
+    exposure_us: float
+    gains: tuple[float, float, float, float]  # red, green on red rows, green on blue rows, blue
+    fliph: bool
+    flipv: bool
+    bayer: str  # the array's colour cell at even rows and columns
 
 
-def is_snapshot(chip: SimMT9P006) -> bool:
-    return bool(chip.image_register("read_mode_1") & SNAPSHOT_BIT)
-
-
-def form_image(
+def form_bayer_image(
+    readout: Readout,
     record: FrameRecord,
     world: World,
     *,
@@ -114,30 +115,24 @@ def form_image(
     model: SensorModel,
     rng: np.random.Generator | None,
 ) -> NDArray[np.uint16]:
-    """Render a recorded MT9P006 frame: window, exposure, gains, flips, photo-finish."""
-    r = record.registers
-    left, top = r["column_start"], r["row_start"]
-    width = min(r["column_size"] + 1, intrinsics.width - left)
-    height = min(r["row_size"] + 1, intrinsics.height - top)
-    row_s = (width + 2 * r["horizontal_blank"]) / spec.SENSOR_CLOCK_HZ
-    shutter = (r["shutter_width_upper"] << 16) | r["shutter_width_lower"]
-    exposure_us = shutter * row_s * 1e6
+    """Render a recorded frame of a Bayer sensor: window, exposure, gains, flips, strips."""
+    left, top = readout.left, readout.top
+    width = min(readout.width, intrinsics.width - left)
+    height = min(readout.height, intrinsics.height - top)
     strips = max(record.strips, 1)
     times = record.start_s + record.strip_period_s * np.arange(strips, dtype=np.float64)
     rgb = render_strips(
         world, intrinsics, record.pose, window=(left, top, width, height), times_s=times
     )
-    channels = bayer_channels(spec.BAYER, (height, width), row0=top, col0=left)
-    gains = np.array(
-        [spec.decode_gain(r[name]) for name in ("red_gain", "green1_gain", "blue_gain")]
-    )
-    gain = gains[channels]
+    channels = bayer_channels(readout.bayer, (height, width), row0=top, col0=left)
+    red, green_r, green_b, blue = readout.gains
+    gain = np.array([red, green_r, blue])[channels]
     rows_with_blue = (channels == 2).any(axis=1)
-    gain[(channels == 1) & rows_with_blue[:, None]] = spec.decode_gain(r["green2_gain"])
+    gain[(channels == 1) & rows_with_blue[:, None]] = green_b
     radiance = np.take_along_axis(rgb, channels[None, ..., None], axis=3)[..., 0]
-    image = expose(radiance, exposure_us=exposure_us, gain=gain[None], model=model, rng=rng)
-    if r["read_mode_2"] >> 14 & 1:
+    image = expose(radiance, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
+    if readout.fliph:
         image = image[:, :, ::-1]
-    if r["read_mode_2"] >> 15 & 1:
+    if readout.flipv:
         image = image[:, ::-1, :]
     return np.ascontiguousarray(image.reshape(strips * height, width))

@@ -11,9 +11,18 @@ Registers outside these groups (reset, restart, test pattern, ...) act at once.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
 from elphel_camd.sensors import mt9p006 as spec
 from elphel_camd.sensors.registers import Access
 from elphel_sim.chips.registers import SimRegisterChip
+from elphel_sim.chips.sensor import SensorTiming
+from elphel_sim.fpga import FrameRecord, Readout, form_bayer_image
+from elphel_sim.render import Intrinsics, SensorModel
+from elphel_sim.world import World
 
 _COLOUR_GAINS = ("green1_gain", "blue_gain", "red_gain", "green2_gain")
 _TWO_FRAMES = (
@@ -37,6 +46,7 @@ class SimMT9P006(SimRegisterChip):
     """MT9P006 at I2C address 0x48 with 8-bit register addresses."""
 
     address = spec.I2C_ADDRESS
+    model = spec.MODEL
 
     def __init__(self) -> None:
         super().__init__(spec.TABLE, step=1)
@@ -91,3 +101,52 @@ class SimMT9P006(SimRegisterChip):
     def image_register(self, name: str) -> int:
         """The value of a register as it shapes the current frame's image."""
         return self.effective[self.table[name].address]
+
+    # -- what the FPGA needs -----------------------------------------------------------------
+
+    def timing(self) -> SensorTiming:
+        """Row time, rows per frame and exposure rows from the registers in effect."""
+        r = self.image_register
+        width = r("column_size") + 1
+        row_s = (width + 2 * r("horizontal_blank")) / spec.SENSOR_CLOCK_HZ
+        height = r("row_size") + 1
+        shutter = (r("shutter_width_upper") << 16) | r("shutter_width_lower")
+        rows = max(height + r("vertical_blank"), shutter + 1)
+        return SensorTiming(row_s=row_s, frame_rows=rows, exposure_rows=shutter, height=height)
+
+    def is_snapshot(self) -> bool:
+        return bool(self.image_register("read_mode_1") & SNAPSHOT_BIT)
+
+    def image_registers(self) -> dict[str, int]:
+        return {r.name: self.image_register(r.name) for r in self.table}
+
+    @staticmethod
+    def form_image(
+        record: FrameRecord,
+        world: World,
+        *,
+        intrinsics: Intrinsics,
+        model: SensorModel,
+        rng: np.random.Generator | None,
+    ) -> NDArray[np.uint16]:
+        r: Mapping[str, int] = record.registers
+        width = r["column_size"] + 1
+        row_s = (width + 2 * r["horizontal_blank"]) / spec.SENSOR_CLOCK_HZ
+        shutter = (r["shutter_width_upper"] << 16) | r["shutter_width_lower"]
+        readout = Readout(
+            left=r["column_start"],
+            top=r["row_start"],
+            width=width,
+            height=r["row_size"] + 1,
+            exposure_us=shutter * row_s * 1e6,
+            gains=(
+                spec.decode_gain(r["red_gain"]),
+                spec.decode_gain(r["green1_gain"]),
+                spec.decode_gain(r["green2_gain"]),
+                spec.decode_gain(r["blue_gain"]),
+            ),
+            fliph=bool(r["read_mode_2"] >> 14 & 1),
+            flipv=bool(r["read_mode_2"] >> 15 & 1),
+            bayer=spec.BAYER,
+        )
+        return form_bayer_image(readout, record, world, intrinsics=intrinsics, model=model, rng=rng)

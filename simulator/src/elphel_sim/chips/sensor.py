@@ -1,0 +1,75 @@
+"""What the simulated board's FPGA needs from a simulated sensor chip."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from elphel_sim.fpga import FrameRecord
+    from elphel_sim.render import Intrinsics, SensorModel
+    from elphel_sim.world import World
+
+
+@dataclass(frozen=True)
+class SensorTiming:
+    """Frame timing of a sensor from its registers in effect.
+
+    ``row_s`` is one row's duration, ``frame_rows`` the rows of a free-running frame
+    (including blanking, and lengthened by a long exposure), ``exposure_rows`` the
+    integration in rows and ``height`` the rows read out.
+    """
+
+    row_s: float
+    frame_rows: int
+    exposure_rows: int
+    height: int
+
+    @property
+    def frame_s(self) -> float:
+        return self.row_s * self.frame_rows
+
+    @property
+    def busy_s(self) -> float:
+        """Shortest time from a trigger to the sensor being ready for the next one."""
+        return self.row_s * (self.exposure_rows + self.height + 9)
+
+
+class SimSensor(Protocol):
+    """A simulated sensor chip on a port: I2C device, frame latch, timing, image formation."""
+
+    address: int
+    model: str
+
+    def on_write(self, data: bytes) -> None: ...
+    def on_read(self, length: int) -> bytes: ...
+    def on_stop(self) -> None: ...
+
+    def latch(self, frame: int) -> None:
+        """Frame ``frame`` starts: register writes due by now reach the image."""
+        ...
+
+    def timing(self) -> SensorTiming: ...
+
+    def is_snapshot(self) -> bool:
+        """Whether the sensor waits for a trigger to start a frame."""
+        ...
+
+    def image_registers(self) -> dict[str, int]:
+        """The register values shaping the current frame (recorded with the frame)."""
+        ...
+
+    @staticmethod
+    def form_image(
+        record: FrameRecord,
+        world: World,
+        *,
+        intrinsics: Intrinsics,
+        model: SensorModel,
+        rng: np.random.Generator | None,
+    ) -> NDArray[np.uint16]:
+        """The image of a recorded frame."""
+        ...
