@@ -1,0 +1,268 @@
+"""Tile processor benchmark: accuracy and speed on a simulated 2592x1936 Bayer quad vs OpenCV.
+
+Renders the simulator's standard quad scene (planes at disparities 0, 0.37, 2.5 and 5.2 px,
+a slanted plane, a texture-less plane; GRBG; shot and read noise of a 12-bit sensor), runs
+the tile processor (all tiles, 6 pairs, one refinement pass), and in the same run
+cv2.StereoSGBM over the four horizontal and vertical pairs and per-tile cv2.phaseCorrelate
+on the same 16x16 tiles. Prints exactly one JSON object; nothing is hard-coded.
+
+    .venv/bin/python bench/tp.py [--width 2592 --height 1936 --seed 0 --threads 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import sys
+import tempfile
+import time
+import tracemalloc
+import warnings
+from typing import Any
+
+import cv2
+import numpy as np
+
+from elphel_host.tp import io, processor
+from elphel_sim import quad as simquad
+
+ORTHO_PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3))  # top, bottom (horizontal); left, right (vertical)
+
+
+def rms(err: np.ndarray) -> float:
+    err = err[np.isfinite(err)]
+    return float(np.sqrt(np.mean(err**2))) if err.size else float("nan")
+
+
+def gray_images(raw: np.ndarray, bayer: str | None) -> list[np.ndarray]:
+    """8-bit grey images for the OpenCV peers (demosaiced when Bayer)."""
+    out = []
+    for img in raw:
+        img8 = np.clip(img.astype(np.float32) / 4095.0 * 255.0, 0, 255).astype(np.uint8)
+        # OpenCV names Bayer codes after the second row: GRBG data is "BayerGB"
+        out.append(cv2.cvtColor(img8, cv2.COLOR_BayerGB2GRAY) if bayer else img8)
+    return out
+
+
+def run_sgbm(
+    gray: list[np.ndarray], positions: tuple[tuple[float, float], ...], *, repeat: int = 1
+) -> tuple[list[np.ndarray], list[float]]:
+    """Disparity maps (float px, NaN invalid) of the 4 ortho pairs, each in its first camera."""
+    sgbm = cv2.StereoSGBM_create(
+        minDisparity=-2,
+        numDisparities=16,
+        blockSize=5,
+        P1=8 * 25,
+        P2=32 * 25,
+        uniquenessRatio=5,
+        mode=cv2.STEREO_SGBM_MODE_SGBM,
+    )
+    times = []
+    for _ in range(repeat):
+        maps = []
+        t0 = time.perf_counter()
+        for a, b in ORTHO_PAIRS:
+            vertical = positions[a][0] == positions[b][0]
+            left, right = gray[a], gray[b]
+            if vertical:  # transpose so the baseline is horizontal, first camera on the left
+                left, right = cv2.transpose(left), cv2.transpose(right)
+            d = sgbm.compute(left, right)
+            if vertical:
+                d = cv2.transpose(d)
+            maps.append(d)
+        times.append(time.perf_counter() - t0)
+    out = []
+    for d in maps:
+        f = d.astype(np.float32) / 16.0
+        f[d <= (-2 - 1) * 16] = np.nan
+        out.append(f)
+    return out, times
+
+
+def sample_at_tiles(
+    maps: list[np.ndarray], truth: np.ndarray, positions: tuple[tuple[float, float], ...]
+) -> np.ndarray:
+    """Per pair, the map sampled where its first camera sees each tile centre: (4, ty, tx)."""
+    ty, tx = truth.shape
+    cy = 8.0 * np.arange(ty)[:, None] + 4.0
+    cx = 8.0 * np.arange(tx)[None, :] + 4.0
+    out = []
+    for (a, _), m in zip(ORTHO_PAIRS, maps, strict=True):
+        px, py = positions[a]
+        x = cx - truth * px  # where camera a sees the tile centre
+        y = cy - truth * py
+        xi = np.clip(np.round(x - 0.5).astype(int), 0, m.shape[1] - 1)
+        yi = np.clip(np.round(y - 0.5).astype(int), 0, m.shape[0] - 1)
+        out.append(m[yi, xi])
+    return np.stack(out)
+
+
+def run_phase_correlate(gray: list[np.ndarray], tiles: tuple[int, int]) -> tuple[np.ndarray, float]:
+    """Per tile and ortho pair: cv2.phaseCorrelate of the 16x16 tiles at disparity 0 (4, ty, tx)."""
+    ty, tx = tiles
+    window = cv2.createHanningWindow((16, 16), cv2.CV_64F)
+    padded = [np.pad(g.astype(np.float64), 4, mode="edge") for g in gray]
+    out = np.full((4, ty, tx), np.nan)
+    t0 = time.perf_counter()
+    for p, (a, b) in enumerate(ORTHO_PAIRS):
+        vertical = p >= 2
+        ga, gb = padded[a], padded[b]
+        for y in range(ty):
+            for x in range(tx):
+                ta = ga[8 * y : 8 * y + 16, 8 * x : 8 * x + 16]
+                tb = gb[8 * y : 8 * y + 16, 8 * x : 8 * x + 16]
+                # without removing the mean, the window's own spectrum pins the peak at 0
+                (dx, dy), _ = cv2.phaseCorrelate(ta - ta.mean(), tb - tb.mean(), window)
+                # content of the second camera moves by -D along the baseline
+                out[p, y, x] = -(dy if vertical else dx)
+    return out, time.perf_counter() - t0
+
+
+def region_rms(est: np.ndarray, truth: simquad.TileTruth, names: list[str]) -> dict[str, float]:
+    err = est - truth.disparity
+    res = {}
+    for name in names:
+        m = (truth.label == truth.names.index(name)) & truth.interior
+        res[name] = rms(err[m])
+    return res
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--width", type=int, default=2592)
+    ap.add_argument("--height", type=int, default=1936)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--repeat", type=int, default=3, help="timing runs of TP and SGBM (best reported)"
+    )
+    ap.add_argument("--skip-phase-correlate", action="store_true")
+    args = ap.parse_args()
+
+    rig = simquad.QuadRig(width=args.width, height=args.height)
+    t0 = time.perf_counter()
+    scene = simquad.standard_scene(rig, seed=args.seed)
+    raw = simquad.render_quad(scene, seed=args.seed)
+    truth = simquad.tile_truth(scene)
+    render_s = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory() as tmp:
+        simquad.write_quad_dir(tmp, raw, rig)
+        qs = io.read_quad_dir(tmp)
+    quad = qs.quad
+    config = processor.TpConfig(threads=args.threads, refine_passes=1)
+
+    times = []
+    dsi: dict[str, np.ndarray] = {}
+    for i in range(args.repeat):
+        if i == 0:
+            tracemalloc.start()
+        t = time.perf_counter()
+        dsi = processor.disparity_map(quad, config=config)
+        times.append(time.perf_counter() - t)
+        if i == 0:
+            _, peak = tracemalloc.get_traced_memory()
+            tracemalloc.stop()
+    tp_s = min(times)
+
+    fronto = [n for n in truth.names if n.startswith("fronto_")]
+    regions = [*fronto, "slanted"]
+    tp_rms = region_rms(dsi["disparity"], truth, regions)
+    fronto_mask = np.isin(truth.label, [truth.names.index(n) for n in fronto]) & truth.interior
+    tp_fronto = rms((dsi["disparity"] - truth.disparity)[fronto_mask])
+
+    textured = truth.textured & truth.interior
+    flat = (truth.label == truth.names.index("flat")) & truth.interior
+    s_tex, s_flat = dsi["strength"][textured], dsi["strength"][flat]
+    threshold = float(np.sqrt(np.median(s_tex) * np.median(s_flat)))
+    separation = {
+        "median_textured": float(np.median(s_tex)),
+        "median_textureless": float(np.median(s_flat)),
+        "threshold_geometric_mean": threshold,
+        "textured_above": float(np.mean(s_tex > threshold)),
+        "textureless_below": float(np.mean(s_flat < threshold)),
+    }
+
+    gray = gray_images(raw, rig.bayer)
+    maps, sgbm_times = run_sgbm(gray, rig.positions, repeat=args.repeat)
+    sgbm_s = min(sgbm_times)
+    sg = sample_at_tiles(maps, truth.disparity, rig.positions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # tiles where no pair is valid -> NaN
+        sg_mean = np.nanmean(sg, axis=0)
+    sgbm_rms = region_rms(sg_mean, truth, regions)
+    sgbm_fronto = rms((sg_mean - truth.disparity)[fronto_mask])
+    sgbm_valid = float(np.mean(np.isfinite(sg_mean[fronto_mask])))
+
+    result: dict[str, Any] = {
+        "conditions": {
+            "cpus": os.cpu_count(),
+            "load_average_1min_before_tp": os.getloadavg()[0],
+            "python": sys.version.split()[0],
+            "numpy": np.__version__,
+            "opencv": cv2.__version__,
+            "machine": platform.machine(),
+            "threads": args.threads,
+            "tp_runs_s": [round(t, 3) for t in times],
+        },
+        "image": {
+            "width": args.width,
+            "height": args.height,
+            "bayer": rig.bayer,
+            "tiles": int(dsi["disparity"].size),
+            "render_s": round(render_s, 1),
+        },
+        "tile_processor": {
+            "seconds": round(tp_s, 3),
+            "peak_traced_memory_mb": round(peak / 2**20, 1),
+            "max_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            "rms_px": {k: round(v, 4) for k, v in tp_rms.items()},
+            "rms_fronto_all_px": round(tp_fronto, 4),
+            "strength": {k: round(v, 4) for k, v in separation.items()},
+        },
+        "sgbm": {
+            "seconds_4_pairs": round(sgbm_s, 3),
+            "runs_s": [round(t, 3) for t in sgbm_times],
+            "rms_px": {k: round(v, 4) for k, v in sgbm_rms.items()},
+            "rms_fronto_all_px": round(sgbm_fronto, 4),
+            "valid_fraction_fronto": round(sgbm_valid, 4),
+        },
+    }
+    ratios: dict[str, float] = {
+        "sgbm_time_over_tp_time": round(sgbm_s / tp_s, 3),
+        "sgbm_rms_over_tp_rms": round(sgbm_fronto / tp_fronto, 3),
+    }
+    if not args.skip_phase_correlate:
+        pc, pc_s = run_phase_correlate(gray, quad.tiles)
+        pc_mean = np.nanmean(pc, axis=0)
+        pc_fronto = rms((pc_mean - truth.disparity)[fronto_mask])
+        result["phase_correlate"] = {
+            "seconds_4_pairs": round(pc_s, 3),
+            "rms_px": {k: round(v, 4) for k, v in region_rms(pc_mean, truth, regions).items()},
+            "rms_fronto_all_px": round(pc_fronto, 4),
+        }
+        ratios["phase_correlate_time_over_tp_time"] = round(pc_s / tp_s, 3)
+        ratios["phase_correlate_rms_over_tp_rms"] = round(pc_fronto / tp_fronto, 3)
+    result["ratios"] = ratios
+    targets = {
+        "fronto_rms_le_0.05": all(tp_rms[n] <= 0.05 for n in fronto),
+        "slanted_rms_le_0.1": tp_rms["slanted"] <= 0.1,
+        "time_le_2s": tp_s <= 2.0,
+        "peak_memory_le_2gb": peak <= 2 * 2**30,
+        "as_fast_as_sgbm": sgbm_s >= tp_s,
+        "3x_more_accurate_than_sgbm": sgbm_fronto >= 3 * tp_fronto,
+    }
+    if "phase_correlate" in result:
+        targets["faster_than_phase_correlate"] = ratios["phase_correlate_time_over_tp_time"] > 1
+        targets["more_accurate_than_phase_correlate"] = (
+            ratios["phase_correlate_rms_over_tp_rms"] > 1
+        )
+    result["targets_met"] = targets
+    print(json.dumps(result, sort_keys=True))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,67 @@
+"""Keep OpenBLAS single-threaded while the tile processor runs its own worker threads.
+
+The tile processor multiplies many small matrices from several threads; OpenBLAS's own
+threads would then fight for the same cores and slow each product down several times.
+NumPy does not expose a thread setting, so the OpenBLAS library NumPy loaded is found in
+the process's memory map and its ``*_set_num_threads`` entry point is called through
+ctypes. Without such a library (other BLAS, other OS) this is a no-op.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import re
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+_lock = threading.Lock()
+_depth = 0
+_saved = [1]
+
+
+def _openblas() -> tuple[Any, Any] | None:
+    maps = Path("/proc/self/maps")
+    if not maps.exists():
+        return None
+    libs = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", maps.read_text())))
+    for path in libs:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for prefix in ("scipy_openblas", "openblas"):
+            for suffix in ("64_", ""):
+                setter = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
+                getter = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
+                if setter is not None and getter is not None:
+                    getter.restype = ctypes.c_int
+                    return setter, getter
+    return None
+
+
+_API = _openblas()
+
+
+@contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Run the body with OpenBLAS limited to one thread (re-entrant, restores on exit)."""
+    global _depth
+    if _API is None:
+        yield
+        return
+    setter, getter = _API
+    with _lock:
+        if _depth == 0:
+            _saved[0] = int(getter())
+            setter(ctypes.c_int(1))
+        _depth += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _depth -= 1
+            if _depth == 0:
+                setter(ctypes.c_int(_saved[0]))

@@ -1,0 +1,83 @@
+"""Quad geometry: camera positions, pairs, and where each camera's tile lies.
+
+Disparity convention (DESIGN 4.4, reference section 7): a point seen at p by the virtual
+centre camera is seen by camera i at ``p - D * position_i``; positions are in units of
+the square's side, +x right, +y down. Tile (tx, ty) of the virtual camera is centred at
+``(8tx + 4, 8ty + 4)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_host.errors import InputFormatError
+
+IDEAL_POSITIONS = ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))
+#: The six pairs (first, second): top, bottom, left, right, main diagonal, other diagonal.
+PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (2, 1))
+PAIR_NAMES = ("top", "bottom", "left", "right", "diagm", "diago")
+
+
+@dataclass(frozen=True)
+class QuadGeometry:
+    """Camera centres of a quad (in units of the square's side) and the pairs correlated."""
+
+    positions: tuple[tuple[float, float], ...] = IDEAL_POSITIONS
+    pairs: tuple[tuple[int, int], ...] = field(default=PAIRS)
+
+    def __post_init__(self) -> None:
+        if len(self.positions) != 4 or any(len(p) != 2 for p in self.positions):
+            raise InputFormatError(f"positions must be 4 (x, y) pairs, got {self.positions!r}")
+        for a, b in self.pairs:
+            if not (0 <= a < 4 and 0 <= b < 4 and a != b):
+                raise InputFormatError(f"pair ({a}, {b}); allowed: two different cameras 0..3")
+
+    def pair_vectors(self) -> NDArray[np.float64]:
+        """Per pair, the lag (dx, dy) of the correlation peak per unit of residual disparity.
+
+        Content of camera i moves by ``-delta * position_i``, so the peak of the correlation
+        of (a, b) (peak at position in b minus position in a) lies at
+        ``delta * (position_a - position_b)``.
+        """
+        p = np.asarray(self.positions, dtype=np.float64)
+        return np.array([p[a] - p[b] for a, b in self.pairs])
+
+
+def tile_centres(tiles_y: int, tiles_x: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Centres (cy, cx) of all tiles, each shaped (tiles_y, tiles_x)."""
+    cy, cx = np.meshgrid(
+        8.0 * np.arange(tiles_y) + 4.0, 8.0 * np.arange(tiles_x) + 4.0, indexing="ij"
+    )
+    return cy, cx
+
+
+def place(
+    centre: NDArray[np.floating], disparity: NDArray[np.floating], position: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Integer left edge and residual shift of one camera's tiles along one axis.
+
+    Parameters
+    ----------
+    centre
+        Virtual-camera tile centres along the axis (pixels).
+    disparity
+        Target disparity per tile.
+    position
+        The camera's coordinate along the axis (units of the square's side).
+
+    Returns
+    -------
+    left, shift
+        ``left`` = the integer first pixel of the 16-sample window, ``shift`` = s in
+        [-0.5, 0.5] such that the tile is the image sampled at ``left - s + j``.
+    """
+    p = (
+        np.asarray(centre, dtype=np.float64)
+        - np.asarray(disparity, dtype=np.float64) * position
+        - 8.0
+    )
+    left = np.floor(p + 0.5)
+    return left.astype(np.int64), left - p
