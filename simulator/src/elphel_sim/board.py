@@ -24,6 +24,8 @@ from elphel_camd.errors import CaptureUnavailableError, FrameNotAvailableError, 
 from elphel_camd.i2c.bus import I2CBus
 from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
 from elphel_sim.chips.bus import SimI2CBus
+from elphel_sim.chips.lepton35 import SimLepton35
+from elphel_sim.chips.mt9f002 import SimMT9F002
 from elphel_sim.chips.mt9p006 import SimMT9P006
 from elphel_sim.chips.sensor import SimSensor
 from elphel_sim.fpga import Camsync, FrameRecord, PortFPGA
@@ -32,7 +34,11 @@ from elphel_sim.scenarios import PortSpec, Scenario, build
 FrameSync = Callable[[int, int, int], None]
 
 # Simulated chips by model name (PortSpec.model).
-SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {"MT9P006": SimMT9P006}
+SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
+    "MT9P006": SimMT9P006,
+    "MT9F002": SimMT9F002,
+    "LEPTON35": SimLepton35,
+}
 
 
 class SimBoard:

@@ -5,7 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from elphel_camd.sensors import mt9f002
 from elphel_camd.sensors import mt9p006 as spec
+from elphel_sim.chips.lepton35 import lepton_intrinsics
 from elphel_sim.render import Intrinsics, SensorModel
 from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 
@@ -53,7 +55,44 @@ def default(seed: int) -> Scenario:
     return Scenario(world, [PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5), LAB_LIGHT)])
 
 
+def mt9f002_intrinsics(focal_length_mm: float) -> Intrinsics:
+    """The MT9F002's full pixel array with the optical centre on the default window's centre."""
+    return Intrinsics(
+        focal_length_mm=focal_length_mm,
+        pixel_pitch_um=mt9f002.PIXEL_PITCH_UM,
+        width=mt9f002.ARRAY_WIDTH,
+        height=mt9f002.ARRAY_HEIGHT,
+        cx=mt9f002.CLEAR_LEFT + mt9f002.IMAGE_WIDTH / 2,
+        cy=mt9f002.CLEAR_TOP + mt9f002.IMAGE_HEIGHT / 2,
+    )
+
+
+def mixed(seed: int) -> Scenario:
+    """Three sensor models side by side, 1 m in front of a textured wall.
+
+    Port 0 an MT9P006, port 1 an MT9F002, port 2 a Lepton 3.5 (whose image maps the
+    wall's radiance to temperature); port 3 is empty.
+    """
+    wall = Plane(
+        Texture.procedural(period_mm=1500.0, seed=seed, size=2048, band=0.5),
+        origin=(0.0, 0.0, 1000.0),
+        albedo_rgb=(0.9, 1.0, 0.8),
+    )
+    mounts = {f"cam{i}": CameraMount(f"cam{i}", offset_mm=(40.0 * i, 0.0, 0.0)) for i in range(3)}
+    world = World(Scene([wall]), Rig(axis=(1.0, 0.0, 0.0), mounts=mounts))
+    return Scenario(
+        world,
+        [
+            PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5), LAB_LIGHT),
+            PortSpec("MT9F002", "cam1", mt9f002_intrinsics(4.5), LAB_LIGHT),
+            PortSpec("LEPTON35", "cam2", lepton_intrinsics()),
+            PortSpec(None, "cam0", mt9p006_intrinsics(4.5)),
+        ],
+    )
+
+
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
+SCENARIOS["mixed"] = mixed
 
 
 def build(name: str, *, seed: int) -> Scenario:

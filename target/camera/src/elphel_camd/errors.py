@@ -68,3 +68,25 @@ class CaptureUnavailableError(CameraError, RuntimeError):
 
 class UnsupportedError(CameraError, ValueError):
     """The sensor or board cannot do what was asked (e.g. a window on the Lepton)."""
+
+
+class LeptonError(I2CError):
+    """The Lepton refused a CCI command: names the command, its id and the error code.
+
+    ``code`` is the signed 8-bit error of the status register (negative), or None when the
+    camera did not answer in time.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        bus: str,
+        address: int,
+        register: int | None,
+        command: int,
+        code: int | None,
+    ) -> None:
+        super().__init__(message, bus=bus, address=address, register=register)
+        self.command = command
+        self.code = code

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from elphel_camd.i2c.bus import I2CBus
 from elphel_camd.sensors.base import SensorDriver
+from elphel_camd.sensors.lepton35 import Lepton35
+from elphel_camd.sensors.mt9f002 import MT9F002
 from elphel_camd.sensors.mt9p006 import MT9P006
 
 # Tried in this order on every port.
-DRIVERS: tuple[type[SensorDriver], ...] = (MT9P006,)
+DRIVERS: tuple[type[SensorDriver], ...] = (MT9P006, MT9F002, Lepton35)
 
 
 def detect(bus: I2CBus, *, bus_name: str) -> SensorDriver | None:
@@ -19,4 +21,4 @@ def detect(bus: I2CBus, *, bus_name: str) -> SensorDriver | None:
     return None
 
 
-__all__ = ["DRIVERS", "MT9P006", "SensorDriver", "detect"]
+__all__ = ["DRIVERS", "MT9F002", "MT9P006", "Lepton35", "SensorDriver", "detect"]
