@@ -8,37 +8,7 @@ from smbus2 import i2c_msg
 from elphel_camd.errors import I2CError
 from elphel_camd.i2c import RegisterIO, open_bus
 from elphel_camd.sensors import MT9P006, detect
-
-I2C_M_RD = 1
-
-
-class ScriptedBus:
-    """Expects an exact sequence of transactions; each read answers with scripted bytes."""
-
-    def __init__(self, script):
-        # script: list of transactions; a transaction is a list of ("w", addr, bytes) or
-        # ("r", addr, bytes-to-return), or an int errno to fail the whole transaction.
-        self.script = list(script)
-
-    def i2c_rdwr(self, *msgs):
-        assert self.script, f"unexpected transaction {msgs}"
-        expected = self.script.pop(0)
-        if isinstance(expected, int):
-            raise OSError(expected, "scripted failure")
-        assert len(msgs) == len(expected), f"{msgs} != {expected}"
-        for msg, (kind, addr, data) in zip(msgs, expected, strict=True):
-            assert msg.addr == addr
-            if kind == "w":
-                assert not msg.flags & I2C_M_RD
-                assert bytes(msg) == data
-            else:
-                assert msg.flags & I2C_M_RD
-                assert msg.len == len(data)
-                for i, b in enumerate(data):
-                    msg.buf[i] = bytes([b])
-
-    def done(self):
-        assert not self.script, f"transactions left unconsumed: {self.script}"
+from tests.unit.scripted_bus import ScriptedBus
 
 
 def test_read_8bit_register_address_is_write_then_combined_read():

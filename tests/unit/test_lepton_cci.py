@@ -8,38 +8,11 @@ from elphel_camd.errors import I2CError, LeptonError
 from elphel_camd.i2c import RegisterIO
 from elphel_camd.params import EXPOSURE, WINDOW
 from elphel_camd.sensors import Lepton35, cci, detect
+from tests.unit.scripted_bus import ScriptedBus
 
-I2C_M_RD = 1
 A = 0x2A  # the Lepton's address
 READY = 0x0006  # booted (bits 1, 2), not busy
 BUSY = 0x0007
-
-
-class ScriptedBus:
-    """Expects an exact sequence of transactions; each read answers with scripted bytes."""
-
-    def __init__(self, script):
-        self.script = list(script)
-
-    def i2c_rdwr(self, *msgs):
-        assert self.script, f"unexpected transaction {[bytes(m) for m in msgs]}"
-        expected = self.script.pop(0)
-        if isinstance(expected, int):
-            raise OSError(expected, "scripted failure")
-        assert len(msgs) == len(expected), f"{msgs} != {expected}"
-        for msg, (kind, addr, data) in zip(msgs, expected, strict=True):
-            assert msg.addr == addr
-            if kind == "w":
-                assert not msg.flags & I2C_M_RD
-                assert bytes(msg) == data, f"{bytes(msg).hex()} != {data.hex()}"
-            else:
-                assert msg.flags & I2C_M_RD
-                assert msg.len == len(data)
-                for i, b in enumerate(data):
-                    msg.buf[i] = bytes([b])
-
-    def done(self):
-        assert not self.script, f"transactions left unconsumed: {self.script}"
 
 
 def status(value: int):
