@@ -19,7 +19,13 @@ from elphel_host import __version__
 from elphel_host.errors import ElphelError
 
 # Area modules, each with register(subparsers). Add a module here to add a subcommand.
-AREAS = ("elphel_host.camera.cli", "elphel_host.stage.cli", "elphel_host.tp.cli")
+AREAS = (
+    "elphel_host.camera.cli",
+    "elphel_host.stage.cli",
+    "elphel_host.burst.cli",
+    "elphel_host.mfsr.cli",
+    "elphel_host.tp.cli",
+)
 
 
 def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:

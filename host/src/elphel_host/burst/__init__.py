@@ -1,1 +1,1 @@
-"""burst."""
+"""Sub-pixel bursts: planning (plan.py) and burst directories (io.py, DESIGN 4.3)."""

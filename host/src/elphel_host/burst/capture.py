@@ -10,8 +10,10 @@ only the frames still missing. Ctrl-C stops the stage before it is re-raised.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -167,3 +169,95 @@ def capture_burst(
     finally:
         result.seconds = time.monotonic() - t0
     return result
+
+
+# -- CLI ----------------------------------------------------------------------------------------
+
+
+def add_capture_parser(sub: Any) -> None:
+    """Add ``elphel burst capture`` to the burst subparsers."""
+    from elphel_host.stage.cli import DEFAULT_MODEL
+
+    cp = sub.add_parser(
+        "capture",
+        help="move, settle, capture and record every frame of a plan (resumable)",
+        description="Capture a planned burst into a burst directory (DESIGN 4.3). Each frame "
+        "is saved as it arrives; running the same command again completes a partial burst.",
+    )
+    cp.add_argument(
+        "--camera", default=os.environ.get("ELPHEL_CAMERA_URL"), help="camera daemon URL"
+    )
+    cp.add_argument(
+        "--token", default=os.environ.get("ELPHEL_CAMERA_TOKEN"), help="camera bearer token"
+    )
+    cp.add_argument(
+        "--stage", default=os.environ.get("ELPHEL_STAGE_URL"), help="stage pyserial URL"
+    )
+    cp.add_argument("--plan", type=Path, required=True, help="plan JSON (elphel burst plan --out)")
+    cp.add_argument("--out", type=Path, required=True, help="burst directory to write")
+    cp.add_argument("--port", type=int, default=0, help="camera sensor port")
+    cp.add_argument("--start-mm", type=float, help="plan origin on the stage (default: here)")
+    cp.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="stage calibration file")
+    cp.add_argument("--settle-s", type=float, default=0.05, help="wait after each move")
+    cp.add_argument("--focal-length-mm", type=float, help="record optics in the manifest")
+    cp.add_argument("--pixel-pitch-um", type=float)
+    cp.add_argument("--distance-mm", type=float)
+    cp.add_argument("--json", action="store_true", help="print one JSON object")
+    cp.set_defaults(func=run_capture, parser=cp)
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    from elphel_host.cli import emit
+    from elphel_host.stage.cli import _load_model
+    from elphel_host.stage.client import StageClient
+
+    if not args.camera or not args.stage:
+        args.parser.error("give --camera and --stage (or ELPHEL_CAMERA_URL / ELPHEL_STAGE_URL)")
+    try:
+        plan = json.loads(args.plan.read_text())
+        positions = [float(p) for p in plan["positions_mm"]]
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+        raise InputFormatError(f"{args.plan}: not a burst plan ({e})") from e
+    top: dict[str, Any] = {"plan": {k: plan[k] for k in ("scale", "tilt_deg") if k in plan}}
+    optics = {
+        "focal_length_mm": args.focal_length_mm,
+        "pixel_pitch_um": args.pixel_pitch_um,
+        "object_distance_mm": args.distance_mm,
+    }
+    if all(v is not None for v in optics.values()):
+        top["optics"] = optics
+    with StageClient(args.stage) as stage, CameraClient(args.camera, args.token) as camera:
+        positioner = Positioner(stage, _load_model(args.model))
+        progress_so_far = load_progress(args.out)
+        if progress_so_far is not None:
+            start_mm = float(progress_so_far["capture"]["start_mm"])
+        elif args.start_mm is not None:
+            start_mm = args.start_mm
+        else:
+            start_mm = round(positioner.read_mm(), 2)
+        top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
+        if "tilt_deg" in plan:
+            top["stage"]["axis_angle_deg"] = float(plan["tilt_deg"])
+        engine = RigEngine(positioner, camera, port=args.port, settle_s=args.settle_s)
+
+        def progress(done: int, total: int, message: str) -> None:
+            print(f"burst: {done}/{total} {message}", file=sys.stderr, flush=True)
+
+        result = capture_burst(
+            engine, positions, args.out, start_mm=start_mm, top=top, progress=progress
+        )
+    summary = {
+        "out": str(result.directory),
+        "captured": result.captured,
+        "already_present": result.skipped,
+        "frames": len(positions),
+        "start_mm": start_mm,
+        "seconds": round(result.seconds, 2),
+    }
+    emit(
+        args,
+        summary,
+        f"{result.directory}: {len(result.captured)} frames captured, "
+        f"{len(result.skipped)} already there, in {result.seconds:.1f} s",
+    )
+    return 0

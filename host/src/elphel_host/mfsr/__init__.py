@@ -1,1 +1,9 @@
-"""mfsr."""
+"""Multi-frame super-resolution of translated bursts.
+
+* :mod:`~elphel_host.mfsr.registration` - validated ECC translation registration.
+* :mod:`~elphel_host.mfsr.baseline` - the published direct method (bicubic, ECC, median).
+* :mod:`~elphel_host.mfsr.forward`, :mod:`~elphel_host.mfsr.robust` - forward-model
+  reconstruction solved exactly in the Fourier domain, with Huber outlier rejection.
+* :mod:`~elphel_host.mfsr.fuse` - burst in, image out (mono and Bayer).
+* :mod:`~elphel_host.mfsr.metrics` - PSNR, SSIM; :mod:`~elphel_host.mfsr.synth` - test bursts.
+"""

@@ -1,0 +1,266 @@
+"""MFSR benchmark: prints exactly one JSON object.
+
+Synthetic bursts from scikit-image sample images bundled in its wheel (no downloads):
+HR image in [0, 1] -> bicubic sub-pixel shift -> area down-sampling -> Gaussian noise
+sigma 0.01, all seeded; plus bursts rendered by the simulator (elphel_sim world/render:
+area-integrated pixels of a band-limited textured plane, camera moved sideways; the
+reference is the same scene seen by a sensor with S times finer pixels).
+PSNR/SSIM against the HR image with a 4*S px border cropped.
+The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
+(peak memory = that process's max RSS, including the frames it loads).
+
+Usage: python bench/mfsr.py [--quick] [--no-speed]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from elphel_host.mfsr.fuse import fuse_frames
+from elphel_host.mfsr.metrics import psnr, ssim
+from elphel_host.mfsr.registration import register_frames
+from elphel_host.mfsr.robust import reconstruct
+from elphel_host.mfsr.synth import make_burst, random_shifts, tilted_line_shifts
+
+IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")
+SIGMA = 0.01
+
+
+def load(name: str) -> np.ndarray:
+    import skimage.data as sd
+
+    img = getattr(sd, name)()
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    return (np.asarray(img, np.float32) / 255.0).astype(np.float32)
+
+
+def crop_to(img: np.ndarray, s: int) -> np.ndarray:
+    return img[: img.shape[0] // s * s, : img.shape[1] // s * s]
+
+
+def rms(est: list[Any], truth: np.ndarray) -> float:
+    e = np.asarray(est, dtype=np.float64) - truth
+    return float(np.sqrt(np.mean(np.sum(e[1:] ** 2, axis=1))))
+
+
+Maker = Callable[[np.ndarray, int, int], tuple[list[np.ndarray], np.ndarray]]
+
+
+def image_maker(name: str) -> Maker:
+    """Bursts from a scikit-image sample image: bicubic shift + area down-sampling + noise."""
+    hr0 = load(name)
+
+    def make(shifts: np.ndarray, s: int, seed: int) -> tuple[list[np.ndarray], np.ndarray]:
+        hr = crop_to(hr0, s)
+        return make_burst(hr, shifts, scale=s, noise_sigma=SIGMA, seed=seed), hr
+
+    return make
+
+
+def simulator_maker(size: int = 192) -> Maker:
+    """Bursts rendered by the simulator: a textured plane at 500 mm, camera moved sideways.
+
+    The reference is the same scene rendered by a sensor with S times more pixels of 1/S
+    the pitch, which puts its pixel centres exactly on the cv2.resize grid of the LR one.
+    """
+    import skimage.data as sd
+
+    from elphel_sim.render import Intrinsics, render_radiance
+    from elphel_sim.world import Plane, Pose, Scene, Texture, World
+
+    tex = Texture.from_image(sd.camera(), period_mm=6.0)
+    world = World(scene=Scene(planes=[Plane(texture=tex, origin=(-3.0, -3.0, 500.0))]))
+    f_mm, pitch, z = 35.0, 2.2, 500.0
+
+    def make(shifts: np.ndarray, s: int, seed: int) -> tuple[list[np.ndarray], np.ndarray]:
+        lr = Intrinsics(focal_length_mm=f_mm, pixel_pitch_um=pitch, width=size, height=size)
+        hi = Intrinsics(
+            focal_length_mm=f_mm, pixel_pitch_um=pitch / s, width=size * s, height=size * s
+        )
+        px_per_mm = lr.focal_length_px / z
+        rng = np.random.default_rng(seed)
+        frames = []
+        for dy, dx in shifts:
+            pose = Pose.at((dx / px_per_mm, dy / px_per_mm, 0.0))
+            img = render_radiance(world, lr, pose)[..., 1]
+            frames.append((img + rng.normal(0, SIGMA, img.shape)).astype(np.float32))
+        hr = render_radiance(world, hi, Pose.at((0.0, 0.0, 0.0)))[..., 1].astype(np.float32)
+        return frames, hr
+
+    return make
+
+
+def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
+    per: dict[str, Any] = {}
+    for n_img, (name, make) in enumerate(makers.items()):
+        row: dict[str, Any] = {}
+        for s in (2, 4):
+            b = 4 * s
+            shifts = random_shifts(16, seed=seed + n_img, spread=2.0)
+            frames, hr = make(shifts, s, seed + 100 + n_img)
+            rng_ = float(hr.max() - hr.min()) if name == "simulator" else 1.0
+            res = {
+                m: fuse_frames(frames, scale=s, method=m)
+                for m in (("bicubic", "baseline", "robust") if s == 2 else ("bicubic", "robust"))
+            }
+            r = {
+                m: {
+                    "psnr_db": round(psnr(hr, v.image, data_range=rng_, border=b), 3),
+                    "ssim": round(ssim(hr, v.image, data_range=rng_, border=b), 4),
+                }
+                for m, v in res.items()
+            }
+            regs = register_frames(frames)
+            r["registration_rms_lr_px"] = round(rms([g.shift for g in regs], shifts), 4)
+            r["registration_refined_rms_lr_px"] = round(
+                rms(res["robust"].info["shifts_refined"], shifts), 4
+            )
+            row[f"x{s}"] = r
+        # 1-D stage with the recommended tilt vs random 2-D offsets (x2, 16 frames, robust)
+        for key, line in (
+            ("x2_tilted_line_psnr_db", tilted_line_shifts(16, scale=2)),
+            ("x2_untilted_line_psnr_db", np.stack([np.zeros(16), np.arange(16) / 8.0], axis=1)),
+        ):
+            frames, hr = make(line, 2, seed + 200 + n_img)
+            rng_ = float(hr.max() - hr.min()) if name == "simulator" else 1.0
+            regs = register_frames(frames)
+            img, _ = reconstruct(frames, [g.shift for g in regs], scale=2)
+            row[key] = round(psnr(hr, img, data_range=rng_, border=8), 3)
+        per[name] = row
+    return per
+
+
+def summarise(per: dict[str, Any]) -> dict[str, Any]:
+    def gains(s: str, a: str, b: str) -> list[float]:
+        return [v[s][a]["psnr_db"] - v[s][b]["psnr_db"] for v in per.values()]
+
+    g2b = gains("x2", "robust", "bicubic")
+    g2base = gains("x2", "robust", "baseline")
+    g4b = gains("x4", "robust", "bicubic")
+    base2 = gains("x2", "baseline", "bicubic")
+    tilt = [v["x2"]["robust"]["psnr_db"] - v["x2_tilted_line_psnr_db"] for v in per.values()]
+    untilt = [v["x2"]["robust"]["psnr_db"] - v["x2_untilted_line_psnr_db"] for v in per.values()]
+    reg = [v["x2"]["registration_rms_lr_px"] for v in per.values()]
+    regr = [v["x2"]["registration_refined_rms_lr_px"] for v in per.values()]
+    return {
+        "x2_registration_rms_lr_px_ecc": round(float(np.sqrt(np.mean(np.square(reg)))), 4),
+        "x2_registration_rms_lr_px_refined": round(float(np.sqrt(np.mean(np.square(regr)))), 4),
+        "x2_robust_gain_over_bicubic_db_mean": round(float(np.mean(g2b)), 3),
+        "x2_robust_gain_over_baseline_db_mean": round(float(np.mean(g2base)), 3),
+        "x2_robust_gain_over_baseline_db_min": round(float(np.min(g2base)), 3),
+        "x2_baseline_gain_over_bicubic_db_mean": round(float(np.mean(base2)), 3),
+        "x4_robust_gain_over_bicubic_db_mean": round(float(np.mean(g4b)), 3),
+        "x4_robust_gain_over_bicubic_db_min": round(float(np.min(g4b)), 3),
+        "x2_tilted_line_loss_vs_2d_db_mean": round(float(np.mean(tilt)), 3),
+        "x2_tilted_line_loss_vs_2d_db_max": round(float(np.max(tilt)), 3),
+        "x2_untilted_line_loss_vs_2d_db_mean": round(float(np.mean(untilt)), 3),
+    }
+
+
+def speed_child(path: str, method: str) -> None:
+    frames = list(np.load(path))
+    truth = np.load(str(Path(path).with_name("shifts.npy")))
+    t0 = time.perf_counter()
+    c0 = resource.getrusage(resource.RUSAGE_SELF)
+    res = fuse_frames(frames, scale=2, method=method)
+    dt = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    if method == "robust":
+        est = res.info["shifts_refined"]
+    else:
+        est = [s if s is not None else [np.nan, np.nan] for s in res.info["shifts"]]
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    out = {
+        "seconds": round(dt, 3),
+        "cpu_seconds": round(cpu, 3),
+        "excluded": res.excluded,
+        "shape": list(res.image.shape),
+        "registration_rms_lr_px": round(rms(est, truth), 4),
+        "peak_rss_mb": round(rss, 1),
+    }
+    print(json.dumps(out))
+
+
+def speed(seed: int) -> dict[str, Any]:
+    big = cv2.resize(load("astronaut"), (3280, 2464), interpolation=cv2.INTER_CUBIC)
+    rng = np.random.default_rng(seed)
+    tex = cv2.GaussianBlur(rng.normal(0, 1, big.shape).astype(np.float32), (0, 0), 1.0)
+    hr = np.clip(big + 0.08 * tex, 0, 1).astype(np.float32)
+    shifts = random_shifts(16, seed=seed, spread=2.0)
+    frames = np.stack(make_burst(hr, shifts, scale=2, noise_sigma=SIGMA, seed=seed + 1))
+    out: dict[str, Any] = {"input": [16, 1232, 1640], "output": [2464, 3280]}
+    with tempfile.TemporaryDirectory() as d:
+        p = str(Path(d) / "frames.npy")
+        np.save(p, frames)
+        np.save(str(Path(d) / "shifts.npy"), shifts)
+        del frames, hr, big, tex
+        for method in ("robust", "baseline"):
+            cp = subprocess.run(
+                [sys.executable, __file__, "--speed-child", p, method],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            out[method] = json.loads(cp.stdout)
+    out["speedup_vs_baseline"] = round(out["baseline"]["seconds"] / out["robust"]["seconds"], 2)
+    out["cpu_speedup_vs_baseline"] = round(
+        out["baseline"]["cpu_seconds"] / out["robust"]["cpu_seconds"], 2
+    )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="three images only")
+    ap.add_argument("--no-speed", action="store_true")
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--speed-child", nargs=2, metavar=("NPY", "METHOD"), help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.speed_child:
+        speed_child(*a.speed_child)
+        return
+    t0 = time.perf_counter()
+    names = IMAGES[:3] if a.quick else IMAGES
+    makers: dict[str, Maker] = {n: image_maker(n) for n in names}
+    makers["simulator"] = simulator_maker()
+    per = quality(makers, a.seed)
+    result: dict[str, Any] = {
+        "bench": "mfsr",
+        "conditions": {
+            "cpus": os.cpu_count(),
+            "load_avg_1m": round(os.getloadavg()[0], 2),
+            "python": platform.python_version(),
+            "opencv": cv2.__version__,
+            "numpy": np.__version__,
+            "noise_sigma": SIGMA,
+            "frames": 16,
+            "seed": a.seed,
+            "images": list(names),
+        },
+        "summary": summarise(per),
+        "per_image": per,
+    }
+    if not a.no_speed:
+        result["speed"] = speed(a.seed)
+    result["bench_seconds"] = round(time.perf_counter() - t0, 1)
+    print(json.dumps(result, sort_keys=True))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,136 @@
+"""Burst planning: stage positions that give the sub-pixel phases a scale needs.
+
+Geometry: a camera moved sideways by ``d`` mm shifts the image of an object plane at
+distance Z by ``d * f / (Z - f) / pitch`` px (thin lens; object-space pixel pitch
+``pitch * (Z - f) / f``). A single linear axis only moves the image along one direction:
+with the axis parallel to the sensor rows only x phases change. Mounting the camera so
+that the axis makes an angle theta with the rows, tan(theta) = 1/S, turns the 1-D motion
+into 2-D sampling: steps of 1/S px along x move y by 1/S^2 px, so S^2 steps visit S^2
+distinct (x, y) phases. Objects at other depths shift by other amounts (parallax): their
+phases differ from the plan, and they move relative to the plane by the depth ratio.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class BurstPlan:
+    """A planned burst (JSON-ready through :meth:`to_json`)."""
+
+    scale: int
+    frames: int
+    px_per_mm: float
+    tilt_deg: float
+    positions_mm: list[float]
+    steps: list[int] | None
+    shifts_px: list[list[float]]
+    phases: list[list[float]]
+    travel_mm: float
+    depth_tolerance_mm: float
+    notes: list[str]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"version": 1, **asdict(self)}
+
+
+def plan_burst(
+    *,
+    scale: int,
+    focal_length_mm: float,
+    pixel_pitch_um: float,
+    distance_mm: float,
+    mm_per_step: float | None = None,
+    frames: int | None = None,
+) -> BurstPlan:
+    """Stage positions of a burst for super-resolution by ``scale``.
+
+    Parameters
+    ----------
+    scale
+        Up-sampling factor S (2..8).
+    focal_length_mm, pixel_pitch_um, distance_mm
+        Lens focal length, sensor pixel pitch, distance of the object plane from the lens.
+    mm_per_step
+        Stage resolution; positions are rounded to whole steps and the phases reported
+        are those of the rounded positions.
+    frames
+        Number of frames (default S^2, the fewest that visit every phase).
+
+    Returns
+    -------
+    BurstPlan
+        Positions along the axis (mm, first at 0), image shifts (dy, dx) px with the
+        recommended tilt, their phases modulo 1 px, the depth tolerance and notes.
+    """
+    if not isinstance(scale, int) or not 2 <= scale <= 8:
+        raise ValueError(f"scale={scale!r}; allowed: an integer 2..8")
+    for name, v in (
+        ("focal_length_mm", focal_length_mm),
+        ("pixel_pitch_um", pixel_pitch_um),
+        ("distance_mm", distance_mm),
+    ):
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}={v!r}; allowed: a number > 0")
+    if distance_mm <= focal_length_mm:
+        raise ValueError(
+            f"distance_mm={distance_mm}; allowed: > focal_length_mm "
+            f"({focal_length_mm}) for a real image"
+        )
+    if mm_per_step is not None and not (math.isfinite(mm_per_step) and mm_per_step > 0):
+        raise ValueError(f"mm_per_step={mm_per_step!r}; allowed: a number > 0")
+    n = scale * scale if frames is None else frames
+    if not isinstance(n, int) or not 2 <= n <= 1024:
+        raise ValueError(f"frames={frames!r}; allowed: an integer 2..1024")
+    px_per_mm = focal_length_mm / (distance_mm - focal_length_mm) * 1000.0 / pixel_pitch_um
+    theta = math.atan(1.0 / scale)
+    # x advances S/n px per frame: S^2 frames -> steps of 1/S px, y = x / S
+    step_x = scale / n
+    along_px = [i * step_x / math.cos(theta) for i in range(n)]
+    positions = [a / px_per_mm for a in along_px]
+    steps = None
+    notes: list[str] = []
+    if mm_per_step is not None:
+        steps = [round(p / mm_per_step) for p in positions]
+        positions = [s * mm_per_step for s in steps]
+        step_px = mm_per_step * px_per_mm
+        if step_px > step_x / 2:
+            notes.append(
+                f"stage step = {step_px:.3f} px at the object plane, coarse against "
+                f"the {step_x:.3f} px phase step: phases are uneven; get closer, "
+                "use a longer lens or accept fewer distinct phases"
+            )
+        if len(set(steps)) < len(steps):
+            notes.append("several frames round to the same step: duplicated phases")
+    shifts = [[p * px_per_mm * math.sin(theta), p * px_per_mm * math.cos(theta)] for p in positions]
+    phases = [[round(v % 1.0, 4) for v in s] for s in shifts]
+    travel = max(positions) - min(positions)
+    travel_px = travel * px_per_mm
+    # depth error dZ changes the shift by travel_px * dZ / (Z - f); keep it under 1/(4S) px
+    depth_tol = (distance_mm - focal_length_mm) / (4 * scale * max(travel_px, 1e-9))
+    notes += [
+        "one linear axis moves the image along one direction only: with the axis parallel "
+        "to the sensor rows, only x phases change and the gain in y is lost",
+        f"mount the camera so that the stage axis makes theta = {math.degrees(theta):.2f} deg "
+        f"(tan theta = 1/{scale}) with the sensor rows: the 1-D motion then samples 2-D phases",
+        f"parallax: only the plane at {distance_mm:g} mm gets these phases; objects more than "
+        f"about {depth_tol:.1f} mm nearer or farther shift by > 1/(4*{scale}) px differently "
+        "over the burst, and objects at other depths move relative to this plane "
+        "(registration follows the dominant plane)",
+    ]
+    return BurstPlan(
+        scale=scale,
+        frames=n,
+        px_per_mm=px_per_mm,
+        tilt_deg=math.degrees(theta),
+        positions_mm=positions,
+        steps=steps,
+        shifts_px=[[round(a, 5), round(b, 5)] for a, b in shifts],
+        phases=phases,
+        travel_mm=travel,
+        depth_tolerance_mm=depth_tol,
+        notes=notes,
+    )

@@ -1,0 +1,94 @@
+"""``baseline``: the published direct method, implemented as published.
+
+Every frame is up-sampled to the output size with ``cv2.resize`` (bicubic), registered to
+the up-sampled first frame with ``cv2.findTransformECC`` (translation), warped onto it and
+the stack is reduced by a per-pixel median. It keeps all N up-sampled frames in memory,
+as the method does; use it for comparisons, not for large bursts.
+
+Two details the publication leaves open are fixed here: ECC starts from the identity and,
+if it fails to converge, once more from phase correlation of the up-sampled frames; frames
+that still fail are excluded and reported. Warping is bicubic with mirrored borders.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_host.mfsr.registration import phase_correlation_shift
+
+F32 = NDArray[np.float32]
+
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-3)
+
+
+def fuse_baseline(frames: Sequence[F32], *, scale: int) -> tuple[F32, dict[str, Any]]:
+    """Bicubic up-sampling, ECC translation registration, median.
+
+    Parameters
+    ----------
+    frames
+        2-D frames of one size; ``frames[0]`` is the reference.
+    scale
+        Integer up-sampling factor.
+
+    Returns
+    -------
+    image, info
+        The fused HR image (float32) and per-frame shifts (LR px, the convention of
+        :mod:`elphel_host.mfsr.registration`) with the excluded frames.
+    """
+    if not frames:
+        raise ValueError("frames is empty; allowed: at least one frame")
+    if not isinstance(scale, int | np.integer) or scale < 1:
+        raise ValueError(f"scale={scale!r}; allowed: an integer >= 1")
+    h, w = frames[0].shape
+    size = (w * scale, h * scale)
+    ref = np.asarray(
+        cv2.resize(np.asarray(frames[0], np.float32), size, interpolation=cv2.INTER_CUBIC),
+        dtype=np.float32,
+    )
+    stack = np.empty((len(frames), size[1], size[0]), dtype=np.float32)
+    stack[0] = ref
+    used = [0]
+    shifts: list[list[float] | None] = [[0.0, 0.0]]
+    excluded: list[int] = []
+    for i in range(1, len(frames)):
+        if frames[i].shape != (h, w):
+            raise ValueError(f"frames[{i}].shape={frames[i].shape}; allowed: {(h, w)}")
+        up = np.asarray(
+            cv2.resize(np.asarray(frames[i], np.float32), size, interpolation=cv2.INTER_CUBIC),
+            dtype=np.float32,
+        )
+        warp = None
+        for init in ((0.0, 0.0), None):
+            if init is None:
+                dy, dx = phase_correlation_shift(ref, up)
+                init = (dy, dx)
+            m = np.array([[1.0, 0.0, -init[1]], [0.0, 1.0, -init[0]]], dtype=np.float32)
+            try:
+                _, warp = cv2.findTransformECC(  # type: ignore[call-overload]
+                    ref, up, m, cv2.MOTION_TRANSLATION, _CRITERIA, None, 5
+                )
+                break
+            except cv2.error:
+                warp = None
+        if warp is None:
+            excluded.append(i)
+            shifts.append(None)
+            continue
+        stack[len(used)] = cv2.warpAffine(
+            up,
+            warp,
+            size,
+            flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_REFLECT_101,
+        )
+        used.append(i)
+        shifts.append([-float(warp[1, 2]) / scale, -float(warp[0, 2]) / scale])
+    fused = np.median(stack[: len(used)], axis=0).astype(np.float32)
+    return fused, {"shifts": shifts, "excluded": excluded}

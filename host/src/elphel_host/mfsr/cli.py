@@ -1,0 +1,274 @@
+"""``elphel mfsr``: fuse burst directories; ``elphel mfsr compare``: methods side by side.
+
+* ``elphel mfsr BURST_DIR [BURST_DIR ...] --scale S [--method robust|baseline]
+  --out OUT.tif [--float] [--json]`` writes the fused TIFF (16-bit DN, or float32) and a
+  PNG preview next to it. With several burst directories ``--out`` is a directory, one
+  ``<burst name>.tif`` each, and the bursts run in parallel on a Dask cluster (local by
+  default, or ``--scheduler tcp://host:8786``).
+* ``elphel mfsr compare BURST_DIR --scale S [--reference REF.tif] --out DIR`` runs
+  bicubic, baseline and robust, scores them against the reference (PSNR, SSIM) and writes
+  the three TIFFs, a ``compare.json`` and a side-by-side crops PNG.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+from numpy.typing import NDArray
+
+from elphel_host.burst.io import read_burst
+from elphel_host.cli import emit
+from elphel_host.errors import InputFormatError
+from elphel_host.mfsr.fuse import FusionResult, fuse_burst
+from elphel_host.mfsr.metrics import psnr, ssim
+from elphel_host.mfsr.robust import RobustConfig
+from elphel_host.preview import save_preview
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``mfsr`` subcommand."""
+    p = subparsers.add_parser(
+        "mfsr",
+        help="multi-frame super-resolution of burst directories (or: mfsr compare ...)",
+        description="Fuse sub-pixel bursts (DESIGN 4.3) into one image on the first frame's "
+        "grid up-sampled by --scale. 'elphel mfsr compare BURST_DIR ...' compares bicubic, "
+        "baseline and robust instead.",
+    )
+    p.add_argument(
+        "burst_dirs",
+        nargs="+",
+        metavar="BURST_DIR",
+        help="burst directories (or 'compare' followed by one burst directory)",
+    )
+    p.add_argument("--scale", type=int, required=True, metavar="S", help="integer factor 1..8")
+    p.add_argument(
+        "--method",
+        choices=("robust", "baseline"),
+        default="robust",
+        help="robust (default): forward-model reconstruction; baseline: "
+        "bicubic + ECC + median, the published direct method",
+    )
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="OUT",
+        help="output TIFF (a directory with several bursts or with compare)",
+    )
+    p.add_argument("--float", action="store_true", help="write float32 instead of 16-bit DN")
+    p.add_argument(
+        "--blur-sigma",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="optics blur (Gaussian sigma, output px) to deconvolve (robust)",
+    )
+    p.add_argument(
+        "--no-prior", action="store_true", help="ignore the stage/optics prior of the manifest"
+    )
+    p.add_argument(
+        "--reference", metavar="REF.tif", help="compare: ground truth on the output grid"
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="URL",
+        help="several bursts: Dask scheduler address (default: a local cluster)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def _write_image(
+    path: Path, image: NDArray[np.float32], *, as_float: bool, meta: dict[str, Any]
+) -> dict[str, Any]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rgb = image.ndim == 3
+    if as_float:
+        data: NDArray[Any] = image.astype(np.float32)
+        clipped = 0
+    else:
+        r = np.rint(image)
+        clipped = int(np.count_nonzero((r < 0) | (r > 65535)))
+        data = np.clip(r, 0, 65535).astype(np.uint16)
+    tifffile.imwrite(path, data, photometric="rgb" if rgb else "minisblack", metadata=meta)
+    preview = save_preview(image, path.with_suffix(".png"))
+    return {"out": str(path), "preview": str(preview), "clipped_pixels": clipped}
+
+
+def _fuse_one(
+    burst_dir: str,
+    scale: int,
+    method: str,
+    out: str,
+    as_float: bool,
+    blur_sigma: float,
+    use_prior: bool,
+) -> dict[str, Any]:
+    burst = read_burst(burst_dir)
+    res = fuse_burst(
+        burst,
+        scale=scale,
+        method=method,
+        use_prior=use_prior,
+        config=RobustConfig(blur_sigma=blur_sigma),
+    )
+    meta = {
+        "method": method,
+        "scale": scale,
+        "burst": str(burst_dir),
+        "bayer": burst.bayer,
+        "grid": "cv2.resize: LR pixel i centre at scale*i + (scale-1)/2",
+    }
+    written = _write_image(Path(out), res.image, as_float=as_float, meta=meta)
+    return {"burst": str(burst_dir), **written, **res.report()}
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.burst_dirs[0] == "compare":
+        return run_compare(args)
+    dirs = args.burst_dirs
+    if len(dirs) == 1:
+        result = _fuse_one(
+            dirs[0],
+            args.scale,
+            args.method,
+            args.out,
+            args.float,
+            args.blur_sigma,
+            not args.no_prior,
+        )
+        human = (
+            f"{result['out']}: {result['method']} x{args.scale}, {result['used']}/"
+            f"{result['frames']} frames, {result['seconds']:.2f} s"
+            + (
+                f"; excluded {[e['index'] for e in result['excluded']]}"
+                if result["excluded"]
+                else ""
+            )
+        )
+        emit(args, result, human)
+        return 0
+    results = _run_many(args)
+    emit(
+        args,
+        {"bursts": results},
+        "\n".join(
+            f"{r['out']}: {r['used']}/{r['frames']} frames, {r['seconds']:.2f} s" for r in results
+        ),
+    )
+    return 0
+
+
+def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as e:
+        raise InputFormatError(
+            "several burst directories need dask[distributed] (pip install 'dask[distributed]'); "
+            "or fuse one directory per call"
+        ) from e
+    out_dir = Path(args.out)
+    names = [Path(d).resolve().name for d in args.burst_dirs]
+    if len(set(names)) != len(names):
+        raise InputFormatError(
+            f"burst directory names {names}; allowed: distinct names "
+            "(each becomes <name>.tif in --out)"
+        )
+    outs = [str(out_dir / f"{n}.tif") for n in names]
+    cluster = None
+    if args.scheduler:
+        client = Client(args.scheduler)
+    else:
+        cluster = LocalCluster(processes=True, threads_per_worker=1, dashboard_address=None)
+        client = Client(cluster)
+    try:
+        futures = [
+            client.submit(
+                _fuse_one,
+                d,
+                args.scale,
+                args.method,
+                o,
+                args.float,
+                args.blur_sigma,
+                not args.no_prior,
+                pure=False,
+            )
+            for d, o in zip(args.burst_dirs, outs, strict=True)
+        ]
+        return [f.result() for f in futures]
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _crop(image: NDArray[np.float32], size: int) -> NDArray[np.float32]:
+    h, w = image.shape[:2]
+    y0, x0 = max(0, (h - size) // 2), max(0, (w - size) // 2)
+    return image[y0 : y0 + size, x0 : x0 + size]
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    if len(args.burst_dirs) != 2:
+        raise InputFormatError(f"compare takes one BURST_DIR, got {args.burst_dirs[1:]}")
+    burst = read_burst(args.burst_dirs[1])
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    ref = None
+    if args.reference:
+        ref = np.asarray(tifffile.imread(args.reference), dtype=np.float32)
+    results: dict[str, Any] = {}
+    crops = []
+    for method in ("bicubic", "baseline", "robust"):
+        res: FusionResult = fuse_burst(
+            burst,
+            scale=args.scale,
+            method=method,
+            use_prior=not args.no_prior,
+            config=RobustConfig(blur_sigma=args.blur_sigma),
+        )
+        entry = _write_image(
+            out / f"{method}.tif",
+            res.image,
+            as_float=args.float,
+            meta={"method": method, "scale": args.scale},
+        )
+        entry.update({"seconds": round(res.seconds, 3), "excluded": res.excluded})
+        if ref is not None:
+            if ref.shape != res.image.shape:
+                raise InputFormatError(
+                    f"{args.reference}: shape={ref.shape}; allowed: "
+                    f"{res.image.shape} (the output grid)"
+                )
+            # scores relative to the reference's own span (a 12-bit image in 16-bit
+            # containers would otherwise look 24 dB better than it is)
+            rng = max(float(ref.max() - ref.min()), 1e-12)
+            b = 4 * args.scale
+            a2 = res.image if res.image.ndim == 2 else res.image.mean(axis=2)
+            r2 = ref if ref.ndim == 2 else ref.mean(axis=2)
+            entry["psnr_db"] = round(psnr(r2, a2, data_range=rng, border=b), 3)
+            entry["ssim"] = round(ssim(r2, a2, data_range=rng, border=b), 4)
+            entry["data_range"] = rng
+        results[method] = entry
+        crops.append(_crop(res.image, 256))
+    side = np.concatenate([np.asarray(c, np.float32) for c in crops], axis=1)
+    png = save_preview(side, out / "crops.png")
+    summary = {
+        "burst": args.burst_dirs[1],
+        "scale": args.scale,
+        "methods": results,
+        "crops_png": str(png),
+        "crops_order": ["bicubic", "baseline", "robust"],
+    }
+    (out / "compare.json").write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
+    lines = [
+        f"{m}: {e.get('psnr_db', '-')} dB, SSIM {e.get('ssim', '-')}, {e['seconds']} s"
+        for m, e in results.items()
+    ]
+    emit(args, summary, "\n".join([*lines, f"crops: {png}"]))
+    return 0

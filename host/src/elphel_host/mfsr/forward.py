@@ -1,0 +1,369 @@
+"""Forward-model reconstruction of a translated burst, solved exactly in the Fourier domain.
+
+Model. Low-resolution (LR) frame k, aligned to the reference grid up to a fractional shift
+``phi_k`` (LR px, |phi| <= 0.5), sees at pixel i the high-resolution (HR) image integrated
+over the pixel's area::
+
+    y_k[i] = (h * x)(S*i + c + S*phi_k) + noise,      c = (S - 1) / 2
+
+where S is the scale, x the HR image on the grid ``cv2.resize`` uses (LR pixel i has its
+centre at HR coordinate S*i + c), and h the pixel aperture (a box of ``aperture`` HR px,
+optionally convolved with a Gaussian blur), evaluated between grid points by trigonometric
+(band-limited) interpolation.
+
+Why the Fourier domain: in the DFT, LR frequency v of frame k only sees the S*S HR
+frequencies that alias onto it, ``u_j = v + j' n`` (j' one of S*S integer pairs). Every
+frame's row in the least-squares system for that block is ``(1/S^2) H(u_j) exp(2 pi i u_j
+t_k / N)``; its normal matrix is ``D G D / S^4`` with D = diag(H(u_j)) and G an S^2 x S^2
+matrix that is the same for every v. So the regularised least-squares problem
+
+    min_x  sum_k |y_k - A_k x|^2 + lam * |grad x|^2
+
+splits into independent S^2 x S^2 Hermitian systems, one per LR frequency, solved here by
+a vectorised LDL^H. Frames are accumulated one chunk at a time into S^2 LR-size
+spectra, so memory grows with the output size, not with the number of frames.
+
+Robustness: Huber regression by pseudo-data. After a solve, each frame's residual is
+computed; residuals beyond ``huber * sigma`` are clipped (and pixels outside a frame's
+valid area are replaced by the prediction), the right-hand side is corrected and the
+system solved again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft as sfft
+from numpy.typing import NDArray
+
+F32 = NDArray[np.float32]
+C64 = NDArray[np.complex64]
+F64 = NDArray[np.float64]
+
+# A frame source: index -> (aligned LR frame float32, validity mask bool or None)
+FrameSource = Callable[[int], tuple[F32, NDArray[np.bool_] | None]]
+
+_CHUNK_FRAMES = 4
+_SOLVE_ROWS = 128
+
+
+@dataclass(frozen=True)
+class ForwardModel:
+    """Geometry and optics shared by every frame of one reconstruction.
+
+    Parameters
+    ----------
+    lr_shape
+        (rows, columns) of the (padded) LR frames.
+    scale
+        Integer up-sampling factor S.
+    aperture
+        Width of the pixel's box aperture in HR px (S for a full-fill mono sensor).
+    blur_sigma
+        Extra Gaussian blur of the optics in HR px (0 = none).
+    """
+
+    lr_shape: tuple[int, int]
+    scale: int
+    aperture: int
+    blur_sigma: float = 0.0
+
+    @property
+    def hr_shape(self) -> tuple[int, int]:
+        return (self.lr_shape[0] * self.scale, self.lr_shape[1] * self.scale)
+
+    def alias_offsets(self) -> list[tuple[int, int]]:
+        """The integer pairs j' with HR frequency u = v + j' n, in a fixed order."""
+        s = self.scale
+        lo = -(s // 2)
+        js = range(lo, lo + s)
+        return [(jy, jx) for jy in js for jx in js]
+
+    def lr_freq(self, axis: int) -> F64:
+        """LR frequency representatives v (signed for odd S, unsigned for even S)."""
+        n = self.lr_shape[axis]
+        v = np.arange(n, dtype=np.float64)
+        if self.scale % 2:
+            v = np.where(v >= n / 2, v - n, v)
+        return v
+
+
+def _aperture_1d(u: F64, n_hr: int, aperture: int, blur_sigma: float) -> F64:
+    """Transfer function of a centred box of ``aperture`` HR px (Dirichlet) times a Gaussian."""
+    f = u / n_hr
+    num = np.sin(np.pi * aperture * f)
+    den = aperture * np.sin(np.pi * f)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = np.where(np.abs(den) < 1e-12, 1.0, num / np.where(den == 0, 1.0, den))
+    if blur_sigma > 0:
+        h = h * np.exp(-2.0 * np.pi**2 * blur_sigma**2 * f**2)
+    return np.asarray(h, dtype=np.float64)
+
+
+class FourierSolver:
+    """Accumulates frames and solves the regularised forward-model least squares.
+
+    Parameters
+    ----------
+    model
+        The shared geometry.
+    shifts
+        Per frame (dy, dx) fractional shift phi_k in LR px (frame k, pixel i sees the
+        reference's LR coordinate i + phi_k).
+    lam
+        Weight of the gradient regulariser (about noise variance / gradient variance).
+    """
+
+    def __init__(
+        self, model: ForwardModel, shifts: Sequence[tuple[float, float]], *, lam: float
+    ) -> None:
+        if lam <= 0:
+            raise ValueError(f"lam={lam}; allowed: > 0")
+        self.model = model
+        s = model.scale
+        ny, nx = model.lr_shape
+        Ny, Nx = model.hr_shape
+        self.offsets = model.alias_offsets()
+        c = (s - 1) / 2.0
+        # t_k: offset of frame k's sample positions on the HR grid (HR px)
+        self.t = np.array([(c + s * dy, c + s * dx) for dy, dx in shifts], dtype=np.float64)
+        self._jp = np.array(self.offsets, dtype=np.float64)  # (A, 2)
+        self._update_coupling()
+        vy, vx = model.lr_freq(0), model.lr_freq(1)
+        # real frames: only LR x frequencies 0..nx/2 are kept (the rest are conjugates)
+        self.nxh = nx // 2 + 1
+        vx = vx[: self.nxh]
+        self._vy, self._vx = vy, vx
+        # per alias: 1-D transfer and 1-D regulariser factors per axis
+        self.hy = {
+            jy: _aperture_1d(vy + jy * ny, Ny, model.aperture, model.blur_sigma)
+            for jy, _ in self.offsets
+        }
+        self.hx = {
+            jx: _aperture_1d(vx + jx * nx, Nx, model.aperture, model.blur_sigma)
+            for _, jx in self.offsets
+        }
+        self.ly = {jy: 4.0 * np.sin(np.pi * (vy + jy * ny) / Ny) ** 2 for jy, _ in self.offsets}
+        self.lx = {jx: 4.0 * np.sin(np.pi * (vx + jx * nx) / Nx) ** 2 for _, jx in self.offsets}
+        self.lam = lam
+        self._factors: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
+        self.rhs = np.zeros((len(self.offsets), ny, self.nxh), dtype=np.complex64)
+
+    def _update_coupling(self) -> None:
+        s = self.model.scale
+        # C[k, j] = exp(-2 pi i j'.t_k / S): how frame k's spectrum feeds alias j
+        self.C = np.exp(-2j * np.pi * (self.t @ self._jp.T) / s).astype(np.complex64)
+        c128 = np.exp(-2j * np.pi * (self.t @ self._jp.T) / s)
+        # G[j, j'] = sum_k C[k, j] conj(C[k, j']): the frame-independent normal matrix
+        self.G = np.einsum("ka,kb->ab", c128, c128.conj())
+
+    def move(self, k: int, dt_hr: tuple[float, float]) -> None:
+        """Shift frame k's sample positions by ``dt_hr`` HR px (call before adding it)."""
+        self.t[k] += np.asarray(dt_hr, dtype=np.float64)
+        self._update_coupling()
+
+    def reset(self, *, lam: float | None = None) -> None:
+        """Clear the right-hand side (and optionally change the regularisation weight)."""
+        self.rhs[...] = 0
+        if lam is not None:
+            self.lam = lam
+
+    def shifts_lr(self) -> F64:
+        """Current fractional shifts (dy, dx) in LR px."""
+        s = self.model.scale
+        return np.asarray((self.t - (s - 1) / 2.0) / s, dtype=np.float64)
+
+    # -- frame spectra -------------------------------------------------------------------
+    def _ramps(self, k: int) -> tuple[C64, C64]:
+        Ny, Nx = self.model.hr_shape
+        ty, tx = self.t[k]
+        ry = np.exp(-2j * np.pi * self._vy * ty / Ny).astype(np.complex64)
+        rx = np.exp(-2j * np.pi * self._vx * tx / Nx).astype(np.complex64)
+        return ry, rx
+
+    def frame_term(self, k: int, frame: F32) -> C64:
+        """FFT of a frame times its frequency ramp (P_k in the module notes)."""
+        spec = sfft.rfft2(frame, workers=-1)
+        ry, rx = self._ramps(k)
+        spec *= ry[:, None]
+        spec *= rx[None, :]
+        return np.asarray(spec, dtype=np.complex64)
+
+    def add_frames(self, ks: Sequence[int], frames: Sequence[F32], *, sign: float = 1.0) -> None:
+        """Add (or with sign=-1 remove) frames' contributions to the right-hand side."""
+        ny, nxh = self.model.lr_shape[0], self.nxh
+        for start in range(0, len(ks), _CHUNK_FRAMES):
+            idx = list(ks[start : start + _CHUNK_FRAMES])
+            P = np.stack(
+                [
+                    self.frame_term(k, f)
+                    for k, f in zip(idx, frames[start : start + _CHUNK_FRAMES], strict=True)
+                ]
+            )
+            coef = (sign * self.C[idx]).T  # (A, k)
+            self.rhs += (coef @ P.reshape(len(idx), -1)).reshape(-1, ny, nxh)
+
+    # -- solve ---------------------------------------------------------------------------
+    def _block_factors(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Per alias: aperture transfer D and gradient-prior weight L, (A, ny, nxh) each."""
+        if self._factors is None:
+            d = np.stack([self.hy[jy][:, None] * self.hx[jx][None, :] for jy, jx in self.offsets])
+            l2 = np.stack([self.ly[jy][:, None] + self.lx[jx][None, :] for jy, jx in self.offsets])
+            self._factors = (d.astype(np.float32), l2.astype(np.float32))
+        return self._factors
+
+    def solve(self) -> C64:
+        """Solve every block; returns X_j(v), shape (A, ny, nxh), the HR spectrum by alias."""
+        ny = self.model.lr_shape[0]
+        s2 = np.float32(self.model.scale**2)
+        d_all, l_all = self._block_factors()
+        g = self.G.astype(np.complex64)
+        out = np.empty_like(self.rhs)
+        # single precision is enough: the prior keeps every block well conditioned
+        for r0 in range(0, ny, _SOLVE_ROWS):
+            r1 = min(ny, r0 + _SOLVE_ROWS)
+            D = d_all[:, r0:r1]
+            mu = np.float32(self.lam) * s2 * l_all[:, r0:r1]
+            out[:, r0:r1] = _solve_blocks(D, g, mu, s2 * D * self.rhs[:, r0:r1])
+        return out
+
+    def to_image(self, X: C64, *, shift_hr: tuple[float, float] = (0.0, 0.0)) -> F32:
+        """Place the alias blocks into the HR half-spectrum and return the real HR image.
+
+        ``shift_hr`` (dy, dx) resamples the result exactly (band-limited) so that output
+        pixel u shows the solution at u + shift.
+        """
+        ny, nx = self.model.lr_shape
+        Ny, Nx = self.model.hr_shape
+        Nxh = Nx // 2 + 1
+        spec = np.zeros((Ny, Nxh), dtype=np.complex64)
+        # the conjugate half first, then the solved half (which wins where they meet)
+        for direct in (False, True):
+            sign = 1 if direct else -1
+            for a, (jy, jx) in enumerate(self.offsets):
+                iy = ((sign * (self._vy + jy * ny)) % Ny).astype(np.intp)
+                ix = ((sign * (self._vx + jx * nx)) % Nx).astype(np.intp)
+                keep = ix < Nxh
+                if not keep.any():
+                    continue
+                block = X[a][:, keep]
+                if shift_hr != (0.0, 0.0):
+                    py = np.exp(2j * np.pi * (self._vy + jy * ny) * shift_hr[0] / Ny)
+                    px = np.exp(2j * np.pi * (self._vx + jx * nx)[keep] * shift_hr[1] / Nx)
+                    block = block * np.outer(py, px).astype(np.complex64)
+                spec[np.ix_(iy, ix[keep])] = block if direct else np.conj(block)
+        img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
+        return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def _solve_blocks(D: NDArray[np.float32], G: C64, mu: NDArray[np.float32], b: C64) -> C64:
+    """Solve (D G D + diag(mu)) x = b for every pixel of the trailing axes (LDL^H)."""
+    A = G.shape[0]
+    # M[a][c] as lists of arrays; Hermitian, keep the lower triangle
+    M: list[list[C64]] = [
+        [D[a] * D[c] * G[a, c] + (mu[a] if a == c else 0.0) for c in range(a + 1)] for a in range(A)
+    ]
+    # In-place LDL^H: M[a][c] (c<a) becomes L[a][c], M[a][a] becomes d[a] (real)
+    for a in range(A):
+        for c in range(a):
+            acc = M[a][c]
+            for e in range(c):
+                acc = acc - M[a][e] * M[e][e] * np.conj(M[c][e])
+            M[a][c] = acc / M[c][c]
+        acc = M[a][a]
+        for e in range(a):
+            acc = acc - M[a][e] * M[e][e] * np.conj(M[a][e])
+        M[a][a] = np.asarray(acc.real, dtype=np.complex64)
+    # forward: L y = b
+    y: list[C64] = []
+    for a in range(A):
+        acc = b[a]
+        for e in range(a):
+            acc = acc - M[a][e] * y[e]
+        y.append(acc)
+    # diagonal and backward: L^H x = D^-1 y
+    x: list[C64] = [np.zeros_like(b[0])] * A
+    for a in reversed(range(A)):
+        xa = y[a] / M[a][a]
+        for e in range(a + 1, A):
+            xa = xa - np.conj(M[e][a]) * x[e]
+        x[a] = np.asarray(xa, dtype=np.complex64)
+    return np.stack(x)
+
+
+class ModelSpectra:
+    """Per-pass spectra of the solution: prediction and its shift derivatives by alias."""
+
+    def __init__(self, solver: FourierSolver, X: C64) -> None:
+        ny, nx = solver.model.lr_shape
+        Ny, Nx = solver.model.hr_shape
+        s2 = float(solver.model.scale**2)
+        A = len(solver.offsets)
+        nxh = solver.nxh
+        self.Z = np.empty((A, ny * nxh), np.complex64)
+        self.Zy = np.empty_like(self.Z)
+        self.Zx = np.empty_like(self.Z)
+        for a, (jy, jx) in enumerate(solver.offsets):
+            z = (solver.hy[jy][:, None] * solver.hx[jx][None, :] / s2).astype(np.float32) * X[a]
+            wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
+            wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
+            self.Z[a] = z.ravel()
+            self.Zy[a] = (z * wy[:, None]).ravel()
+            self.Zx[a] = (z * wx[None, :]).ravel()
+
+
+def refine_and_pseudo(
+    solver: FourierSolver,
+    spectra: ModelSpectra,
+    k: int,
+    frame: F32,
+    valid: NDArray[np.bool_],
+    *,
+    huber: float,
+    sigma: float,
+    refine: bool,
+) -> tuple[F32, tuple[float, float], F32]:
+    """One frame's robust step: refine its shift against the model, then clip its residual.
+
+    The shift update is one Gauss-Newton step over the frame's valid, non-outlier pixels
+    (the mirror padding moves the opposite way and must not vote). Returns the
+    pseudo-data (prediction + clipped residual on valid pixels, prediction elsewhere), the
+    shift update (HR px, to add to frame k's position) and the residual.
+    """
+    ny, nx = solver.model.lr_shape
+    nxh = solver.nxh
+    ck = solver.C[k].conj()
+    ry, rx = solver._ramps(k)
+    ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
+    q = (ck @ spectra.Z).reshape(ny, nxh)
+    q *= ryc
+    q *= rxc
+    pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=-1), dtype=np.float32)
+    del q
+    dt = (0.0, 0.0)
+    if refine:
+        gy = (ck @ spectra.Zy).reshape(ny, nxh)
+        gx = (ck @ spectra.Zx).reshape(ny, nxh)
+        for g in (gy, gx):
+            g *= ryc
+            g *= rxc
+        dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=-1), dtype=np.float32).ravel()
+        dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=-1), dtype=np.float32).ravel()
+        del gy, gx
+        r = (frame - pred).ravel()
+        w = (valid.ravel() & (np.abs(r) <= huber * sigma)).astype(np.float32)
+        dyw, dxw = dy * w, dx * w
+        a11, a12, a22 = float(dyw @ dy), float(dyw @ dx), float(dxw @ dx)
+        b1, b2 = float(dyw @ r), float(dxw @ r)
+        det = a11 * a22 - a12 * a12
+        if det > 1e-12 * max(a11 * a22, 1e-30):
+            dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
+            pred += (dt[0] * dy + dt[1] * dx).reshape(ny, nx)
+    r2 = frame - pred
+    c = np.float32(huber * sigma)
+    pseudo = np.clip(r2, -c, c)
+    pseudo += pred
+    np.copyto(pseudo, pred, where=~valid)
+    return pseudo, dt, r2

@@ -1,0 +1,275 @@
+"""``robust`` fusion: registered frames -> forward-model reconstruction with outlier rejection.
+
+Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver):
+
+1. Each frame is moved by the integer part of its shift onto the reference grid; the
+   pixels it does not cover are marked invalid (filled, for the first solve only, with the
+   reference's own pixels). Frames are mirror-padded so that the
+   periodic Fourier model has no seam inside the image.
+2. Least-squares solve with a gradient prior, weight ``(sigma / tau)^2``: sigma is the
+   noise (estimated from the data), tau the expected HR gradient (a fraction of the range).
+3. Robust passes: every frame's shift is refined against the model (this removes the
+   aliasing bias of LR registration), its residual clipped at ``huber * sigma`` (Huber
+   regression by pseudo-data; invalid pixels take the prediction), and the system solved
+   again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+import scipy.fft as sfft
+from numpy.typing import NDArray
+
+from elphel_host.mfsr.forward import ForwardModel, FourierSolver, ModelSpectra, refine_and_pseudo
+
+F32 = NDArray[np.float32]
+
+_LAPLACE_NOISE = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class RobustConfig:
+    """Options of the robust reconstruction.
+
+    Parameters
+    ----------
+    passes
+        Robust passes after the first least-squares solve (each refines shifts and clips
+        outliers).
+    huber
+        Residuals beyond this many noise sigmas are clipped.
+    tau
+        Expected HR gradient standard deviation as a fraction of the image's range; a
+        smaller value smooths more.
+    blur_sigma
+        Extra Gaussian blur of the optics in HR px, deconvolved with the pixel aperture.
+    pad
+        Mirror padding in LR px around each frame.
+    refine
+        Refine shifts against the model in the robust passes.
+    refine_window
+        Frames larger than this (px) have their shifts refined on a central window of
+        this size, which costs a fraction of refining on the whole frame.
+    noise_sigma
+        Noise standard deviation in input units; None estimates it from the data.
+    """
+
+    passes: int = 1
+    huber: float = 3.0
+    tau: float = 0.04
+    blur_sigma: float = 0.0
+    pad: int = 16
+    refine: bool = True
+    refine_window: int = 384
+    noise_sigma: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.passes < 0:
+            raise ValueError(f"passes={self.passes}; allowed: >= 0")
+        if not self.huber > 0:
+            raise ValueError(f"huber={self.huber}; allowed: > 0")
+        if not self.tau > 0:
+            raise ValueError(f"tau={self.tau}; allowed: > 0")
+        if self.blur_sigma < 0:
+            raise ValueError(f"blur_sigma={self.blur_sigma}; allowed: >= 0")
+        if self.pad < 0:
+            raise ValueError(f"pad={self.pad}; allowed: >= 0")
+        if self.refine_window < 32:
+            raise ValueError(f"refine_window={self.refine_window}; allowed: >= 32")
+
+
+DEFAULT_CONFIG = RobustConfig()
+
+
+def estimate_noise(image: F32) -> float:
+    """Noise standard deviation of one frame (median of a Laplacian, robust to edges)."""
+    if image.ndim != 2 or min(image.shape) < 3:
+        raise ValueError(f"image.shape={image.shape}; allowed: 2-D, at least 3x3")
+    f = cv2.filter2D(np.asarray(image, np.float32), -1, _LAPLACE_NOISE)[1:-1, 1:-1]
+    step = max(1, int(np.sqrt(f.size / 250_000)))
+    return float(np.median(np.abs(f[::step, ::step])) / 0.6745 / 6.0)
+
+
+def _aligned(frame: F32, reference: F32, n: tuple[int, int]) -> tuple[F32, NDArray[np.bool_]]:
+    """Frame moved by the integer shift n onto the reference grid, with its validity mask."""
+    h, w = frame.shape
+    ny, nx = n
+    if ny == 0 and nx == 0:
+        return frame, np.ones(frame.shape, dtype=bool)
+    # uncovered pixels start as the reference's (a fraction of a pixel off): they only
+    # matter for the first solve; the robust passes replace them by the prediction
+    out = np.array(reference, dtype=np.float32, copy=True)
+    valid = np.zeros((h, w), dtype=bool)
+    # out(q) = frame(q - n) where 0 <= q - n < size
+    qy0, qy1 = max(0, ny), min(h, h + ny)
+    qx0, qx1 = max(0, nx), min(w, w + nx)
+    if qy1 > qy0 and qx1 > qx0:
+        out[qy0:qy1, qx0:qx1] = frame[qy0 - ny : qy1 - ny, qx0 - nx : qx1 - nx]
+        valid[qy0:qy1, qx0:qx1] = True
+    return out, valid
+
+
+def _padded(a: NDArray[Any], pad: tuple[int, int, int, int], *, mode: str) -> NDArray[Any]:
+    top, bottom, left, right = pad
+    if mode == "reflect":
+        return np.asarray(cv2.copyMakeBorder(a, top, bottom, left, right, cv2.BORDER_REFLECT_101))
+    return np.pad(a, ((top, bottom), (left, right)), constant_values=False)
+
+
+def reconstruct(
+    frames: Sequence[F32],
+    shifts: Sequence[tuple[float, float]],
+    *,
+    scale: int,
+    aperture: int | None = None,
+    origin_shift: tuple[float, float] = (0.0, 0.0),
+    config: RobustConfig = DEFAULT_CONFIG,
+) -> tuple[F32, dict[str, Any]]:
+    """Fuse registered frames onto the reference's grid up-sampled by ``scale``.
+
+    Parameters
+    ----------
+    frames
+        2-D frames of one size; ``frames[0]`` is the reference.
+    shifts
+        (dy, dx) per frame in LR px (frame k's pixel i sees reference coordinate i + shift).
+    scale
+        Integer up-sampling factor.
+    aperture
+        Pixel aperture in HR px (default ``scale``: a fully filled LR pixel).
+    origin_shift
+        Added to every shift (LR px): moves the output grid, used for Bayer planes.
+    config
+        Reconstruction options.
+
+    Returns
+    -------
+    image, info
+        The HR image (float32, input units) and a dict with the noise estimate, the
+        regularisation weight and the refined shifts.
+    """
+    if not frames:
+        raise ValueError("frames is empty; allowed: at least one frame")
+    if len(shifts) != len(frames):
+        raise ValueError(f"len(shifts)={len(shifts)}; allowed: {len(frames)} (one per frame)")
+    if not isinstance(scale, int | np.integer) or scale < 1:
+        raise ValueError(f"scale={scale!r}; allowed: an integer >= 1")
+    h, w = frames[0].shape
+    for i, f in enumerate(frames):
+        if f.ndim != 2 or f.shape != (h, w):
+            raise ValueError(f"frames[{i}].shape={f.shape}; allowed: {(h, w)} (all alike, 2-D)")
+    if min(h, w) < 4:
+        raise ValueError(f"frame size {h}x{w}; allowed: at least 4x4")
+    # refining shifts needs a determined model: at least one frame per HR unknown
+    refine_here = config.refine and len(frames) >= scale * scale
+    if refine_here and config.passes > 0 and max(h, w) > config.refine_window:
+        # shifts are refined on a central window (same model, exact, 1/10 of the work);
+        # the full-size passes then only clip outliers
+        wy, wx = min(h, config.refine_window), min(w, config.refine_window)
+        y0, x0 = (h - wy) // 2, (w - wx) // 2
+        crop = [np.ascontiguousarray(f[y0 : y0 + wy, x0 : x0 + wx]) for f in frames]
+        _, cinfo = reconstruct(
+            crop,
+            shifts,
+            scale=scale,
+            aperture=aperture,
+            origin_shift=origin_shift,
+            config=replace(config, refine_window=max(h, w)),
+        )
+        shifts = [(a, b) for a, b in cinfo["shifts_refined"]]
+        refine_here = False
+    ref = np.asarray(frames[0], dtype=np.float32)
+    sh = np.asarray(shifts, dtype=np.float64) + np.asarray(origin_shift, dtype=np.float64)
+    n_int = np.rint(sh).astype(int)
+    frac = sh - n_int
+    p = min(config.pad, h - 1, w - 1)
+    ny, nx = sfft.next_fast_len(h + 2 * p), sfft.next_fast_len(w + 2 * p)
+    pads = (p, ny - h - p, p, nx - w - p)
+    if pads[1] >= h or pads[3] >= w:  # reflection needs the frame to be larger than the pad
+        ny, nx = h + 2 * p, w + 2 * p
+        pads = (p, p, p, p)
+    model = ForwardModel((ny, nx), int(scale), int(aperture or scale), config.blur_sigma)
+    step = max(1, int(np.sqrt(ref.size / 250_000)))  # a quarter-million samples suffice
+    lo, hi = np.percentile(ref[::step, ::step], [0.1, 99.9])
+    span = max(float(hi - lo), 1e-6)
+    sigma = config.noise_sigma if config.noise_sigma is not None else estimate_noise(ref)
+    tau = config.tau * span
+    lam = max((sigma / tau) ** 2, 1e-6)
+    solver = FourierSolver(model, [tuple(v) for v in frac], lam=lam)
+    t0_start = solver.t[0].copy()
+
+    def frame_k(k: int) -> tuple[F32, NDArray[np.bool_]]:
+        f, v = _aligned(
+            np.asarray(frames[k], np.float32),
+            ref,
+            (int(n_int[k, 0]), int(n_int[k, 1])),
+        )
+        return (
+            np.asarray(_padded(f, pads, mode="reflect"), np.float32),
+            np.asarray(_padded(v, pads, mode="zero"), bool),
+        )
+
+    ks = list(range(len(frames)))
+    for start in range(0, len(ks), 4):
+        chunk = ks[start : start + 4]
+        solver.add_frames(chunk, [frame_k(k)[0] for k in chunk])
+    X = solver.solve()
+    k_frames, s2 = len(frames), scale * scale
+    dof = max(1.0 - s2 / k_frames, 0.25)
+    for _ in range(config.passes):
+        spectra = ModelSpectra(solver, X)
+        del X
+        solver.reset()
+        mads: list[float] = []
+        buf_k: list[int] = []
+        buf_f: list[F32] = []
+        for k in ks:
+            f, v = frame_k(k)
+            pseudo, dt, r = refine_and_pseudo(
+                solver,
+                spectra,
+                k,
+                f,
+                v,
+                huber=config.huber,
+                sigma=sigma,
+                refine=refine_here,
+            )
+            sub = np.abs(r[::3, ::3][v[::3, ::3]])
+            mads.append(float(np.median(sub)) if sub.size else 0.0)
+            if dt[0] or dt[1]:
+                solver.move(k, dt)
+            # frames are added in chunks (one matrix product each); a frame's own shift
+            # is final once refined, the others' are not used by its spectrum
+            buf_k.append(k)
+            buf_f.append(pseudo)
+            if len(buf_k) == 4 or k == ks[-1]:
+                solver.add_frames(buf_k, buf_f)
+                buf_k, buf_f = [], []
+        if config.noise_sigma is None:
+            # the residual spread sets the clipping level only: with few frames per
+            # unknown it under-estimates the noise, so it must not weaken the prior
+            sigma = max(1.4826 * float(np.median(mads)) / np.sqrt(dof), 1e-6 * span)
+            if k_frames >= 2 * s2:  # enough frames per unknown for the estimate to hold
+                solver.lam = max((sigma / tau) ** 2, 1e-6)
+        del spectra
+        X = solver.solve()
+    # The shifts are refined jointly, the reference's too: the common part of the
+    # refinements is a drift of the model's grid away from the reference frame (a global
+    # shift is invisible to the data); move the image back onto the reference's grid.
+    drift = solver.t[0] - t0_start
+    img = solver.to_image(X, shift_hr=(float(drift[0]), float(drift[1])))
+    y0, x0 = p * scale, p * scale
+    out = np.ascontiguousarray(img[y0 : y0 + h * scale, x0 : x0 + w * scale])
+    refined = solver.shifts_lr() - drift / scale + n_int - np.asarray(origin_shift)
+    info = {
+        "noise_sigma": sigma,
+        "lambda": solver.lam,
+        "shifts_refined": [[float(a), float(b)] for a, b in refined],
+    }
+    return out, info

@@ -1,0 +1,118 @@
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+from elphel_host.burst.io import write_burst
+from elphel_host.cli import main
+
+
+def _burst(tmp_path, burst2):
+    frames, _ = burst2
+    dn = [np.clip(np.rint(f * 4000), 0, 65535).astype(np.uint16) for f in frames[:8]]
+    return write_burst(tmp_path / "b", dn)
+
+
+def test_mfsr_json_is_one_object(tmp_path, burst2, capsys):
+    b = _burst(tmp_path, burst2)
+    out = tmp_path / "o" / "sr.tif"
+    assert main(["mfsr", str(b), "--scale", "2", "--out", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["method"] == "robust" and result["used"] == 8
+    assert len(result["registration"]) == 8 and result["excluded"] == []
+    assert result["seconds"] > 0 and result["peak_memory_mb"] > 0
+    img = tifffile.imread(out)
+    assert img.dtype == np.uint16 and img.shape == (256, 256)
+    assert out.with_suffix(".png").is_file()
+
+
+def test_mfsr_float_and_baseline(tmp_path, burst2, capsys):
+    b = _burst(tmp_path, burst2)
+    out = tmp_path / "sr.tif"
+    assert (
+        main(["mfsr", str(b), "--scale", "2", "--method", "baseline", "--float", "--out", str(out)])
+        == 0
+    )
+    assert tifffile.imread(out).dtype == np.float32
+    assert "baseline" in capsys.readouterr().out
+
+
+def test_compare_with_reference(tmp_path, burst2, hr, capsys):
+    b = _burst(tmp_path, burst2)
+    ref = tmp_path / "ref.tif"
+    tifffile.imwrite(ref, np.rint(hr * 4000).astype(np.uint16))
+    assert (
+        main(
+            [
+                "mfsr",
+                "compare",
+                str(b),
+                "--scale",
+                "2",
+                "--reference",
+                str(ref),
+                "--out",
+                str(tmp_path / "cmp"),
+                "--json",
+            ]
+        )
+        == 0
+    )
+    r = json.loads(capsys.readouterr().out)
+    m = r["methods"]
+    assert m["robust"]["psnr_db"] > m["baseline"]["psnr_db"] > 0
+    assert (tmp_path / "cmp" / "crops.png").is_file()
+
+
+def test_bad_burst_dir_is_exit_1(tmp_path, capsys):
+    assert main(["mfsr", str(tmp_path), "--scale", "2", "--out", str(tmp_path / "x.tif")]) == 1
+    assert "no manifest.json" in capsys.readouterr().err
+
+
+def test_burst_plan_json(tmp_path, capsys):
+    out = tmp_path / "plan.json"
+    assert (
+        main(
+            [
+                "burst",
+                "plan",
+                "--scale",
+                "2",
+                "--focal-length-mm",
+                "35",
+                "--pixel-pitch-um",
+                "2.2",
+                "--distance-mm",
+                "500",
+                "--frames",
+                "8",
+                "--out",
+                str(out),
+                "--json",
+            ]
+        )
+        == 0
+    )
+    r = json.loads(capsys.readouterr().out)
+    assert r["frames"] == 8 and len(r["positions_mm"]) == 8
+    assert json.loads(out.read_text())["scale"] == 2
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("distributed") is None, reason="dask[distributed] not installed"
+)
+def test_several_bursts_in_parallel(tmp_path, burst2, capsys):
+    frames, _ = burst2
+    dirs = []
+    for name, sl in (("a", slice(0, 6)), ("b", slice(6, 12))):
+        dn = [np.clip(np.rint(f * 4000), 0, 65535).astype(np.uint16) for f in frames[sl]]
+        dirs.append(str(write_burst(tmp_path / name, dn)))
+    out = tmp_path / "out"
+    assert main(["mfsr", *dirs, "--scale", "2", "--out", str(out), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert [b["used"] for b in r["bursts"]] == [6, 6]
+    assert (out / "a.tif").is_file() and (out / "b.tif").is_file()
