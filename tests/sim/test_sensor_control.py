@@ -284,3 +284,16 @@ def test_unsupported_on_bare_i2c_board():
     cam = Camera(NoFpga(build("default", seed=0)))
     with pytest.raises(UnsupportedError, match="trigger"):
         cam.set_params(0, {"TRIG_PERIOD": 100_000})
+
+
+def test_frame_truth_records_the_carriage_position_of_each_frame():
+    board, cam = camera()
+    cam.set_params(0, SMALL)
+    board.world.rig.carriage_mm = 12.5
+    board.sim_advance(frames=1)
+    first = board.fpga[0].frame
+    board.world.rig.carriage_mm = 13.0
+    board.sim_advance(frames=1)
+    assert board.sim_frame_truth(0, first)["carriage_mm"] == 12.5
+    truth = board.sim_frame_truth(0, first + 1)
+    assert truth["carriage_mm"] == 13.0 and truth["camera_position_mm"][0] == 13.0

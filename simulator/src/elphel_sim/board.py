@@ -198,6 +198,7 @@ class SimBoard:
                 timestamp_ns=timestamp_ns,
                 registers=chip.image_registers(),
                 pose=self.world.camera_pose(spec.mount),
+                carriage_mm=self.world.rig.carriage_mm,
                 strips=strips,
                 strip_period_s=strip_period_s,
             )
@@ -252,6 +253,24 @@ class SimBoard:
                     self._cond.wait(min(remaining, 0.5))
                     continue
             self.sim_step()
+
+    def sim_frame_truth(self, port: int, frame: int) -> dict[str, object]:
+        """What the simulator knows of a recorded frame: its time and the camera's pose."""
+        if port not in self.fpga:
+            raise PortError(f"port {port} has no simulated sensor; ports: {sorted(self.fpga)}")
+        with self._cond:
+            for r in self.fpga[port].ring:
+                if r.frame == frame:
+                    return {
+                        "port": port,
+                        "frame": frame,
+                        "start_s": r.start_s,
+                        "timestamp_ns": r.timestamp_ns,
+                        "carriage_mm": r.carriage_mm,
+                        "camera_position_mm": r.pose.position_mm.tolist(),
+                        "strips": r.strips,
+                    }
+        raise FrameNotAvailableError(f"port {port}: frame {frame} is not in the ring buffer")
 
     def _image(self, record: FrameRecord) -> np.ndarray:
         with self._cond:

@@ -69,6 +69,7 @@ class FrameRecord:
     timestamp_ns: int
     registers: dict[str, int]
     pose: Pose
+    carriage_mm: float
     strips: int  # 0 = a normal frame; else photo-finish strips in this composite
     strip_period_s: float
     image: NDArray[np.uint16] | None = None

@@ -23,6 +23,7 @@ from fastapi import FastAPI, HTTPException
 
 from elphel_camd.api import create_app
 from elphel_camd.board import Camera
+from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_sim.board import SimBoard
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
@@ -38,6 +39,14 @@ def create_sim_app(board: SimBoard, stage: SimStage | None = None) -> FastAPI:
         if stage is None:
             raise HTTPException(status_code=404, detail="this rig has no simulated stage")
         return stage.sim_state()
+
+    @app.get("/ports/{port}/frames/{frame}")
+    def frame_truth(port: int, frame: int) -> dict[str, Any]:
+        """A recorded frame's true time and camera pose (carriage position)."""
+        try:
+            return board.sim_frame_truth(port, frame)
+        except (PortError, FrameNotAvailableError) as e:
+            raise HTTPException(status_code=404, detail=str(e)) from e
 
     @app.get("/world")
     def world() -> dict[str, Any]:
