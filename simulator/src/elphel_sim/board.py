@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -32,6 +33,7 @@ from elphel_sim.fpga import Camsync, FrameRecord, PortFPGA
 from elphel_sim.scenarios import PortSpec, Scenario, build
 
 FrameSync = Callable[[int, int, int], None]
+TRUTH_FRAMES = 100_000  # frames whose true pose is kept per port (sim_frame_truth)
 
 # Simulated chips by model name (PortSpec.model).
 SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
@@ -68,6 +70,7 @@ class SimBoard:
         self.camsync = Camsync()
         self.now_s = 0.0
         self._subscribers: list[FrameSync] = []
+        self._truth: dict[int, OrderedDict[int, dict[str, object]]] = {}
         self._cond = threading.Condition(threading.RLock())
         self._clock: threading.Thread | None = None
         self._stop = threading.Event()
@@ -78,6 +81,7 @@ class SimBoard:
                 bus.attach(chip.address, chip)
                 self.chips[port] = chip
                 self.fpga[port] = PortFPGA()
+                self._truth[port] = OrderedDict()
             elif spec.model is not None:
                 allowed = ", ".join([*SIM_SENSORS, "None"])
                 raise ValueError(
@@ -203,6 +207,19 @@ class SimBoard:
                 strip_period_s=strip_period_s,
             )
         )
+        record = fpga.ring[-1]
+        truth = self._truth[port]
+        truth[record.frame] = {
+            "port": port,
+            "frame": record.frame,
+            "start_s": record.start_s,
+            "timestamp_ns": record.timestamp_ns,
+            "carriage_mm": record.carriage_mm,
+            "camera_position_mm": record.pose.position_mm.tolist(),
+            "strips": record.strips,
+        }
+        if len(truth) > TRUTH_FRAMES:
+            truth.popitem(last=False)
         self._schedule_next(port)
         return fpga.frame, timestamp_ns
 
@@ -255,22 +272,17 @@ class SimBoard:
             self.sim_step()
 
     def sim_frame_truth(self, port: int, frame: int) -> dict[str, object]:
-        """What the simulator knows of a recorded frame: its time and the camera's pose."""
+        """What the simulator knows of a past frame: its time and the camera's pose.
+
+        Kept for the last `TRUTH_FRAMES` frames of each port, long after the images.
+        """
         if port not in self.fpga:
             raise PortError(f"port {port} has no simulated sensor; ports: {sorted(self.fpga)}")
         with self._cond:
-            for r in self.fpga[port].ring:
-                if r.frame == frame:
-                    return {
-                        "port": port,
-                        "frame": frame,
-                        "start_s": r.start_s,
-                        "timestamp_ns": r.timestamp_ns,
-                        "carriage_mm": r.carriage_mm,
-                        "camera_position_mm": r.pose.position_mm.tolist(),
-                        "strips": r.strips,
-                    }
-        raise FrameNotAvailableError(f"port {port}: frame {frame} is not in the ring buffer")
+            truth = self._truth[port].get(frame)
+        if truth is None:
+            raise FrameNotAvailableError(f"port {port}: no record of frame {frame}")
+        return dict(truth)
 
     def _image(self, record: FrameRecord) -> np.ndarray:
         with self._cond:
