@@ -297,3 +297,30 @@ def test_frame_truth_records_the_carriage_position_of_each_frame():
     assert board.sim_frame_truth(0, first)["carriage_mm"] == 12.5
     truth = board.sim_frame_truth(0, first + 1)
     assert truth["carriage_mm"] == 13.0 and truth["camera_position_mm"][0] == 13.0
+
+
+def test_vexpos_sets_rows_and_the_frame_shows_it():
+    board, cam = camera(noise=False)
+    frame_a, m1 = settle(cam, EXPOS=2000)
+    target = cam.set_params(0, {"VEXPOS": 2 * m1["VEXPOS"]})
+    while (got := cam.capture(0))[0].frame < target:
+        pass
+    frame_b, meta = got
+    assert meta["VEXPOS"] == 2 * m1["VEXPOS"]
+    assert meta["EXPOS"] == pytest.approx(2 * m1["EXPOS"], abs=1)
+    assert frame_b.image.mean() / frame_a.image.mean() == pytest.approx(2.0, rel=0.01)
+    record = next(r for r in board.fpga[0].ring if r.frame == frame_b.frame)
+    assert record.registers["shutter_width_lower"] == 2 * m1["VEXPOS"]
+
+
+def test_keep_fps_flag_refuses_exposure_longer_than_the_frame():
+    board, cam = camera()
+    cam.set_params(0, {**SMALL, "FP1000SLIM": 50_000, "FPSFLAGS": 3})
+    board.sim_advance(frames=6)
+    with pytest.raises(ParameterRangeError, match="FPSFLAGS bit 1"):
+        cam.set_params(0, {"EXPOS": 30_000})  # a 20 ms frame cannot hold 30 ms
+    # Without the flag the same exposure lengthens the frame instead.
+    cam.set_params(0, {"FPSFLAGS": 1, "EXPOS": 30_000})
+    board.sim_advance(frames=8)
+    starts = [r.start_s for r in board.fpga[0].ring][-3:]
+    assert np.diff(starts).min() > 0.03
