@@ -80,7 +80,9 @@ class PortSequencer:
             for target in sorted(self._pending):
                 if target > frame:
                     break
-                state.update(self._pending[target])
+                # Each change is normalised with what it changed (VEXPOS rules over EXPOS).
+                changes = self._pending[target]
+                state = self.driver.normalize({**state, **changes}, frozenset(changes))
             return self._normalized(state, frozenset(), frame)
 
     def _normalized(self, state: Mapping[str, int], changed: frozenset[str], frame: int) -> State:
@@ -156,12 +158,12 @@ class PortSequencer:
         # All-or-nothing: the target frame and every later scheduled frame must stay valid.
         merged = dict(self._pending)
         merged[target] = {**merged.get(target, {}), **changes}
-        state = dict(self._now)
+        state: State = dict(self._now)
         for t in sorted(merged):
-            state.update(merged[t])
-            if t >= target:
-                changed = frozenset(changes) if t == target else frozenset(merged[t])
-                self._normalized(state, changed, t)
+            if t < target:
+                state = self.driver.normalize({**state, **merged[t]}, frozenset(merged[t]))
+            else:
+                state = self._normalized({**state, **merged[t]}, frozenset(merged[t]), t)
         return target, merged
 
     def flush(self) -> None:
