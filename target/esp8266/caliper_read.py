@@ -126,7 +126,7 @@ class CaliperReader:
         return frame >> fmt["skip"]
 
     def read(self):
-        """A confirmed reading in um: `confirm` consecutive frames that agree."""
+        """A confirmed reading in um: the mean of `confirm` consecutive frames that agree."""
         readings = []
         tries = 0
         while len(readings) < self.cfg["confirm"]:
@@ -152,7 +152,7 @@ class CaliperReader:
                 readings = [um]
             else:
                 readings.append(um)
-        self.last_um = readings[-1]
+        self.last_um = caliper_decode.mean_um(readings)
         self.last_ms = self.ticks_ms()
         self.last_error = 0
         return self.last_um

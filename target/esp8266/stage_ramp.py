@@ -40,8 +40,10 @@ class RampPlan:
         k = min(i, self.n_steps - 1 - i)
         if k < 0:
             k = 0
-        v = isqrt(self.start_hz * self.start_hz + 2 * self.accel * k)
-        return v if v < self.max_hz else self.max_hz
+        vv = self.start_hz * self.start_hz + 2 * self.accel * k
+        if vv >= self.max_hz * self.max_hz:
+            return self.max_hz   # cruising: no square root per step
+        return isqrt(vv)
 
     def interval_us(self, i):
         return 1000000 // self.rate_hz(i)

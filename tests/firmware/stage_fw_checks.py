@@ -96,6 +96,8 @@ def check_ramp():
     assert iv == iv[::-1]  # symmetric ramp
     for i in range(1, 500):
         assert iv[i] <= iv[i - 1]  # never faster than the ramp allows
+    for i in range(1000):  # the cruise shortcut gives what the square root gives
+        assert p.rate_hz(i) == min(sr.isqrt(400 * 400 + 2 * 8000 * min(i, 999 - i)), 1600)
     short = sr.RampPlan(10, 400, 1600, 8000)
     assert max(short.rate_hz(i) for i in range(10)) < 1600  # triangle: no time to reach max
     assert sr.RampPlan(0, 400, 1600, 8000).total_us() == 0
@@ -135,7 +137,18 @@ def check_protocol():
     assert set(sp.ERRORS) >= {1, 2, 3, 4, 5, 8, 9, 10, 15, 20, 21, 22, 23}
 
 
+def check_mean():
+    assert cd.mean_um([12340, 12340]) == 12340
+    assert cd.mean_um([12340, 12350]) == 12345
+    assert cd.mean_um([12340, 12350, 12350]) == 12347
+    assert cd.mean_um([-12340, -12350]) == -12345
+    assert cd.mean_um([-12340, -12350, -12350]) == -12347
+    assert cd.mean_um([0, 1]) == 1 and cd.mean_um([0, -1]) == -1
+    assert cd.mean_um([0, 0]) == 0 and cd.mean_um([-10, 10]) == 0
+
+
 def run_all():
+    check_mean()
     check_bin6()
     check_sylvac48()
     check_bcd7()

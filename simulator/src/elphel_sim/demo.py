@@ -1,14 +1,17 @@
-"""`make demo`: the main job on the simulator, end to end, as far as the project goes.
+"""`make demo`: the main job on the simulator, end to end.
 
-Starts a simulated rig with `elphel-sim up`, talks to it only through the public
-interfaces a user has (the REST API via the host library), and writes what it made under
-``out/`` with a summary a person can read.
+Starts a simulated rig with `elphel-sim up` and drives it only through what a user has:
+the `elphel` CLI and the REST API. Steps: detect the sensor and capture a frame; home and
+calibrate the stage and check it against the simulator's truth; capture a sub-pixel burst
+and fuse it; render a quad set and compute its disparity map. Everything goes under
+``out/`` with a summary a person can read (``summary.json`` and the printed lines).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -18,10 +21,17 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
+from numpy.typing import NDArray
+from PIL import Image
 
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_preview
+
+
+class DemoError(RuntimeError):
+    """A demo step failed; the message says which and why."""
 
 
 @contextmanager
@@ -36,7 +46,7 @@ def simulated_rig(*, seed: int) -> Iterator[dict[str, Any]]:
         assert proc.stdout is not None
         line = proc.stdout.readline()
         if not line:
-            raise RuntimeError(f"elphel-sim up exited with code {proc.wait()} before serving")
+            raise DemoError(f"elphel-sim up exited with code {proc.wait()} before serving")
         yield json.loads(line)
     finally:
         if proc.poll() is None:
@@ -54,29 +64,41 @@ def step(message: str) -> None:
     print(f"[demo] {message}", flush=True)
 
 
-def run(out: Path, *, seed: int) -> dict[str, Any]:
-    out.mkdir(parents=True, exist_ok=True)
-    summary: dict[str, Any] = {"seed": seed}
-    step("starting the simulated rig (elphel-sim up)")
-    with simulated_rig(seed=seed) as rig, CameraClient(rig["camera_url"], rig["token"]) as camera:
-        step(f"camera daemon at {rig['camera_url']}")
+def elphel(*args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
+    """Run an `elphel ... --json` command as a user would; return its JSON object."""
+    cmd = [sys.executable, "-m", "elphel_host.cli", *args, "--json"]
+    done = subprocess.run(
+        cmd, capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=1800
+    )
+    if done.returncode != 0:
+        raise DemoError(f"elphel {' '.join(args)}: {done.stderr.strip() or done.returncode}")
+    result: dict[str, Any] = json.loads(done.stdout)
+    return result
+
+
+# -- camera -----------------------------------------------------------------------------------
+
+
+def camera_step(rig: dict[str, Any], out: Path) -> dict[str, Any]:
+    with CameraClient(rig["camera_url"], rig["token"]) as camera:
         info = camera.info()
-        summary["board"] = info["board"]
-        summary["sensors"] = {
+        sensors = {
             str(p["port"]): p["sensor"]["model"] if p["sensor"] else None for p in info["ports"]
         }
-        for port, model in summary["sensors"].items():
+        for port, model in sensors.items():
             step(f"port {port}: {model or 'no sensor'} (detected over simulated I2C)")
-
         t0 = time.monotonic()
         frame = camera.capture(0)
         elapsed = time.monotonic() - t0
-        tif = out / "frame.tif"
-        tif.write_bytes(frame.tiff)
-        png = save_preview(frame.image, out / "frame.png", bayer=frame.metadata.get("bayer"))
-        h, w = frame.image.shape
-        step(f"captured frame {frame.frame}: {w}x{h} {frame.image.dtype} in {elapsed:.1f} s")
-        summary["capture"] = {
+    tif = out / "frame.tif"
+    tif.write_bytes(frame.tiff)
+    png = save_preview(frame.image, out / "frame.png", bayer=frame.metadata.get("bayer"))
+    h, w = frame.image.shape
+    step(f"captured frame {frame.frame}: {w}x{h} {frame.image.dtype} in {elapsed:.1f} s -> {tif}")
+    return {
+        "board": info["board"],
+        "sensors": sensors,
+        "capture": {
             "file": str(tif),
             "preview": str(png),
             "shape": [h, w],
@@ -84,9 +106,241 @@ def run(out: Path, *, seed: int) -> dict[str, Any]:
             "mean_dn": round(float(np.mean(frame.image)), 1),
             "seconds": round(elapsed, 2),
             "metadata": frame.metadata,
-        }
+        },
+    }
+
+
+# -- stage ------------------------------------------------------------------------------------
+
+
+def stage_step(rig: dict[str, Any], out: Path) -> dict[str, Any]:
+    env = {"ELPHEL_STAGE_URL": rig["stage_url"]}
+    model = str(out / "stage-model.json")
+    step("stage: homing and calibrating mm/step with the caliper (a minute)")
+    cal = elphel("stage", "calibrate", "--model", model, env=env)
+    truth = httpx.get(f"{rig['sim_url']}/stage", timeout=10).json()
+    error_pct = 100 * (cal["mm_per_step"] - truth["mm_per_step"]) / truth["mm_per_step"]
+    step(
+        f"stage: {cal['mm_per_step']:.7f} mm/step measured, {truth['mm_per_step']} true "
+        f"({error_pct:+.3f} %)"
+    )
+    target = 42.0
+    move = elphel("stage", "move", f"{target}", "--model", model, env=env)
+    truth = httpx.get(f"{rig['sim_url']}/stage", timeout=10).json()
+    miss_mm = truth["true_mm"] - truth.get("caliper_zero_mm", 0.0) - target
+    step(f"stage: closed-loop move to {target} mm ended {miss_mm * 1000:+.1f} µm from target")
+    return {
+        "mm_per_step": cal["mm_per_step"],
+        "mm_per_step_true": truth["mm_per_step"],
+        "calibration_error_pct": round(error_pct, 4),
+        "closed_loop_target_mm": target,
+        "closed_loop_caliper_mm": move["caliper_mm"],
+        "closed_loop_true_error_um": round(miss_mm * 1000, 2),
+        "model": model,
+    }
+
+
+# -- burst and MFSR ---------------------------------------------------------------------------
+
+# A 576 x 432 window at the centre keeps the burst quick; the fusion itself scales
+# to full frames (see docs/mfsr.md for its 16 x 1640 x 1232 figures).
+WINDOW = {"WOI_LEFT": 1008, "WOI_TOP": 756, "WOI_WIDTH": 576, "WOI_HEIGHT": 432}
+SCALE = 2
+FRAMES = 16
+DISTANCE_MM = 1000.0
+
+
+def reference_image(
+    seed: int, carriage_mm: float, metadata: dict[str, Any], *, scale: int
+) -> NDArray[np.uint16]:
+    """The simulator's truth on the fused output's grid: the scene seen with S x finer pixels."""
+    from elphel_camd.sensors import mt9p006 as spec
+    from elphel_sim.render import Intrinsics, render_radiance
+    from elphel_sim.scenarios import build
+
+    scenario = build("default", seed=seed)
+    port = scenario.ports[0]
+    world = scenario.world
+    world.rig.carriage_mm = carriage_mm
+    lr = port.intrinsics
+    cx, cy = lr.principal_point
+    hr = Intrinsics(
+        lr.focal_length_mm,
+        lr.pixel_pitch_um / scale,
+        lr.width * scale,
+        lr.height * scale,
+        cx * scale,
+        cy * scale,
+    )
+    left = (spec.CLEAR_LEFT + metadata["WOI_LEFT"]) * scale
+    top = (spec.CLEAR_TOP + metadata["WOI_TOP"]) * scale
+    window = (left, top, metadata["WOI_WIDTH"] * scale, metadata["WOI_HEIGHT"] * scale)
+    rgb = render_radiance(world, hr, world.camera_pose(port.mount), window=window)
+    model = port.sensor
+    dn = rgb * metadata["EXPOS"] * model.electrons_per_us * model.dn_per_e
+    out: NDArray[np.uint16] = np.clip(np.rint(dn), 0, (1 << model.bits) - 1).astype(np.uint16)
+    return out
+
+
+def burst_step(
+    rig: dict[str, Any], out: Path, stage: dict[str, Any], *, seed: int
+) -> dict[str, Any]:
+    import tifffile
+
+    env = {
+        "ELPHEL_CAMERA_URL": rig["camera_url"],
+        "ELPHEL_CAMERA_TOKEN": rig["token"],
+        "ELPHEL_STAGE_URL": rig["stage_url"],
+    }
+    elphel("camera", "set", *(f"{k}={v}" for k, v in WINDOW.items()), env=env)
+    plan_path = out / "burst-plan.json"
+    plan = elphel(
+        "burst",
+        "plan",
+        "--scale",
+        str(SCALE),
+        "--frames",
+        str(FRAMES),
+        "--focal-length-mm",
+        "4.5",
+        "--pixel-pitch-um",
+        "2.2",
+        "--distance-mm",
+        f"{DISTANCE_MM}",
+        "--mm-per-step",
+        f"{stage['mm_per_step']}",
+        "--out",
+        str(plan_path),
+    )
+    step(f"burst: x{SCALE} plan, {plan['frames']} frames over {plan['travel_mm']:.3f} mm")
+    burst = out / "burst"
+    captured = elphel(
+        "burst",
+        "capture",
+        "--plan",
+        str(plan_path),
+        "--out",
+        str(burst),
+        "--model",
+        stage["model"],
+        "--start-mm",
+        "40",
+        "--focal-length-mm",
+        "4.5",
+        "--pixel-pitch-um",
+        "2.2",
+        "--distance-mm",
+        f"{DISTANCE_MM}",
+        env=env,
+    )
+    step(f"burst: {len(captured['captured'])} frames captured in {captured['seconds']:.1f} s")
+    manifest = json.loads((burst / "manifest.json").read_text())
+    first = manifest["frames"][0]
+    truth = httpx.get(f"{rig['sim_url']}/ports/0/frames/{first['frame']}", timeout=10).json()
+    _, meta = read_frame_metadata(burst / first["file"])
+    ref_path = out / "burst-reference.tif"
+    tifffile.imwrite(ref_path, reference_image(seed, truth["carriage_mm"], meta, scale=SCALE))
+    fused = elphel("mfsr", str(burst), "--scale", str(SCALE), "--out", str(out / "fused.tif"))
+    compare = elphel(
+        "mfsr",
+        "compare",
+        str(burst),
+        "--scale",
+        str(SCALE),
+        "--reference",
+        str(ref_path),
+        "--out",
+        str(out / "mfsr-compare"),
+    )
+    return {"plan": str(plan_path), "burst": str(burst), "fused": fused, "compare": compare}
+
+
+def read_frame_metadata(path: Path) -> tuple[Any, dict[str, Any]]:
+    from elphel_host.camera.client import read_tiff_metadata
+
+    return read_tiff_metadata(path.read_bytes())
+
+
+# -- quad / tile processor --------------------------------------------------------------------
+
+_ANCHORS = np.array(
+    [[48, 18, 59], [31, 120, 180], [32, 178, 120], [240, 200, 40], [220, 50, 30]], dtype=float
+)
+
+
+def colour_map(values: NDArray[np.floating], lo: float, hi: float) -> NDArray[np.uint8]:
+    """Map values to RGB along a dark-blue -> green -> yellow -> red ramp; NaN -> grey."""
+    t = np.clip((values - lo) / (hi - lo), 0, 1)
+    pos = np.nan_to_num(t) * (len(_ANCHORS) - 1)
+    rgb = np.stack(
+        [np.interp(pos, np.arange(len(_ANCHORS)), _ANCHORS[:, c]) for c in range(3)], axis=-1
+    )
+    rgb[~np.isfinite(values)] = 90
+    out: NDArray[np.uint8] = rgb.astype(np.uint8)
+    return out
+
+
+def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
+    from elphel_host.tp.io import read_dsi
+    from elphel_sim.quad import QuadRig, simulate_quad_dir
+
+    step("quad: rendering four 2592x1936 Bayer images of planes at known distances")
+    rig = QuadRig()
+    quad_dir, truth = simulate_quad_dir(out / "quad", rig, seed=seed)
+    dsi_path = out / "dsi.tif"
+    result = elphel("tp", str(quad_dir), "--out", str(dsi_path))
+    layers, _ = read_dsi(dsi_path)
+    disparity, strength = layers["disparity"], layers["strength"]
+    err = disparity - truth.disparity
+    regions: dict[str, Any] = {}
+    for index, name in enumerate(truth.names):
+        mask = (truth.label == index) & truth.interior & truth.textured
+        if mask.any():
+            true_d = float(np.median(truth.disparity[mask]))
+            regions[name] = {
+                "tiles": int(mask.sum()),
+                "true_disparity_px": round(true_d, 3),
+                "depth_m": round(rig.depth_mm(true_d) / 1000, 1) if true_d > 0 else None,
+                "rms_error_px": round(float(np.sqrt(np.mean(err[mask] ** 2))), 4),
+            }
+    textured = truth.interior & truth.textured
+    rms_all = float(np.sqrt(np.mean(err[textured] ** 2)))
+    shown = np.where(strength > 0.15, disparity, np.nan)
+    picture = colour_map(shown, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
+    Image.fromarray(picture).save(out / "disparity.png")
+    truth_picture = colour_map(truth.disparity, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
+    Image.fromarray(truth_picture).save(out / "disparity-truth.png")
+    step(
+        f"quad: DSI {result['tiles_x']}x{result['tiles_y']} tiles in {result['seconds']:.2f} s; "
+        f"RMS error {rms_all:.3f} px over {int(textured.sum())} textured tiles -> {dsi_path}"
+    )
+    for name, r in regions.items():
+        step(f"  {name:12s} true {r['true_disparity_px']:6.3f} px  RMS {r['rms_error_px']:.4f} px")
+    return {
+        "dsi": str(dsi_path),
+        "picture": str(out / "disparity.png"),
+        "truth_picture": str(out / "disparity-truth.png"),
+        "seconds": result["seconds"],
+        "rms_error_px": round(rms_all, 4),
+        "regions": regions,
+    }
+
+
+# -- the whole job ----------------------------------------------------------------------------
+
+
+def run(out: Path, *, seed: int) -> dict[str, Any]:
+    out.mkdir(parents=True, exist_ok=True)
+    summary: dict[str, Any] = {"seed": seed}
+    step("starting the simulated rig (elphel-sim up)")
+    with simulated_rig(seed=seed) as rig:
+        step(f"camera daemon at {rig['camera_url']}, stage at {rig['stage_url']}")
+        summary["camera"] = camera_step(rig, out)
+        summary["stage"] = stage_step(rig, out)
+        summary["burst"] = burst_step(rig, out, summary["stage"], seed=seed)
+    summary["quad"] = quad_step(out, seed=seed)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
-    step(f"wrote {tif}, {png} and {out / 'summary.json'}")
+    step(f"wrote {out / 'summary.json'}")
     return summary
 
 
@@ -99,7 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         run(args.out, seed=args.seed)
-    except (OSError, RuntimeError, ValueError) as e:
+    except (OSError, DemoError, ValueError, httpx.HTTPError) as e:
         print(f"demo: {e}", file=sys.stderr)
         return 1
     return 0

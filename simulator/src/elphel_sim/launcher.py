@@ -69,7 +69,7 @@ def create_sim_app(board: SimBoard, stage: SimStage | None = None) -> FastAPI:
 
 def bind_loopback(port: int, host: str = "127.0.0.1") -> socket.socket:
     """A listening TCP socket on loopback; port 0 picks a free one."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))

@@ -212,7 +212,8 @@ class SimCaliper:
     def __init__(self, cfg: CaliperConfig, mech: StageMechanics, *, seed: int = 0) -> None:
         self.cfg = cfg
         self.mech = mech
-        self.rng = random.Random(seed)
+        self.seed = seed
+        self.rng = random.Random(seed)  # glitches
         self.powered = True
         self.glitches: list[str] = []
         self.frames_sent = 0
@@ -231,13 +232,20 @@ class SimCaliper:
         self._req_frame_at: int | None = None
 
     # -- pin signals --------------------------------------------------------------
-    def shown_mm(self) -> float:
-        return self.mech.carriage_mm - self.cfg.zero_mm + self.rng.gauss(0.0, self.cfg.noise_mm)
+    def shown_mm(self, t_us: int) -> float:
+        """What the display shows for the frame that starts at virtual time t_us.
 
-    def _frame_bits(self) -> list[int]:
+        The noise is drawn from (seed, t_us) rather than from one running generator, so a
+        frame's value does not depend on how many frames were built before it (which
+        follows the thread timing of the firmware's reads, not virtual time).
+        """
+        noise = random.Random(f"{self.seed}:{t_us}").gauss(0.0, self.cfg.noise_mm)
+        return self.mech.carriage_mm - self.cfg.zero_mm + noise
+
+    def _frame_bits(self, t_us: int) -> list[int]:
         frame, n = encode_frame(
             self.cfg.fmt,
-            self.shown_mm(),
+            self.shown_mm(t_us),
             inch=self.cfg.inch,
             negative_zero=self.negative_zero,
             sign_mode=self.cfg.sign_mode,
@@ -289,7 +297,7 @@ class SimCaliper:
         if k != self._frame_index:
             self._frame_index = k
             self._t0 = k * self.cfg.period_us
-            self._build(self._t0, self._frame_bits() if self.powered else [])
+            self._build(self._t0, self._frame_bits(self._t0) if self.powered else [])
 
     def _lookup(self, t_us: int, levels: list[int]) -> int:
         i = bisect.bisect_right(self._times, t_us) - 1
@@ -324,7 +332,7 @@ class SimCaliper:
         active = 1 - self.cfg.clk_idle
         if level == active:
             if t_us - self._host_last_edge > 2_000 or self._host_index >= len(self._host_bits):
-                self._host_bits = self._frame_bits()
+                self._host_bits = self._frame_bits(t_us)
                 self._host_index = 0
             b = self._host_bits[self._host_index] if self._host_index < len(self._host_bits) else 0
             self._host_index += 1
@@ -334,7 +342,7 @@ class SimCaliper:
     def on_zero_line(self, level: int, t_us: int) -> None:
         if FORMAT_CLOCK[self.cfg.fmt] == "request":
             if level and self.powered:  # REQ: the gauge answers with one frame shortly after
-                self._build(t_us + 500, self._frame_bits())
+                self._build(t_us + 500, self._frame_bits(t_us + 500))
             return
         if level:
             self.cfg.zero_mm = self.mech.carriage_mm

@@ -1,5 +1,23 @@
 """REST client for elphel-camd."""
 
-from elphel_host.camera.client import CameraClient, CapturedFrame
+from elphel_host.camera.client import (
+    Applied,
+    Burst,
+    Camera,
+    CameraClient,
+    CameraEvent,
+    CameraHTTPError,
+    CameraUnauthorizedError,
+    CapturedFrame,
+)
 
-__all__ = ["CameraClient", "CapturedFrame"]
+__all__ = [
+    "Applied",
+    "Burst",
+    "Camera",
+    "CameraClient",
+    "CameraEvent",
+    "CameraHTTPError",
+    "CameraUnauthorizedError",
+    "CapturedFrame",
+]

@@ -1,13 +1,15 @@
-"""`elphel camera ...`: talk to a camera daemon."""
+"""`elphel camera ...`: talk to a camera daemon (info, get, set, capture, watch)."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
-from elphel_host.camera.client import CameraClient
+from elphel_host.camera.client import Camera, CameraEvent
 
 
 def register(sub: Any) -> None:
@@ -22,30 +24,77 @@ def register(sub: Any) -> None:
         default=os.environ.get("ELPHEL_CAMERA_TOKEN"),
         help="bearer token (env ELPHEL_CAMERA_TOKEN)",
     )
-    p = sub.add_parser("camera", help="camera daemon: info, capture")
+    common.add_argument("--json", action="store_true", help="print one JSON object")
+    ported = argparse.ArgumentParser(add_help=False)
+    ported.add_argument("--port", type=int, default=0, help="sensor port (default 0)")
+
+    p = sub.add_parser("camera", help="camera daemon: info, get, set, capture, watch")
     cmd = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     info = cmd.add_parser(
         "info", parents=[common], help="board, daemon version, ports and their sensors"
     )
-    info.add_argument("--json", action="store_true", help="print one JSON object")
-    info.set_defaults(func=cmd_info)
+    info.set_defaults(func=cmd_info, parser=info)
+
+    get = cmd.add_parser("get", parents=[common, ported], help="print frame parameters")
+    get.add_argument("names", nargs="*", metavar="NAME", help="parameters (default: all)")
+    get.add_argument("--frame", type=int, help="parameters of a recent or scheduled frame")
+    get.set_defaults(func=cmd_get, parser=get)
+
+    set_ = cmd.add_parser(
+        "set",
+        parents=[common, ported],
+        help="set parameters, all or none (e.g. EXPOS=5000 GAINR=0x20000)",
+    )
+    set_.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
+    when = set_.add_mutually_exclusive_group()
+    when.add_argument("--frame", type=int, help="apply at this absolute frame")
+    when.add_argument("--ahead", type=int, help="apply this many frames from now")
+    set_.set_defaults(func=cmd_set, parser=set_)
 
     cap = cmd.add_parser(
-        "capture", parents=[common], help="capture the next frame of a port as a 16-bit TIFF"
+        "capture",
+        parents=[common, ported],
+        help="capture the next frame (or a recent one, or a burst) as a 16-bit TIFF",
     )
-    cap.add_argument("--port", type=int, default=0, help="sensor port (default 0)")
     cap.add_argument("--out", type=Path, help="TIFF path (default: portP-frameN.tif)")
     cap.add_argument("--png", type=Path, help="also write an 8-bit PNG preview here")
-    cap.add_argument("--json", action="store_true", help="print one JSON object")
+    cap.add_argument("--frame", type=int, help="fetch this frame from the ring buffer")
+    cap.add_argument(
+        "--count", type=int, default=1, help="N consecutive frames as one multi-page TIFF"
+    )
     cap.set_defaults(func=cmd_capture, parser=cap)
-    info.set_defaults(parser=info)
+
+    watch = cmd.add_parser(
+        "watch",
+        parents=[common],
+        help="print the daemon's events (frames, parameter changes, errors)",
+    )
+    watch.add_argument(
+        "--types", default="frame,params,error", help="comma-separated: frame,params,error"
+    )
+    watch.add_argument("--port", type=int, help="only this port's events")
+    watch.add_argument("--count", type=int, help="stop after N events")
+    watch.set_defaults(func=cmd_watch, parser=watch)
 
 
-def _client(args: argparse.Namespace) -> CameraClient:
+def _client(args: argparse.Namespace) -> Camera:
     if not args.url:
         args.parser.error("no camera URL: give --url or set ELPHEL_CAMERA_URL")
-    return CameraClient(args.url, args.token)
+    return Camera(args.url, args.token)
+
+
+def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            out[name.strip()] = int(text.strip(), 0)
+        except ValueError:
+            parser.error(f"{item!r}: give NAME=VALUE with an integer value (0x.. for hex)")
+    return out
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -67,27 +116,97 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_get(args: argparse.Namespace) -> int:
+    from elphel_host.cli import emit
+
+    with _client(args) as client:
+        params = client.params(args.port, frame=args.frame)
+    if args.names:
+        missing = [n for n in args.names if n not in params]
+        if missing:
+            args.parser.error(
+                f"unknown parameter(s) {', '.join(missing)}; known: {', '.join(params)}"
+            )
+        params = {n: params[n] for n in args.names}
+    emit(args, params, "\n".join(f"{k}={v}" for k, v in params.items()))
+    return 0
+
+
+def cmd_set(args: argparse.Namespace) -> int:
+    from elphel_host.cli import emit
+
+    changes = _parse_assignments(args.parser, args.assignments)
+    with _client(args) as client:
+        applied = client.set_params(changes, port=args.port, frame=args.frame, ahead=args.ahead)
+    now = {k: applied.params[k] for k in changes if k in applied.params}
+    human = f"port {args.port}, frame {applied.frame}: " + " ".join(
+        f"{k}={v}" for k, v in now.items()
+    )
+    emit(args, {"port": args.port, "frame": applied.frame, "params": applied.params}, human)
+    return 0
+
+
 def cmd_capture(args: argparse.Namespace) -> int:
     from elphel_host.cli import emit
     from elphel_host.preview import save_preview
 
+    if args.count < 1:
+        args.parser.error("--count must be 1 or more")
     with _client(args) as client:
-        frame = client.capture(args.port)
-    out: Path = args.out or Path(f"port{args.port}-frame{frame.frame}.tif")
+        if args.count == 1:
+            frame = client.capture(args.port, frame=args.frame)
+            tiff, image, metadata = frame.tiff, frame.image, frame.metadata
+            first, frames = frame.frame, [frame.frame]
+        else:
+            burst = client.burst(args.count, port=args.port, frame=args.frame)
+            tiff, image, metadata = burst.tiff, burst.images[0], burst.metadata[0]
+            first, frames = burst.frames[0], burst.frames
+    out: Path = args.out or Path(f"port{args.port}-frame{first}.tif")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_bytes(frame.tiff)
+    out.write_bytes(tiff)
     result: dict[str, Any] = {
         "file": str(out),
-        "shape": list(frame.image.shape),
-        "dtype": str(frame.image.dtype),
-        "metadata": frame.metadata,
+        "shape": list(image.shape),
+        "dtype": str(image.dtype),
+        "frames": frames,
+        "metadata": metadata,
     }
     if args.png:
-        result["png"] = str(save_preview(frame.image, args.png, bayer=frame.metadata.get("bayer")))
-    h, w = frame.image.shape[:2]
-    emit(
-        args,
-        result,
-        f"frame {frame.frame} from port {args.port}: {w}x{h} {frame.image.dtype} -> {out}",
-    )
+        result["png"] = str(save_preview(image, args.png, bayer=metadata.get("bayer")))
+    h, w = image.shape[:2]
+    what = f"frame {first}" if args.count == 1 else f"frames {frames[0]}..{frames[-1]}"
+    emit(args, result, f"{what} from port {args.port}: {w}x{h} {image.dtype} -> {out}")
+    return 0
+
+
+def _event_line(event: CameraEvent) -> str:
+    data = event.data
+    if event.type == "frame":
+        return f"frame  port {data['port']} #{data['frame']} t={data['timestamp_ns']} ns"
+    if event.type == "params":
+        what = data.get("changes") or {"register": data.get("register")}
+        body = " ".join(f"{k}={v}" for k, v in what.items())
+        return f"params port {data['port']} @{data['frame']}: {body}"
+    return f"{event.type:6s} {json.dumps(data, sort_keys=True)}"
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    from elphel_host.cli import emit
+
+    types = tuple(t.strip() for t in args.types.split(",") if t.strip())
+    collected: list[dict[str, Any]] = []
+    with _client(args) as client:
+        try:
+            for event in client.events(types, port=args.port, count=args.count):
+                entry = {"type": event.type, "id": event.id, **event.data}
+                if args.json:
+                    collected.append(entry)
+                else:
+                    print(_event_line(event), flush=True)
+        except KeyboardInterrupt:
+            if not args.json:
+                raise
+            print("elphel: interrupted", file=sys.stderr)
+    if args.json:
+        emit(args, {"events": collected}, "")
     return 0

@@ -1,10 +1,13 @@
-"""REST client for elphel-camd (shared/DESIGN.md section 4.2)."""
+"""Typed REST client of elphel-camd (shared/DESIGN.md section 4.2, docs/rest-api.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
-from dataclasses import dataclass
+import socket
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
@@ -16,6 +19,35 @@ from numpy.typing import NDArray
 from elphel_host.errors import CameraAuthError, CameraClientError
 
 API = "/api/v1"
+_NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
+
+
+class CameraHTTPError(CameraClientError):
+    """The daemon answered with an error status; ``body`` is its JSON error object.
+
+    For a rejected value ``parameter``, ``value`` and ``allowed`` say which and why.
+    """
+
+    def __init__(self, message: str, *, status: int, body: Mapping[str, Any]) -> None:
+        super().__init__(message)
+        self.status = status
+        self.body = dict(body)
+
+    @property
+    def parameter(self) -> str | None:
+        return self.body.get("parameter")
+
+    @property
+    def value(self) -> Any:
+        return self.body.get("value")
+
+    @property
+    def allowed(self) -> str | None:
+        return self.body.get("allowed")
+
+
+class CameraUnauthorizedError(CameraHTTPError, CameraAuthError):
+    """401/403: no token or a wrong one."""
 
 
 @dataclass(frozen=True)
@@ -29,6 +61,65 @@ class CapturedFrame:
     @property
     def frame(self) -> int:
         return int(self.metadata["frame"])
+
+
+@dataclass(frozen=True)
+class Burst:
+    """Consecutive frames in one multi-page TIFF: images (N, H, W) and per-frame metadata."""
+
+    tiff: bytes
+    images: NDArray[np.uint16]
+    metadata: list[dict[str, Any]]
+
+    @property
+    def frames(self) -> list[int]:
+        return [int(m["frame"]) for m in self.metadata]
+
+
+@dataclass(frozen=True)
+class Applied:
+    """Answer to a parameter change: the frame at which it is in effect, and the params."""
+
+    frame: int
+    params: dict[str, int]
+
+
+@dataclass(frozen=True)
+class CameraEvent:
+    """One server-sent event: ``frame``, ``params``, ``error`` or ``dropped``."""
+
+    type: str
+    data: dict[str, Any]
+    id: int | None = None
+
+
+@dataclass
+class _SSEParser:
+    """Incremental parser of an event stream's lines."""
+
+    event: str = "message"
+    data: list[str] = field(default_factory=list)
+    id: int | None = None
+
+    def feed(self, line: str) -> CameraEvent | None:
+        if line == "":
+            if not self.data:
+                self.event = "message"
+                return None
+            out = CameraEvent(self.event, json.loads("\n".join(self.data)), self.id)
+            self.event, self.data, self.id = "message", [], None
+            return out
+        if line.startswith(":"):
+            return None
+        name, _, value = line.partition(":")
+        value = value.removeprefix(" ")
+        if name == "event":
+            self.event = value
+        elif name == "data":
+            self.data.append(value)
+        elif name == "id" and value.isdigit():
+            self.id = int(value)
+        return None
 
 
 def read_tiff_metadata(data: bytes | str) -> tuple[NDArray[Any], dict[str, Any]]:
@@ -45,7 +136,20 @@ def read_tiff_metadata(data: bytes | str) -> tuple[NDArray[Any], dict[str, Any]]
     return image, metadata
 
 
-class CameraClient:
+def read_burst(data: bytes) -> tuple[NDArray[Any], list[dict[str, Any]]]:
+    """Images (N, H, W) and each page's JSON metadata of a multi-page TIFF from the daemon."""
+    with tifffile.TiffFile(io.BytesIO(data)) as tif:
+        pages = [tif.pages[i] for i in range(len(tif.pages))]
+        metadata = []
+        for page in pages:
+            meta = json.loads(page.description)  # type: ignore[union-attr]
+            meta.pop("shape", None)
+            metadata.append(meta)
+        images = np.stack([page.asarray() for page in pages])
+    return images, metadata
+
+
+class Camera:
     """Talks to one camera daemon.
 
     Parameters
@@ -56,16 +160,39 @@ class CameraClient:
         Bearer token for writes (capture counts as one); None for read-only use.
     timeout_s
         Per-request timeout.
+    transport
+        httpx transport to use instead of the network (tests).
+
+    Examples
+    --------
+    >>> with Camera("http://127.0.0.1:8000", token) as cam:  # doctest: +SKIP
+    ...     cam.set_params({"EXPOS": 5000}, ahead=3)
+    ...     with cam.staged({"WOI_WIDTH": 640, "WOI_HEIGHT": 480}):
+    ...         frame = cam.capture()
     """
 
-    def __init__(self, url: str, token: str | None = None, *, timeout_s: float = 30.0) -> None:
+    def __init__(
+        self,
+        url: str,
+        token: str | None = None,
+        *,
+        timeout_s: float = 30.0,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
         if not url.startswith(("http://", "https://")):
             raise ValueError(f"camera url {url!r}; allowed: http://HOST:PORT or https://...")
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.url = url.rstrip("/")
-        self._http = httpx.Client(base_url=self.url + API, headers=headers, timeout=timeout_s)
+        self.timeout_s = timeout_s
+        if transport is None:
+            # Small PATCHes go out as headers and body: without TCP_NODELAY, Nagle's
+            # algorithm and the server's delayed ACK add 40 ms to each.
+            transport = httpx.HTTPTransport(socket_options=_NODELAY)
+        self._http = httpx.Client(
+            base_url=self.url + API, headers=headers, timeout=timeout_s, transport=transport
+        )
 
-    def __enter__(self) -> CameraClient:
+    def __enter__(self) -> Camera:
         return self
 
     def __exit__(
@@ -79,29 +206,198 @@ class CameraClient:
     def close(self) -> None:
         self._http.close()
 
+    # -- plumbing --------------------------------------------------------------------------
+
+    def _error(self, method: str, path: str, response: httpx.Response) -> CameraHTTPError:
+        try:
+            body = response.json()
+            if not isinstance(body, dict):
+                body = {"detail": body}
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            body = {"detail": response.text}
+        message = f"{method} {path}: HTTP {response.status_code}: {body.get('detail', body)}"
+        kind = CameraUnauthorizedError if response.status_code in (401, 403) else CameraHTTPError
+        return kind(message, status=response.status_code, body=body)
+
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         try:
             response = self._http.request(method, path, **kwargs)
         except httpx.HTTPError as e:
             raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
         if response.status_code >= 400:
-            try:
-                detail = response.json().get("detail", response.text)
-            except (json.JSONDecodeError, AttributeError):
-                detail = response.text
-            message = f"{method} {path}: HTTP {response.status_code}: {detail}"
-            if response.status_code in (401, 403):
-                raise CameraAuthError(message)
-            raise CameraClientError(message)
+            raise self._error(method, path, response)
         return response
+
+    def _json(self, method: str, path: str, **kwargs: Any) -> Any:
+        return self._request(method, path, **kwargs).json()
+
+    # -- board -----------------------------------------------------------------------------
 
     def info(self) -> dict[str, Any]:
         """Board, daemon version and ports with their sensors."""
-        result: dict[str, Any] = self._request("GET", "/info").json()
+        result: dict[str, Any] = self._json("GET", "/info")
         return result
 
-    def capture(self, port: int = 0) -> CapturedFrame:
-        """The next frame of a port."""
-        response = self._request("POST", f"/ports/{port}/capture")
+    def health(self) -> dict[str, Any]:
+        """The daemon's health report; ``status`` is ``degraded`` when a bus fails (503)."""
+        try:
+            response = self._http.get("/health")
+        except httpx.HTTPError as e:
+            raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
+        if response.status_code not in (200, 503):
+            raise self._error("GET", "/health", response)
+        result: dict[str, Any] = response.json()
+        return result
+
+    # -- parameters ------------------------------------------------------------------------
+
+    def params(self, port: int = 0, *, frame: int | None = None) -> dict[str, int]:
+        """Parameters in effect now (or for a recent or scheduled frame)."""
+        query = {} if frame is None else {"frame": frame}
+        result: dict[str, int] = self._json("GET", f"/ports/{port}/params", params=query)
+        return result
+
+    def set_params(
+        self,
+        changes: Mapping[str, int],
+        *,
+        port: int = 0,
+        frame: int | None = None,
+        ahead: int | None = None,
+    ) -> Applied:
+        """Change parameters all-or-nothing, at once, at frame ``frame`` or ``ahead`` frames on.
+
+        Raises `CameraHTTPError` (422 names the parameter, value and allowed range).
+        """
+        query: dict[str, Any] = {}
+        if frame is not None:
+            query["frame"] = str(frame)
+        if ahead is not None:
+            query["ahead"] = ahead
+        body = self._json("PATCH", f"/ports/{port}/params", params=query, json=dict(changes))
+        return Applied(frame=int(body["frame"]), params=dict(body["params"]))
+
+    def frame(self, port: int = 0) -> dict[str, int]:
+        """Current frame number and its start time (ns)."""
+        result: dict[str, int] = self._json("GET", f"/ports/{port}/frame")
+        return result
+
+    @contextlib.contextmanager
+    def staged(
+        self, changes: Mapping[str, int] | Mapping[int, Mapping[str, int]], *, port: int = 0
+    ) -> Iterator[dict[int, Applied]]:
+        """Apply settings for a block and put the previous values back on exit.
+
+        ``changes`` is a parameter dict for ``port``, or ``{port: {...}, ...}`` for several
+        ports. If a port's change fails, the ports already changed are restored before the
+        error is raised. Yields ``{port: Applied}``.
+        """
+        per_port: dict[int, dict[str, int]] = {}
+        for key, value in changes.items():
+            if isinstance(key, int) and isinstance(value, Mapping):
+                per_port[key] = dict(value)
+            elif isinstance(key, str) and isinstance(value, int):
+                per_port.setdefault(port, {})[key] = value
+            else:
+                raise ValueError(f"staged(): {key!r}: {value!r}; give NAME=int or port: {{...}}")
+        previous: dict[int, dict[str, int]] = {}
+        applied: dict[int, Applied] = {}
+        try:
+            for p, values in per_port.items():
+                now = self.params(p)
+                previous[p] = {k: now[k] for k in values if k in now}
+                applied[p] = self.set_params(values, port=p)
+        except BaseException as e:
+            try:
+                self._restore(previous, applied)
+            except CameraClientError as restore_error:
+                e.add_note(str(restore_error))
+            raise
+        try:
+            yield applied
+        finally:
+            self._restore(previous, applied)
+
+    def _restore(self, previous: dict[int, dict[str, int]], applied: dict[int, Applied]) -> None:
+        errors = []
+        for p in reversed(list(applied)):
+            try:
+                self.set_params(previous[p], port=p)
+            except CameraClientError as e:
+                errors.append(f"port {p}: {e}")
+        if errors:
+            raise CameraClientError("could not restore staged settings: " + "; ".join(errors))
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def capture(self, port: int = 0, *, frame: int | None = None) -> CapturedFrame:
+        """The next frame of a port, or frame ``frame`` from the daemon's ring buffer."""
+        query = {} if frame is None else {"frame": frame}
+        response = self._request("POST", f"/ports/{port}/capture", params=query)
         image, metadata = read_tiff_metadata(response.content)
         return CapturedFrame(tiff=response.content, image=image, metadata=metadata)
+
+    def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> Burst:
+        """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF."""
+        query: dict[str, Any] = {"count": count}
+        if frame is not None:
+            query["frame"] = frame
+        response = self._request("POST", f"/ports/{port}/capture", params=query)
+        images, metadata = read_burst(response.content)
+        if len(metadata) != count:
+            raise CameraClientError(
+                f"burst ended after {len(metadata)} of {count} frames (see the daemon log)"
+            )
+        return Burst(tiff=response.content, images=images, metadata=metadata)
+
+    # -- raw registers ---------------------------------------------------------------------
+
+    def registers(self, port: int = 0) -> list[dict[str, Any]]:
+        """The sensor's register table."""
+        result: list[dict[str, Any]] = self._json("GET", f"/ports/{port}/registers")
+        return result
+
+    def register(self, address: int, *, port: int = 0) -> dict[str, Any]:
+        """Read a raw register now: name, address, value, limits."""
+        result: dict[str, Any] = self._json("GET", f"/ports/{port}/registers/0x{address:x}")
+        return result
+
+    def set_register(self, address: int, value: int, *, port: int = 0) -> dict[str, Any]:
+        """Write a raw register (checked against the register table by the daemon)."""
+        result: dict[str, Any] = self._json(
+            "PUT", f"/ports/{port}/registers/0x{address:x}", json={"value": value}
+        )
+        return result
+
+    # -- events ----------------------------------------------------------------------------
+
+    def events(
+        self,
+        types: tuple[str, ...] = ("frame", "params", "error"),
+        *,
+        port: int | None = None,
+        count: int | None = None,
+    ) -> Iterator[CameraEvent]:
+        """Follow the daemon's events; stops after ``count`` events (else when closed)."""
+        query: dict[str, Any] = {"types": ",".join(types)}
+        if port is not None:
+            query["port"] = port
+        if count is not None:
+            query["count"] = count
+        timeout = httpx.Timeout(self.timeout_s, read=None)
+        try:
+            with self._http.stream("GET", "/events", params=query, timeout=timeout) as response:
+                if response.status_code >= 400:
+                    response.read()
+                    raise self._error("GET", "/events", response)
+                parser = _SSEParser()
+                for line in response.iter_lines():
+                    event = parser.feed(line)
+                    if event is not None:
+                        yield event
+        except httpx.HTTPError as e:
+            raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
+
+
+# The name earlier code used.
+CameraClient = Camera

@@ -24,6 +24,8 @@ from elphel_host.errors import (
 from elphel_host.stage.client import NOMINAL_MM_PER_STEP, StageClient
 
 CALIPER_LSB_MM = 0.01
+# How far one confirmed reading can lie from the carriage: half an LSB plus display noise.
+READING_ERROR_MM = CALIPER_LSB_MM / 2 + 0.002
 
 
 @dataclass(frozen=True)
@@ -87,10 +89,13 @@ class Positioner:
         self._verified: tuple[int, float] | None = None  # (steps, caliper mm) after a move
 
     # ---- verified primitives ---------------------------------------------------------
-    def read_mm(self) -> float:
-        return self.client.read_caliper_um() / 1000.0
+    def read_mm(self, samples: int = 1) -> float:
+        """The caliper in mm: the mean of `samples` fresh confirmed readings."""
+        if samples < 1:
+            raise ValueError(f"samples {samples}; need at least 1")
+        return statistics.fmean(self.client.read_caliper_um() for _ in range(samples)) / 1000.0
 
-    def _goto(self, steps: int) -> float:
+    def _goto(self, steps: int, samples: int = 1) -> float:
         """Move to `steps`, wait, read the caliper, check the move really happened."""
         before = self.client.status()
         if not before.homed:
@@ -109,12 +114,17 @@ class Positioner:
         if steps != before.steps:
             self.client.move_to_steps(steps).wait(self.move_timeout_s)
             self.last_dir = 1 if steps > before.steps else -1
-        now_mm = self.read_mm()
+        now_mm = self.read_mm(samples)
         self._verified = None
         if start_mm is not None:
             expected = (steps - before.steps) * self.model.mm_per_step
             moved = now_mm - start_mm
-            slack = self.stall_tolerance_mm + self.model.backlash_mm + abs(expected) * 0.01
+            slack = (
+                self.stall_tolerance_mm
+                + self.model.backlash_mm
+                + abs(expected) * 0.01
+                + 2 * READING_ERROR_MM  # the move is the difference of two readings
+            )
             if abs(moved - expected) > slack:
                 raise StageStallError(
                     f"caliper moved {moved:+.3f} mm for {steps - before.steps:+d} steps "
@@ -124,13 +134,13 @@ class Positioner:
         self._verified = (steps, now_mm)
         return now_mm
 
-    def _approach(self, steps: int, overshoot_steps: int) -> float:
+    def _approach(self, steps: int, overshoot_steps: int, samples: int = 1) -> float:
         """Reach `steps` moving towards +steps (from below), so backlash is taken up."""
         st = self.client.status()
         if st.steps >= steps or self.last_dir <= 0:
             lo, _hi = self.client.limits_steps()
             self._goto(max(lo, steps - overshoot_steps))
-        return self._goto(steps)
+        return self._goto(steps, samples)
 
     # ---- calibration -------------------------------------------------------------------
     def calibrate(
@@ -140,8 +150,13 @@ class Positioner:
         start_mm: float = 10.0,
         repeats: int = 3,
         home_first: bool = True,
+        readings: int = 4,
     ) -> Calibration:
-        """Measure mm/step: long moves approached from one side, repeated."""
+        """Measure mm/step: long moves approached from one side, repeated.
+
+        Each end of a run is the mean of `readings` caliper readings, so a frame's display
+        noise does not land whole in the run's mm/step.
+        """
         if repeats < 2:
             raise ValueError(f"repeats {repeats}; need at least 2 for a spread")
         st = self.client.status()
@@ -165,8 +180,8 @@ class Positioner:
         runs: list[float] = []
         points: list[tuple[int, float]] = []
         for i in range(repeats):
-            c0 = self._approach(s0, overshoot)
-            c1 = self._goto(s1)
+            c0 = self._approach(s0, overshoot, readings)
+            c1 = self._goto(s1, readings)
             mps = (c1 - c0) / (s1 - s0)
             runs.append(mps)
             points.extend([(s0, c0), (s1, c1)])
@@ -226,69 +241,94 @@ class Positioner:
         tolerance_mm: float = 0.005,
         max_iterations: int = 8,
         approach_mm: float = 0.15,
+        fit_steps: int = 6,
+        verify_readings: int = 3,
     ) -> MoveResult:
-        """Approach the target from below and correct with caliper readings.
+        """Approach the target from below, fit the local offset, stop at the nearest step.
 
-        Each caliper reading r taken after a +approach at step s bounds the carriage to
-        r ± LSB/2, so ``offset`` lies in an interval; readings at several nearby steps
-        narrow it below one caliper LSB. The move ends at the step whose estimate is
-        nearest the target once the caliper agrees (|r - target| <= LSB/2 + tolerance).
+        A single caliper reading cannot tell which step is nearest the target: it is
+        quantised to 0.01 mm and one step (about 0.0088 mm) moves the carriage by a little
+        less than that, so stepping against single readings can cycle without settling.
+        Instead the carriage comes up from below (backlash taken up) and creeps the last
+        `fit_steps` steps one at a time with a reading at each. Consecutive steps put the
+        carriage at phases spread across the caliper LSB, so the mean of ``reading -
+        steps * mm_per_step`` over them (each step's readings averaged first) estimates the
+        local offset to a small fraction of an LSB, and more readings only improve it.
+
+        The carriage creeps on to the step the fit puts nearest the target, or comes up to
+        it again from below if the fit puts it lower (with a fresh window if the model was
+        more than `fit_steps` off), and is read `verify_readings` times there. The move
+        ends when the fit still picks that step and the mean of the readings since arriving
+        is within LSB/2 + `tolerance_mm` of the target; otherwise more readings are taken,
+        up to `max_iterations` checks. ``MoveResult.caliper_mm`` is that mean.
         """
+        if fit_steps < 2 or verify_readings < 1:
+            raise ValueError(
+                f"fit_steps {fit_steps}, verify_readings {verify_readings}; "
+                "need fit_steps >= 2 and verify_readings >= 1"
+            )
         self._require_reference()
         m = self.model
         mps = m.mm_per_step
-        half = CALIPER_LSB_MM / 2 + 0.002  # quantisation plus caliper noise
+        assert m.offset_mm is not None
         overshoot = max(10, round((approach_mm + m.backlash_mm) / mps))
-        lo_off, hi_off = -math.inf, math.inf
+        by_step: dict[int, list[float]] = {}  # readings at each step, all arrived from below
+        arrived: list[float] = []  # readings since arriving at the current step
 
-        def constrain(reading: float, steps: int) -> tuple[float, float]:
-            nonlocal lo_off, hi_off
-            a, b = reading - half - steps * mps, reading + half - steps * mps
-            if a > hi_off or b < lo_off:  # inconsistent with older readings: local restart
-                lo_off, hi_off = a, b
-            else:
-                lo_off, hi_off = max(lo_off, a), min(hi_off, b)
-            return lo_off, hi_off
+        def fitted_offset() -> float:
+            return statistics.fmean(statistics.fmean(r) - s * mps for s, r in by_step.items())
 
-        goal = round(m.steps_for(target_mm))
-        pre = goal - overshoot
-        reading = self._approach(pre, overshoot)
-        steps = pre
-        constrain(reading, steps)
+        def nearest(offset: float) -> int:
+            return round((target_mm - offset) / mps)
+
+        def record(at: int, reading: float, *, moved: bool) -> None:
+            if moved:
+                arrived.clear()
+            arrived.append(reading)
+            by_step.setdefault(at, []).append(reading)
+
+        def start_window(goal: int) -> int:
+            by_step.clear()
+            first = goal - fit_steps + 1
+            record(first, self._approach(first, overshoot), moved=True)
+            return first
+
+        steps = start_window(nearest(m.offset_mm))
+        needed = verify_readings
         iterations = 0
         while True:
+            best = nearest(fitted_offset())
+            while len(by_step) < fit_steps or steps < best <= steps + fit_steps:
+                steps += 1
+                record(steps, self._goto(steps), moved=True)
+                best = nearest(fitted_offset())
             iterations += 1
             if iterations > max_iterations:
                 raise StageClosedLoopError(
-                    f"closed-loop move to {target_mm:.4f} mm: caliper reads {reading:.3f} mm after "
-                    f"{max_iterations} corrections (tolerance ±{tolerance_mm} mm beyond the "
-                    f"{CALIPER_LSB_MM} mm caliper LSB)"
+                    f"closed-loop move to {target_mm:.4f} mm: caliper reads "
+                    f"{statistics.fmean(arrived):.4f} mm at step {steps} after "
+                    f"{max_iterations} corrections (tolerance ±{tolerance_mm} mm beyond half "
+                    f"the {CALIPER_LSB_MM} mm caliper LSB)"
                 )
-            offset = (lo_off + hi_off) / 2
-            goal = round((target_mm - offset) / mps)
-            if goal < steps:
-                # Overshot: go back below and come up again.
-                reading = self._approach(goal - 2, overshoot)
-                steps = goal - 2
-                constrain(reading, steps)
-                continue
-            # Creep the last few steps one at a time: each reading narrows the offset.
-            for s in range(max(steps + 1, goal - 3), goal + 1):
-                reading = self._goto(s)
-                steps = s
-                constrain(reading, steps)
-            offset = (lo_off + hi_off) / 2
-            best = round((target_mm - offset) / mps)
-            if best == steps and abs(reading - target_mm) <= CALIPER_LSB_MM / 2 + tolerance_mm:
-                m.offset_mm = offset  # refresh the model locally
-                self.last_dir = 1
-                return MoveResult(target_mm, reading, steps, iterations, offset + steps * mps)
-            if best > steps:
+            if abs(best - steps) > fit_steps:
+                # The model was far off here: fit again next to the target.
+                steps = start_window(best)
                 continue
             if best < steps:
-                reading = self._approach(best - 3, overshoot)
-                steps = best - 3
-                constrain(reading, steps)
+                # The fit puts the target lower: come up to it again from below.
+                steps = best
+                record(steps, self._approach(steps, overshoot), moved=True)
+                continue
+            while len(arrived) < needed:
+                record(steps, self.read_mm(), moved=False)
+            offset = fitted_offset()
+            caliper_mm = statistics.fmean(arrived)
+            if nearest(offset) == steps and (
+                abs(caliper_mm - target_mm) <= CALIPER_LSB_MM / 2 + tolerance_mm
+            ):
+                self.last_dir = 1
+                return MoveResult(target_mm, caliper_mm, steps, iterations, offset + steps * mps)
+            needed = len(arrived) + verify_readings
 
     # ---- recovery -------------------------------------------------------------------------
     def resync_from_caliper(self) -> int:

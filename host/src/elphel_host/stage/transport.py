@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import socket
+import struct
 import time
 
 import serial
+from serial.urlhandler.protocol_socket import Serial as _PySerialSocket
 
 from elphel_host.errors import StageConnectionError
 
@@ -14,13 +18,63 @@ log = logging.getLogger(__name__)
 BAUD = 115200
 
 
+def _bytes_ready(sock: socket.socket) -> int:
+    """Bytes a socket holds (FIONREAD); 0 where the system can't tell (Windows)."""
+    try:
+        import fcntl
+        import termios
+    except ImportError:  # pragma: no cover - not POSIX: reads go byte by byte
+        return 0
+    raw = fcntl.ioctl(sock.fileno(), termios.FIONREAD, b"\0\0\0\0")
+    return int(struct.unpack("i", raw)[0])
+
+
+class _SocketPort(_PySerialSocket):
+    """pyserial's ``socket://`` port, reading what has arrived and closing without a pause.
+
+    pyserial sleeps 0.3 s in ``close()`` "in case of quick reconnects"; the stage client
+    paces its own reconnects (retries with deadlines), so the pause only made every
+    reconnect after a dropped link slower.
+    """
+
+    _socket: socket.socket | None
+    is_open: bool
+
+    @property
+    def in_waiting(self) -> int:
+        """Bytes ready to read (pyserial's answer is only 0 or 1).
+
+        With 0 or 1, a reply line is read one byte per call, a few system calls per byte;
+        on a busy machine each of them may wait for the CPU (and for the GIL, next to a
+        simulator thread), which made a 100-byte reply take milliseconds.
+        """
+        n = int(super().in_waiting)
+        if n and self._socket is not None:
+            n = max(n, _bytes_ready(self._socket))
+        return n
+
+    def close(self) -> None:
+        if not self.is_open:
+            return
+        sock, self._socket = self._socket, None
+        if sock is not None:
+            with contextlib.suppress(OSError):  # the peer may have reset the link already
+                sock.shutdown(socket.SHUT_RDWR)
+            sock.close()
+        self.is_open = False
+
+
 def open_link(url: str, *, timeout_s: float = 0.05) -> serial.SerialBase:
     """Open `url` (device path, ``socket://host:port``, pty path, any pyserial URL).
 
     DTR/RTS are set low before opening so NodeMCU-style boards are not reset by it.
     """
     try:
-        port = serial.serial_for_url(url, baudrate=BAUD, timeout=timeout_s, do_not_open=True)
+        if url.lower().startswith("socket://"):
+            port = _SocketPort(None, baudrate=BAUD, timeout=timeout_s)
+            port.port = url
+        else:
+            port = serial.serial_for_url(url, baudrate=BAUD, timeout=timeout_s, do_not_open=True)
         port.dtr = False
         port.rts = False
         port.open()

@@ -25,6 +25,11 @@ from elphel_sim.micropython.pins import PinBank
 
 # Virtual cost of one pin or UART access (the real chip spends a few us in Python).
 PIN_ACCESS_US = 2
+# Virtual cost of one select.poll() call with its main-loop iteration: MicroPython on the
+# 80 MHz ESP8266 spends tens of us there. Charging only a pin access let the firmware's
+# poll(0) loop before a due step spin ~60 times per step, so a move ran at about real
+# time, not time_scale times faster, and slower still on a loaded machine.
+POLL_US = 50
 WDT_DEADLINE_US = 3_200_000  # SDK soft watchdog: 2 ticks of 1.6 s after the last feed
 UART_RX_BUFFER = 256
 
@@ -153,7 +158,7 @@ class FakePoll:
 
     def poll(self, timeout_ms: int = -1) -> list[tuple[Any, int]]:
         board = self.board
-        board.clock.advance(PIN_ACCESS_US)
+        board.clock.advance(POLL_US)
         ready = self._ready()
         if ready or timeout_ms == 0:
             return ready
@@ -246,10 +251,22 @@ class SimBoard:
         self.uart_sink(self.garble_out(data))
 
     def drop_clients(self) -> None:
+        """Cut every TCP connection, as a WiFi drop does; callable from any thread.
+
+        Only shuts the real sockets down: the firmware then sees end-of-stream and closes
+        them itself. Closing them here, from another thread, would pull the descriptor out
+        from under the firmware's select() (EBADF kills the board) or let the number be
+        reused by a new connection while the firmware still polls it.
+        """
         for c in list(self.clients):
-            if c.real is not None:
+            if c.real is not None and not c.closed:
                 with contextlib.suppress(OSError):
                     c.real.shutdown(_socket.SHUT_RDWR)
+
+    def _close_clients(self) -> None:
+        """Close every TCP connection; only on the firmware thread or after it ended."""
+        self.drop_clients()
+        for c in list(self.clients):
             c.close()
 
     # ---- reset, watchdog ---------------------------------------------------------
@@ -280,7 +297,7 @@ class SimBoard:
             os.write(self.wake_w, b"x")
         if self.thread is not None:
             self.thread.join(timeout=10)
-        self.drop_clients()
+        self._close_clients()
         if self.listener is not None:
             self.listener.close()
             self.listener = None
@@ -297,7 +314,7 @@ class SimBoard:
                 self.resets += 1
                 self.reset_cause = int(e.args[0]) if e.args else HARD_RESET
                 self._wdt_last = None
-                self.drop_clients()
+                self._close_clients()
                 continue
             except SimShutdown:
                 return

@@ -20,9 +20,13 @@ class VirtualClock:
 
     Virtual time runs at most ``time_scale`` times faster than real time: when the
     simulation is ahead of that pace it sleeps; when it falls behind (CPU-bound) it
-    re-anchors instead of racing to catch up. Hooks registered with `on_advance` are
-    called after every advance (watchdog, reset requests).
+    re-anchors instead of racing to catch up. The hooks in `checks` (watchdog, reset
+    requests, shutdown) run after every wait and whenever `CHECK_EVERY_US` of virtual
+    time has passed; pacing and checks are not worth their cost on each of the many
+    microsecond advances a step pulse or a caliper frame makes.
     """
+
+    CHECK_EVERY_US = 200
 
     def __init__(self, time_scale: float = 1.0) -> None:
         if time_scale <= 0:
@@ -33,6 +37,7 @@ class VirtualClock:
         self._anchor_us = 0
         self._lock = threading.Lock()
         self.checks: list[object] = []
+        self._checked_us = 0
 
     def _real_for(self, t_us: int) -> float:
         return self._anchor_real + (t_us - self._anchor_us) / 1e6 / self.time_scale
@@ -49,7 +54,12 @@ class VirtualClock:
         """Let dt_us of virtual time pass (dt_us >= 0)."""
         if dt_us > 0:
             self.now_us += int(dt_us)
+        if self.now_us - self._checked_us >= self.CHECK_EVERY_US:
             self._pace()
+            self._run_checks()
+
+    def _run_checks(self) -> None:
+        self._checked_us = self.now_us
         for check in self.checks:
             check()  # type: ignore[operator]
 
@@ -66,6 +76,5 @@ class VirtualClock:
                 (time.monotonic() - self._real_for(self.now_us)) * 1e6 * self.time_scale
             )
             self.now_us = min(deadline_us, self.now_us + max(1, elapsed_us))
-        for check in self.checks:
-            check()  # type: ignore[operator]
+        self._run_checks()
         return ready

@@ -11,9 +11,11 @@ never imports them.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from functools import partial
 from importlib.metadata import entry_points
@@ -23,17 +25,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd import __version__
+from elphel_camd.config import ParamStore
 from elphel_camd.errors import (
+    CameraError,
     CaptureUnavailableError,
+    FrameNotAvailableError,
+    I2CError,
     ParameterRangeError,
     PortError,
     SensorNotFoundError,
     UnsupportedError,
 )
+from elphel_camd.events import EventHub
 from elphel_camd.i2c.bus import I2CBus, open_bus
 from elphel_camd.params import COMMON_TRIGGER_PARAMS, PARAMS
 from elphel_camd.sensors import SensorDriver, detect
-from elphel_camd.sequencer import PortSequencer
+from elphel_camd.sensors.registers import Access, Register
+from elphel_camd.sequencer import MAX_AHEAD, PortSequencer
+
+log = logging.getLogger(__name__)
 
 FrameSync = Callable[[int, int, int], None]
 
@@ -138,10 +148,25 @@ _NEEDS = {
 
 
 class Camera:
-    """The daemon's view of a board: sensors, their sequencers, capture with metadata."""
+    """The daemon's view of a board: sensors, their sequencers, capture with metadata.
 
-    def __init__(self, board: Board) -> None:
+    Parameters
+    ----------
+    board
+        The board.
+    events
+        Where frames, parameter changes and errors are published (a new hub if None).
+    store
+        Where accepted parameters are saved; the saved ones are restored here, before the
+        first frame sync. None keeps nothing.
+    """
+
+    def __init__(
+        self, board: Board, *, events: EventHub | None = None, store: ParamStore | None = None
+    ) -> None:
         self.board = board
+        self.events = events if events is not None else EventHub()
+        self.store = store
         self.sensors: dict[int, SensorDriver | None] = {
             port: detect(bus, bus_name=f"port {port}") for port, bus in board.buses().items()
         }
@@ -152,13 +177,85 @@ class Camera:
                 seq.start()
                 self.sequencers[port] = seq
         self.started_ns = time.time_ns()
-        self._common_lock = threading.Lock()
+        self._errors_seen = {port: 0 for port in self.sequencers}
+        # Saved files must end at the newest state: versions order the writes of a port.
+        self._versions = dict.fromkeys(self.sequencers, 0)
+        self._saved = dict.fromkeys(self.sequencers, 0)
+        self._save_locks = {port: threading.Lock() for port in self.sequencers}
+        if store is not None:
+            self._restore(store)
         board.on_frame_sync(self._frame_sync)
 
     def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
         seq = self.sequencers.get(port)
-        if seq is not None:
-            seq.on_frame_sync(frame, timestamp_ns)
+        if seq is None:
+            return
+        seq.on_frame_sync(frame, timestamp_ns)
+        errors = seq.errors
+        if len(errors) > self._errors_seen[port]:
+            for message in errors[self._errors_seen[port] :]:
+                self.events.publish(
+                    "error", {"port": port, "frame": frame, "error": "i2c", "detail": message}
+                )
+            # The sequencer only appends; keep its list short on a long-running daemon.
+            del errors[:-16]
+            self._errors_seen[port] = len(errors)
+        self.events.publish("frame", {"port": port, "frame": frame, "timestamp_ns": timestamp_ns})
+
+    # -- persistence -----------------------------------------------------------------------
+
+    def _persistent(self, port: int) -> dict[str, int]:
+        """What to save of a port: its writable parameters once every scheduled change is in.
+
+        VEXPOS follows from EXPOS; common trigger settings are saved by the master port.
+        """
+        seq = self.sequencers[port]
+        state = seq.state_at(seq.this_frame + MAX_AHEAD)
+        keep = set(seq.driver.writable) - {"VEXPOS"}
+        if state.get("TRIG_MASTER", port) != port:
+            keep -= set(COMMON_TRIGGER_PARAMS)
+        return {k: v for k, v in state.items() if k in keep}
+
+    def _save(self, port: int, version: int, params: dict[str, int]) -> None:
+        if self.store is None:
+            return
+        with self._save_locks[port]:
+            if version <= self._saved[port]:
+                return  # a newer state of this port is on disk already
+            self.store.save(port, self.sensors[port].model, params)  # type: ignore[union-attr]
+            self._saved[port] = version
+
+    def _restore(self, store: ParamStore) -> None:
+        common: dict[str, int] = {}
+        for port, seq in self.sequencers.items():
+            saved = store.load(port, seq.driver.model)
+            if not saved:
+                continue
+            values = {
+                k: v
+                for k, v in saved.items()
+                if k in seq.driver.writable and k not in COMMON_TRIGGER_PARAMS
+            }
+            if saved.get("TRIG_MASTER", port) == port:
+                common.update({k: v for k, v in saved.items() if k in COMMON_TRIGGER_PARAMS})
+            try:
+                with seq.lock:
+                    seq.request(values)
+                    seq.flush()
+            except (CameraError, ValueError) as e:
+                log.error("port %d: saved parameters not restored: %s", port, e)
+                continue
+            log.info("port %d: restored %d saved parameters", port, len(values))
+        if common:
+            try:
+                for seq in self.sequencers.values():
+                    seq.check(common)
+                for seq in self.sequencers.values():
+                    with seq.lock:
+                        seq.request(common)
+                        seq.flush()
+            except (CameraError, ValueError) as e:
+                log.error("saved common trigger settings not restored: %s", e)
 
     @property
     def scheduled(self) -> bool:
@@ -229,8 +326,16 @@ class Camera:
                 f"board {self.board.name} has no frame syncs: changes apply at once, "
                 "frame= and ahead= are not available"
             )
+        master_port = changes.get("TRIG_MASTER")
+        if master_port is not None and master_port not in self.sequencers:
+            have = ", ".join(map(str, sorted(self.sequencers)))
+            raise ParameterRangeError("TRIG_MASTER", master_port, f"a port with a sensor: {have}")
         common = {k: v for k, v in changes.items() if k in COMMON_TRIGGER_PARAMS}
-        with self._common_lock:
+        # One lock per port; a change of the common trigger holds every port (in order).
+        ports = sorted(self.sequencers) if common else [port]
+        with contextlib.ExitStack() as held:
+            for p in ports:
+                held.enter_context(self.sequencers[p].lock)
             if common:
                 master = changes.get("TRIG_MASTER", seq.state_at(seq.this_frame)["TRIG_MASTER"])
                 if master != port:
@@ -244,8 +349,15 @@ class Camera:
             if common:
                 for other in others:
                     other.request(common)
-        if not self.scheduled:
-            seq.flush()
+            if not self.scheduled:
+                seq.flush()
+            snapshots = []
+            for p in ports:
+                self._versions[p] += 1
+                snapshots.append((p, self._versions[p], self._persistent(p)))
+        for p, version, params in snapshots:
+            self._save(p, version, params)
+        self.events.publish("params", {"port": port, "frame": target, "changes": dict(changes)})
         return target
 
     # -- frames ----------------------------------------------------------------------------
@@ -253,6 +365,13 @@ class Camera:
     def capture(self, port: int, *, frame: int | None = None) -> tuple[Frame, dict[str, Any]]:
         """The next frame of a port (or a recent one) and its metadata."""
         driver = self.sensor(port)
+        if frame is not None:
+            newest = self.sequencers[port].this_frame
+            if frame > newest + MAX_AHEAD:
+                raise FrameNotAvailableError(
+                    f"port {port}: frame {frame} is not taken yet (current frame {newest}; "
+                    f"capture waits for at most {MAX_AHEAD} frames ahead)"
+                )
         got = self.board.capture(port, frame=frame)
         params = self.params(port, frame=got.frame)
         metadata: dict[str, Any] = {
@@ -267,8 +386,88 @@ class Camera:
         }
         return got, metadata
 
+    def burst(
+        self, port: int, count: int, *, frame: int | None = None
+    ) -> Iterator[tuple[Frame, dict[str, Any]]]:
+        """``count`` consecutive frames of a port, from the next one (or from ``frame``).
+
+        Frames are fetched as they are taken; a consumer slower than the ring buffer gets
+        `FrameNotAvailableError` for a frame that was overwritten.
+        """
+        if count < 1:
+            raise ParameterRangeError("count", count, "1 or more")
+        first = self.capture(port, frame=frame)
+        yield first
+        for k in range(1, count):
+            yield self.capture(port, frame=first[0].frame + k)
+
+    # -- raw registers ---------------------------------------------------------------------
+
+    def register(self, port: int, address: int) -> Register:
+        """The register table entry at an address (ParameterRangeError if none)."""
+        table = self.sensor(port).table
+        register = table.at(address)
+        if register is None:
+            known = ", ".join(f"0x{r.address:02x}" for r in table)
+            raise ParameterRangeError(
+                "address", f"0x{address:x}", f"a {table.model} register address: {known}"
+            )
+        return register
+
+    def read_register(self, port: int, address: int) -> tuple[Register, int]:
+        register = self.register(port, address)
+        if register.access is Access.WO:
+            raise ParameterRangeError(register.name, f"0x{address:x}", "a readable register")
+        seq = self.sequencer(port)
+        with seq.lock:
+            return register, seq.driver.read(register.name)
+
+    def write_register(self, port: int, address: int, value: int) -> Register:
+        """Write a raw register, checked against the table (bypasses the sequencer)."""
+        register = self.register(port, address)
+        if register.access is Access.RO:
+            raise ParameterRangeError(register.name, value, "nothing: the register is read-only")
+        if not register.minimum <= value <= register.limit:
+            raise ParameterRangeError(register.name, value, f"{register.minimum}..{register.limit}")
+        seq = self.sequencer(port)
+        with seq.lock:
+            seq.driver.write(register.name, value)
+        self.events.publish(
+            "params", {"port": port, "frame": seq.this_frame, "register": register.name}
+        )
+        return register
+
+    # -- health ----------------------------------------------------------------------------
+
+    def health(self) -> dict[str, Any]:
+        """Each port's sensor answering its chip id now; the first I2C error, if any."""
+        ports: list[dict[str, Any]] = []
+        first: I2CError | None = None
+        for port, driver in sorted(self.sensors.items()):
+            entry: dict[str, Any] = {"port": port, "sensor": None, "ok": True}
+            if driver is not None:
+                entry["sensor"] = driver.model
+                seq = self.sequencers[port]
+                try:
+                    with seq.lock:
+                        driver.read(driver.chip_id_register)
+                except I2CError as e:
+                    entry.update(ok=False, error="i2c", detail=str(e))
+                    first = first or e
+                entry["frame"] = seq.this_frame
+            ports.append(entry)
+        return {
+            "status": "ok" if first is None else "degraded",
+            "board": self.board.name,
+            "uptime_s": round((time.time_ns() - self.started_ns) / 1e9, 3),
+            "ports": ports,
+            **({} if first is None else {"error": "i2c", "detail": str(first)}),
+        }
+
     def close(self) -> None:
         self.board.close()
+        if self.store is not None:
+            self.store.close()
 
 
 def bayer_after_flips(bayer: str | None, fliph: int, flipv: int) -> str | None:

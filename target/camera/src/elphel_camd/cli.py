@@ -1,12 +1,15 @@
-"""The `elphel-camd` command: run the daemon on a board."""
+"""The `elphel-camd` command: run the daemon on a board.
+
+Settings come from the command line, then ``ELPHEL_CAMD_*`` environment variables, then
+the JSON config file (see `elphel_camd.config`).
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
+import inspect
 import logging
-import os
-import secrets
+import socket
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -14,61 +17,149 @@ from typing import Any
 
 from elphel_camd import __version__
 from elphel_camd.board import Camera, board_factories
+from elphel_camd.config import (
+    ConfigError,
+    DaemonSettings,
+    ParamStore,
+    load_or_create_token,
+    load_settings,
+)
+from elphel_camd.events import EventHub
+
+log = logging.getLogger("elphel_camd")
 
 
 def build_parser() -> argparse.ArgumentParser:
     boards = sorted(board_factories())
-    p = argparse.ArgumentParser(prog="elphel-camd", description="Serve a camera board over REST.")
+    p = argparse.ArgumentParser(
+        prog="elphel-camd",
+        description="Serve a camera board over REST. Settings: command line, then "
+        "ELPHEL_CAMD_* environment (e.g. ELPHEL_CAMD_TOKEN), then the config file.",
+    )
     p.add_argument("--version", action="version", version=f"elphel-camd {__version__}")
     p.add_argument("--board", choices=boards, required=True, help="board type")
     p.add_argument(
         "--config",
         type=Path,
-        help='JSON file of board options, e.g. {"bus_urls": ["/dev/i2c-0"]} for the i2c board',
+        help="JSON settings file (default /etc/elphel-camd/config.json if it exists), e.g. "
+        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "read_protected": true}',
     )
     p.add_argument("--bus", action="append", default=[], help="I2C bus URL per port (i2c board)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback)")
-    p.add_argument("--port", type=int, default=8000, help="TCP port (0 = any free port)")
+    p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, help="TCP port (default 8000; 0 = any free port)")
     p.add_argument(
         "--token",
-        default=os.environ.get("ELPHEL_CAMD_TOKEN"),
-        help="bearer token for writes (default: env ELPHEL_CAMD_TOKEN, else a random one)",
+        help="bearer token for writes (default: env ELPHEL_CAMD_TOKEN, else the token "
+        "file, created with a random token on first start)",
+    )
+    p.add_argument("--token-file", type=Path, help="token file (default STATE_DIR/token)")
+    p.add_argument("--state-dir", type=Path, help="where the token and parameters are kept")
+    p.add_argument(
+        "--read-protected",
+        action="store_true",
+        default=None,
+        help="reads need the token too (the health check excepted)",
     )
     return p
+
+
+def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
+    return load_settings(
+        args.config,
+        board=args.board,
+        bus_urls=args.bus or None,
+        host=args.host,
+        port=args.port,
+        token=args.token,
+        token_file=args.token_file,
+        state_dir=args.state_dir,
+        read_protected=args.read_protected,
+    )
+
+
+def build_camera(settings: DaemonSettings) -> Camera:
+    """The board named in the settings, with its sensors, events and saved parameters."""
+    options: dict[str, Any] = dict(settings.board_options)
+    if settings.bus_urls:
+        options["bus_urls"] = list(settings.bus_urls)
+    name = settings.board or "i2c"
+    factory = board_factories()[name]
+    try:
+        accepted = set(inspect.signature(factory).parameters)
+    except (TypeError, ValueError):
+        accepted = set(options)
+    unknown = sorted(set(options) - accepted)
+    if unknown:
+        raise ConfigError(
+            f"board {name}: unknown option(s) {', '.join(unknown)}; "
+            f"allowed: {', '.join(sorted(accepted)) or 'none'} or a daemon setting"
+        )
+    try:
+        board = factory(**options)
+    except (TypeError, ValueError, OSError) as e:
+        raise ConfigError(f"board {name}: {e}") from e
+    store = (
+        ParamStore(settings.params_path, sync_each=settings.params_fsync_each)
+        if settings.persist_params
+        else None
+    )
+    try:
+        return Camera(board, events=EventHub(settings.event_queue), store=store)
+    except BaseException:
+        board.close()
+        raise
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     import uvicorn
 
+    from elphel_camd.api import create_app
+
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
-    options: dict[str, Any] = {}
-    if args.config is not None:
-        try:
-            options = json.loads(args.config.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            print(f"elphel-camd: cannot read config {args.config}: {e}", file=sys.stderr)
-            return 1
-    if args.bus:
-        options["bus_urls"] = args.bus
-    token = args.token or secrets.token_urlsafe(24)
     try:
-        board = board_factories()[args.board](**options)
-    except (TypeError, ValueError, OSError) as e:
-        print(f"elphel-camd: board {args.board}: {e}", file=sys.stderr)
+        settings = settings_from_args(args)
+        if settings.token is not None and settings.token.get_secret_value():
+            token = settings.token.get_secret_value()
+        else:
+            token = load_or_create_token(settings.token_path)
+            log.info("bearer token from %s", settings.token_path)
+        camera = build_camera(settings)
+    except (ConfigError, OSError) as e:
+        print(f"elphel-camd: {e}", file=sys.stderr)
         return 1
-    from elphel_camd.api import create_app
-
-    camera = Camera(board)
-    if not args.token:
-        print(f"elphel-camd: token {token}", file=sys.stderr)
+    # IPPROTO_TCP explicitly: asyncio sets TCP_NODELAY only on sockets that name it, and
+    # without it every answer waits ~40 ms for the client's delayed ACK.
+    family = socket.AF_INET6 if ":" in settings.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     try:
-        uvicorn.run(
-            create_app(camera, token=token), host=args.host, port=args.port, log_level="info"
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((settings.host, settings.port))
+        sock.listen(128)
+        host, port = sock.getsockname()[:2]
+        app = create_app(
+            camera,
+            token=token,
+            read_protected=settings.read_protected,
+            max_body_bytes=settings.max_body_bytes,
         )
+        config = uvicorn.Config(
+            app,
+            log_level=settings.log_level,
+            access_log=settings.access_log,
+            lifespan="off",
+        )
+        log.info("listening on http://%s:%d", host, port)
+        uvicorn.Server(config).run(sockets=[sock])
+    except OSError as e:
+        print(
+            f"elphel-camd: cannot listen on {settings.host}:{settings.port}: {e}", file=sys.stderr
+        )
+        return 1
     finally:
+        sock.close()
         camera.close()
     return 0
 

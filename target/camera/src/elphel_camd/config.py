@@ -1,0 +1,342 @@
+"""Daemon configuration, the bearer token file, and per-port parameter persistence.
+
+Settings come, strongest first, from the command line, ``ELPHEL_CAMD_*`` environment
+variables, the JSON config file (``--config``; ``/etc/elphel-camd/config.json`` when it
+exists) and the defaults below. A file key that is no setting is a keyword argument of
+the board factory (``board_options``); the factory rejects names it does not take.
+
+Files the daemon writes (token, parameters) are replaced atomically: written to a
+temporary file in the same directory, flushed to disk, then renamed over the old one, so
+a crash or ``kill -9`` at any moment leaves either the old or the new file, never a torn
+one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import secrets
+import tempfile
+import threading
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, SecretStr, ValidationError
+from pydantic_settings import (
+    BaseSettings,
+    InitSettingsSource,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
+
+from elphel_camd.errors import CameraError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CONFIG = Path("/etc/elphel-camd/config.json")
+PARAMS_VERSION = 1
+
+
+class ConfigError(CameraError, ValueError):
+    """The configuration file or environment is unreadable or names unknown settings."""
+
+
+def default_state_dir() -> Path:
+    """Where the daemon keeps its token and parameters.
+
+    systemd's ``StateDirectory=`` (``$STATE_DIRECTORY``), else ``/var/lib/elphel-camd`` for
+    root, else ``$XDG_STATE_HOME/elphel-camd`` (``~/.local/state/elphel-camd``).
+    """
+    if os.environ.get("STATE_DIRECTORY"):
+        return Path(os.environ["STATE_DIRECTORY"].split(":")[0])
+    if os.geteuid() == 0:
+        return Path("/var/lib/elphel-camd")
+    xdg = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(xdg) / "elphel-camd"
+
+
+class DaemonSettings(BaseSettings):
+    """Everything the daemon reads at start-up (file keys = field names)."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="ELPHEL_CAMD_", extra="forbid", validate_default=True
+    )
+
+    host: str = Field("127.0.0.1", description="address to listen on (loopback by default)")
+    port: int = Field(8000, ge=0, le=65535, description="TCP port (0 = any free port)")
+    board: str | None = Field(None, description="board type (the command line's --board wins)")
+    bus_urls: list[str] = Field(
+        default_factory=list, description="I2C bus URL per port (i2c board), e.g. /dev/i2c-0"
+    )
+    board_options: dict[str, Any] = Field(
+        default_factory=dict, description="keyword arguments of the board factory"
+    )
+    token: SecretStr | None = Field(
+        None, description="bearer token for writes (usually env ELPHEL_CAMD_TOKEN)"
+    )
+    token_file: Path | None = Field(
+        None, description="token file, created 0600 on first start (default STATE_DIR/token)"
+    )
+    read_protected: bool = Field(False, description="reads need the token too")
+    state_dir: Path = Field(default_factory=default_state_dir, description="daemon state")
+    params_dir: Path | None = Field(
+        None, description="per-port parameter files (default STATE_DIR/params)"
+    )
+    persist_params: bool = Field(True, description="persist accepted parameter changes")
+    params_fsync_each: bool = Field(
+        False,
+        description="fsync each parameter file before answering (else right after, in the "
+        "background; a killed daemon keeps every answered change either way)",
+    )
+    max_body_bytes: int = Field(65536, ge=1024, description="largest request body accepted")
+    event_queue: int = Field(256, ge=1, description="events buffered per SSE client")
+    log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
+    access_log: bool = Field(True, description="log every request")
+
+    @property
+    def token_path(self) -> Path:
+        return self.token_file if self.token_file is not None else self.state_dir / "token"
+
+    @property
+    def params_path(self) -> Path:
+        return self.params_dir if self.params_dir is not None else self.state_dir / "params"
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return (init_settings, env_settings)
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """The JSON object of a config file (ConfigError if unreadable or not an object)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ConfigError(f"cannot read config {path}: {e}") from e
+    if not isinstance(data, dict):
+        raise ConfigError(f"config {path}: a JSON object is needed, not {type(data).__name__}")
+    return data
+
+
+def load_settings(config: Path | None = None, **overrides: Any) -> DaemonSettings:
+    """Settings from overrides (the command line), then environment, then the file.
+
+    Parameters
+    ----------
+    config
+        JSON config file; None reads `DEFAULT_CONFIG` when it exists.
+    overrides
+        Values that beat every other source (None values are ignored).
+    """
+    if config is None and DEFAULT_CONFIG.is_file():
+        config = DEFAULT_CONFIG
+    file_values = read_config_file(config) if config is not None else {}
+    # Keys that are not settings are the board factory's keyword arguments (the file's
+    # original form, e.g. {"scenario": "default", "seed": 3}); the factory rejects unknown
+    # ones when the board is built.
+    extra = {
+        k: file_values.pop(k) for k in list(file_values) if k not in DaemonSettings.model_fields
+    }
+    if extra:
+        file_values["board_options"] = {**extra, **file_values.get("board_options", {})}
+    given = {k: v for k, v in overrides.items() if v is not None}
+
+    class _FromFile(DaemonSettings):
+        @classmethod
+        def settings_customise_sources(
+            cls,
+            settings_cls: type[BaseSettings],
+            init_settings: PydanticBaseSettingsSource,
+            env_settings: PydanticBaseSettingsSource,
+            dotenv_settings: PydanticBaseSettingsSource,
+            file_secret_settings: PydanticBaseSettingsSource,
+        ) -> tuple[PydanticBaseSettingsSource, ...]:
+            return (init_settings, env_settings, InitSettingsSource(settings_cls, file_values))
+
+    try:
+        loaded = _FromFile(**given)
+    except ValidationError as e:
+        where = f"config {config} or " if config is not None else ""
+        raise ConfigError(f"invalid settings ({where}ELPHEL_CAMD_* environment): {e}") from e
+    return loaded
+
+
+# -- atomic files ----------------------------------------------------------------------------
+
+
+def write_atomic(path: Path, data: bytes, *, mode: int = 0o644, sync: bool = True) -> None:
+    """Replace ``path`` with ``data`` so that readers see the old or the new file only.
+
+    The rename alone makes the replacement atomic for a killed process; ``sync`` also
+    flushes data and directory to the disk first, for a power loss.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, mode)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            if sync:
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    if sync:
+        fsync_path(path.parent)
+
+
+def fsync_path(path: Path) -> None:
+    """Flush a file's or a directory's data and metadata to the disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def remove_stale_temporaries(directory: Path) -> None:
+    """Delete temporary files a killed writer left behind."""
+    if directory.is_dir():
+        for stale in directory.glob(".*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
+
+
+def load_or_create_token(path: Path) -> str:
+    """The token in ``path``; on first start a new random one, written there with mode 0600."""
+    try:
+        token = path.read_text().strip()
+    except FileNotFoundError:
+        token = ""
+    except OSError as e:
+        raise ConfigError(f"cannot read token file {path}: {e}") from e
+    if token:
+        if path.stat().st_mode & 0o077:
+            log.warning("token file %s is readable by others; chmod 600 it", path)
+        return token
+    token = secrets.token_urlsafe(24)
+    try:
+        write_atomic(path, (token + "\n").encode(), mode=0o600)
+    except OSError as e:
+        raise ConfigError(f"cannot create token file {path}: {e}") from e
+    log.info("new bearer token written to %s", path)
+    return token
+
+
+# -- per-port parameters ----------------------------------------------------------------------
+
+
+class ParamStore:
+    """Accepted parameters of each port, one JSON file per port, replaced atomically.
+
+    A save returns once the new file has replaced the old one: from then on a killed
+    daemon restarts with it. Flushing to the disk (for a power loss) costs milliseconds on
+    flash, so by default a background thread does it right after; ``sync_each=True`` does
+    it before `save` returns.
+
+    Parameters
+    ----------
+    directory
+        Where ``port<N>.json`` files live.
+    sync_each
+        fsync every file before `save` returns.
+    """
+
+    flush_interval_s = 0.25
+
+    def __init__(self, directory: Path, *, sync_each: bool = False) -> None:
+        self.directory = directory
+        self.sync_each = sync_each
+        directory.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(directory)
+        self._dirty: set[Path] = set()
+        self._wake = threading.Condition()
+        self._closed = False
+        self._flusher: threading.Thread | None = None
+        if not sync_each:
+            self._flusher = threading.Thread(target=self._flush_loop, name="params-fsync")
+            self._flusher.daemon = True
+            self._flusher.start()
+
+    def path(self, port: int) -> Path:
+        return self.directory / f"port{port}.json"
+
+    def save(self, port: int, sensor: str, params: Mapping[str, int]) -> None:
+        body = {"version": PARAMS_VERSION, "port": port, "sensor": sensor, "params": dict(params)}
+        path = self.path(port)
+        write_atomic(path, json.dumps(body, sort_keys=True).encode(), sync=self.sync_each)
+        if not self.sync_each:
+            with self._wake:
+                self._dirty.add(path)
+                self._wake.notify()
+
+    def _flush_loop(self) -> None:
+        while True:
+            with self._wake:
+                while not self._dirty and not self._closed:
+                    self._wake.wait()
+                dirty, self._dirty = self._dirty, set()
+                closed = self._closed
+            for path in dirty:
+                try:
+                    fsync_path(path)
+                except OSError as e:  # replaced meanwhile: the newer file is flushed next
+                    log.debug("fsync %s: %s", path, e)
+            if dirty:
+                with contextlib.suppress(OSError):
+                    fsync_path(self.directory)
+            if closed:
+                return
+            # Coalesce: a burst of changes costs one flush per interval, not one per change
+            # (each flush stalls other writes to the file system for milliseconds).
+            with self._wake:
+                self._wake.wait_for(lambda: self._closed, timeout=self.flush_interval_s)
+
+    def close(self) -> None:
+        """Flush what is pending and stop the background thread."""
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+        if self._flusher is not None:
+            self._flusher.join(timeout=10)
+
+    def load(self, port: int, sensor: str) -> dict[str, int] | None:
+        """Saved parameters of a port, or None (no file, other sensor, unreadable file)."""
+        path = self.path(port)
+        try:
+            body = json.loads(path.read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, json.JSONDecodeError) as e:
+            log.error("port %d: ignoring unreadable saved parameters %s: %s", port, path, e)
+            return None
+        ok = (
+            isinstance(body, dict)
+            and body.get("version") == PARAMS_VERSION
+            and isinstance(body.get("params"), dict)
+            and all(isinstance(v, int) for v in body["params"].values())
+        )
+        if not ok:
+            log.error("port %d: ignoring saved parameters %s of unknown form", port, path)
+            return None
+        if body.get("sensor") != sensor:
+            log.warning(
+                "port %d: saved parameters are for %s, the port has %s; not restored",
+                port,
+                body.get("sensor"),
+                sensor,
+            )
+            return None
+        return dict(body["params"])

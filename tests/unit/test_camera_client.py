@@ -1,0 +1,83 @@
+"""The typed camera client against a scripted daemon (httpx mock transport)."""
+
+import json
+
+import httpx
+import pytest
+
+from elphel_host.camera import Camera, CameraHTTPError, CameraUnauthorizedError
+from elphel_host.camera.client import _SSEParser
+
+
+class FakeDaemon:
+    """Two ports of parameters; PATCHes on ``fail_port`` are refused with 422."""
+
+    def __init__(self, fail_port: int | None = None) -> None:
+        self.params = {0: {"EXPOS": 10000, "GAINR": 0x10000}, 1: {"EXPOS": 10000, "GAINR": 0x10000}}
+        self.fail_port = fail_port
+        self.log: list[tuple[str, int, dict]] = []
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        if request.headers.get("authorization") != "Bearer t":
+            return httpx.Response(401, json={"detail": "token", "error": "unauthorized"})
+        port = int(request.url.path.split("/")[4])
+        if request.method == "GET":
+            return httpx.Response(200, json=self.params[port])
+        changes = json.loads(request.content)
+        self.log.append((request.method, port, changes))
+        if port == self.fail_port:
+            body = {"detail": "no", "error": "parameter_range", "parameter": "EXPOS"}
+            return httpx.Response(422, json={**body, "value": changes["EXPOS"], "allowed": "1..9"})
+        self.params[port].update(changes)
+        return httpx.Response(200, json={"frame": 7, "params": self.params[port]})
+
+
+def camera(daemon: FakeDaemon, token: str = "t") -> Camera:
+    return Camera("http://cam", token, transport=httpx.MockTransport(daemon))
+
+
+def test_staged_restores_the_previous_values_on_exit():
+    daemon = FakeDaemon()
+    with camera(daemon) as cam:
+        with cam.staged({"EXPOS": 500}) as applied:
+            assert applied[0].frame == 7 and daemon.params[0]["EXPOS"] == 500
+        assert daemon.params[0] == {"EXPOS": 10000, "GAINR": 0x10000}
+        with pytest.raises(RuntimeError), cam.staged({"GAINR": 0x20000}):
+            raise RuntimeError("the block failed")
+        assert daemon.params[0]["GAINR"] == 0x10000
+
+
+def test_staged_rolls_back_the_ports_done_when_one_fails_halfway():
+    daemon = FakeDaemon(fail_port=1)
+    with camera(daemon) as cam:
+        with (
+            pytest.raises(CameraHTTPError) as err,
+            cam.staged({0: {"EXPOS": 500}, 1: {"EXPOS": 99}}),
+        ):
+            pytest.fail("the block must not run")
+        assert err.value.status == 422 and err.value.parameter == "EXPOS"
+        assert err.value.value == 99 and err.value.allowed == "1..9"
+    assert daemon.params[0]["EXPOS"] == 10000
+    assert [entry[1] for entry in daemon.log] == [0, 1, 0]
+
+
+def test_missing_token_is_an_auth_error():
+    with camera(FakeDaemon(), token="") as cam, pytest.raises(CameraUnauthorizedError):
+        cam.set_params({"EXPOS": 5})
+
+
+def test_sse_parser_reads_events_ids_and_skips_comments():
+    parser = _SSEParser()
+    lines = [
+        "retry: 2000",
+        "",
+        ": keepalive",
+        "",
+        "id: 3",
+        "event: frame",
+        'data: {"frame": 9}',
+        "",
+    ]
+    events = [e for e in map(parser.feed, lines) if e is not None]
+    assert len(events) == 1
+    assert (events[0].type, events[0].id, events[0].data) == ("frame", 3, {"frame": 9})
