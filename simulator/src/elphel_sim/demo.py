@@ -252,6 +252,12 @@ def burst_step(
         "--out",
         str(out / "mfsr-compare"),
     )
+    scores = {m: r.get("psnr_db") for m, r in compare["methods"].items()}
+    step(
+        "burst: PSNR against the simulator's truth: "
+        + ", ".join(f"{m} {v:.2f} dB" for m, v in scores.items() if v is not None)
+        + f" -> {out / 'fused.tif'}"
+    )
     return {"plan": str(plan_path), "burst": str(burst), "fused": fused, "compare": compare}
 
 
