@@ -19,8 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd.sensors import mt9f002 as spec
-from elphel_camd.sensors.registers import Access
-from elphel_sim.chips.registers import SimRegisterChip
+from elphel_sim.chips.registers import SimLatchedChip
 from elphel_sim.chips.sensor import SensorTiming
 from elphel_sim.fpga import FrameRecord, Readout, form_bayer_image
 from elphel_sim.render import Intrinsics, SensorModel
@@ -53,58 +52,25 @@ def exposure_rows_of(registers: Mapping[str, int]) -> int:
     return max(0, min(registers["coarse_integration_time"], registers["frame_length_lines"] - 1))
 
 
-class SimMT9F002(SimRegisterChip):
+class SimMT9F002(SimLatchedChip):
     """MT9F002 at I2C address 0x10 with 16-bit register addresses."""
 
     address = spec.I2C_ADDRESS
     model = spec.MODEL
 
     def __init__(self) -> None:
-        super().__init__(spec.TABLE, step=2)
+        super().__init__(spec.TABLE, step=2, colour_gains=_COLOUR_GAINS)
         self._latency = {spec.TABLE[name].address: 2 for name in _TWO_FRAMES}
         self._latency.update({spec.TABLE[name].address: 1 for name in _COLOUR_GAINS})
         self._slave_mode = spec.TABLE["slave_mode"].address
-        self.effective: dict[int, int] = dict(self.values)
-        self.frame = 0
-        self._queue: list[tuple[int, int, int]] = []
-
-    def reset(self) -> None:
-        super().reset()
-        self.effective = dict(self.values)
-        self._queue = []
 
     def latency(self, address: int) -> int:
         if address == self._slave_mode:
             return 1 if self.is_snapshot() else 2
         return self._latency.get(address, 0)
 
-    def _store(self, address: int, value: int) -> None:
-        self.values[address] = value
-        frames = self.latency(address)
-        if frames == 0:
-            self.effective[address] = value
-        else:
-            self._queue.append((self.frame + frames, address, value))
-
-    def on_register_write(self, address: int, value: int) -> None:
-        table = self.table
-        if address == table["global_gain"].address:
-            # The global gain register writes all four colour gains.
-            for name in _COLOUR_GAINS:
-                self._store(table[name].address, value)
-            self.values[address] = value
-        elif (register := table.at(address)) is not None and register.access is Access.RO:
-            return
-        else:
-            self._store(address, value)
-
     def latch(self, frame: int) -> None:
-        """Frame ``frame`` starts: writes due by now reach the image."""
-        self.frame = frame
-        due = [q for q in self._queue if q[0] <= frame]
-        self._queue = [q for q in self._queue if q[0] > frame]
-        for _, address, value in due:
-            self.effective[address] = value
+        super().latch(frame)
         # pixel_order reports the colour of the first pixel read: an odd start or a flip
         # (of an even-sized window) moves it by one column or row.
         r = self.image_register
@@ -113,10 +79,6 @@ class SimMT9F002(SimRegisterChip):
         ) << 1
         pixel_order = self.table["pixel_order"].address
         self.effective[pixel_order] = self.values[pixel_order] = order
-
-    def image_register(self, name: str) -> int:
-        """The value of a register as it shapes the current frame's image."""
-        return self.effective[self.table[name].address]
 
     # -- what the FPGA needs -----------------------------------------------------------------
 
@@ -132,9 +94,6 @@ class SimMT9F002(SimRegisterChip):
 
     def is_snapshot(self) -> bool:
         return bool(self.image_register("slave_mode") & SLAVE_TRIGGERED_BIT)
-
-    def image_registers(self) -> dict[str, int]:
-        return {r.name: self.effective[r.address] for r in self.table}
 
     @staticmethod
     def form_image(

@@ -17,8 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd.sensors import mt9p006 as spec
-from elphel_camd.sensors.registers import Access
-from elphel_sim.chips.registers import SimRegisterChip
+from elphel_sim.chips.registers import SimLatchedChip
 from elphel_sim.chips.sensor import SensorTiming
 from elphel_sim.fpga import FrameRecord, Readout, form_bayer_image
 from elphel_sim.render import Intrinsics, SensorModel
@@ -42,65 +41,30 @@ _TWO_FRAMES = (
 SNAPSHOT_BIT = 0x0100  # read_mode_1 bit 8
 
 
-class SimMT9P006(SimRegisterChip):
+class SimMT9P006(SimLatchedChip):
     """MT9P006 at I2C address 0x48 with 8-bit register addresses."""
 
     address = spec.I2C_ADDRESS
     model = spec.MODEL
 
     def __init__(self) -> None:
-        super().__init__(spec.TABLE, step=1)
+        super().__init__(spec.TABLE, step=1, colour_gains=_COLOUR_GAINS)
         self._latency = {spec.TABLE[name].address: 2 for name in _TWO_FRAMES}
         self._latency.update({spec.TABLE[name].address: 1 for name in _COLOUR_GAINS})
-        self.effective: dict[int, int] = dict(self.values)
-        self.frame = 0
-        self._queue: list[tuple[int, int, int]] = []
-
-    def reset(self) -> None:
-        super().reset()
-        self.effective = dict(self.values)
-        self._queue = []
 
     def latency(self, address: int) -> int:
         frames = self._latency.get(address, 0)
         snapshot = self.effective[spec.TABLE["read_mode_1"].address] & SNAPSHOT_BIT
         return min(frames, 1) if snapshot else frames
 
-    def _store(self, address: int, value: int) -> None:
-        self.values[address] = value
-        frames = self.latency(address)
-        if frames == 0:
-            self.effective[address] = value
-        else:
-            self._queue.append((self.frame + frames, address, value))
-
     def on_register_write(self, address: int, value: int) -> None:
         table = self.table
-        if address == table["global_gain"].address:
-            # The global gain register writes all four colour gains.
-            for name in _COLOUR_GAINS:
-                self._store(table[name].address, value)
-            self.values[address] = value
-        elif address == table["reset"].address and value & 1:
+        if address == table["reset"].address and value & 1:
             self.reset()
         elif address == table["restart"].address:
             self.values[address] = value & ~1  # restart is self-clearing
-        elif (register := table.at(address)) is not None and register.access is Access.RO:
-            return
         else:
-            self._store(address, value)
-
-    def latch(self, frame: int) -> None:
-        """Frame ``frame`` starts: writes due by now reach the image."""
-        self.frame = frame
-        due = [q for q in self._queue if q[0] <= frame]
-        self._queue = [q for q in self._queue if q[0] > frame]
-        for _, address, value in due:
-            self.effective[address] = value
-
-    def image_register(self, name: str) -> int:
-        """The value of a register as it shapes the current frame's image."""
-        return self.effective[self.table[name].address]
+            super().on_register_write(address, value)
 
     # -- what the FPGA needs -----------------------------------------------------------------
 
@@ -116,9 +80,6 @@ class SimMT9P006(SimRegisterChip):
 
     def is_snapshot(self) -> bool:
         return bool(self.image_register("read_mode_1") & SNAPSHOT_BIT)
-
-    def image_registers(self) -> dict[str, int]:
-        return {r.name: self.image_register(r.name) for r in self.table}
 
     @staticmethod
     def form_image(

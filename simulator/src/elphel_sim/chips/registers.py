@@ -68,3 +68,73 @@ class SimRegisterChip:
 
     def on_stop(self) -> None:
         """Nothing latches at STOP for a plain register file."""
+
+
+class SimLatchedChip(SimRegisterChip):
+    """A sensor's register file whose writes reach the image on a later frame.
+
+    A write made during frame F is read back at once but shapes the image of frame
+    ``F + latency(address)`` (0: at once). Subclasses say which registers are delayed by
+    how much (`latency`), and name the colour-gain registers that ``global_gain`` writes.
+
+    Parameters
+    ----------
+    table, step
+        As for `SimRegisterChip`.
+    colour_gains
+        Registers the table's ``global_gain`` register writes together (none if empty).
+    """
+
+    def __init__(
+        self, table: RegisterTable, *, step: int, colour_gains: tuple[str, ...] = ()
+    ) -> None:
+        super().__init__(table, step=step)
+        self._colour_gains = tuple(table[name].address for name in colour_gains)
+        self._global_gain = table["global_gain"].address if colour_gains else None
+        self.effective: dict[int, int] = dict(self.values)
+        self.frame = 0
+        self._queue: list[tuple[int, int, int]] = []
+
+    def reset(self) -> None:
+        super().reset()
+        self.effective = dict(self.values)
+        self._queue = []
+
+    def latency(self, address: int) -> int:
+        """Frames until a write to this register reaches the image (0: at once)."""
+        return 0
+
+    def _store(self, address: int, value: int) -> None:
+        self.values[address] = value
+        frames = self.latency(address)
+        if frames == 0:
+            self.effective[address] = value
+        else:
+            self._queue.append((self.frame + frames, address, value))
+
+    def on_register_write(self, address: int, value: int) -> None:
+        register = self.table.at(address)
+        if address == self._global_gain:
+            for gain in self._colour_gains:
+                self._store(gain, value)
+            self.values[address] = value
+        elif register is not None and register.access is Access.RO:
+            return
+        else:
+            self._store(address, value)
+
+    def latch(self, frame: int) -> None:
+        """Frame ``frame`` starts: writes due by now reach the image."""
+        self.frame = frame
+        due = [q for q in self._queue if q[0] <= frame]
+        self._queue = [q for q in self._queue if q[0] > frame]
+        for _, address, value in due:
+            self.effective[address] = value
+
+    def image_register(self, name: str) -> int:
+        """The value of a register as it shapes the current frame's image."""
+        return self.effective[self.table[name].address]
+
+    def image_registers(self) -> dict[str, int]:
+        """Every register as it shapes the current frame (recorded with the frame)."""
+        return {r.name: self.effective[r.address] for r in self.table}

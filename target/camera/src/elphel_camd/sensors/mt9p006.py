@@ -15,13 +15,17 @@ from elphel_camd.params import (
     EXPOSURE,
     GAINS,
     LIMITFPS,
-    TRIG_PERIOD_MIN_REPEAT,
     TRIG_SNAPSHOT,
-    TRIG_VALUES,
     TRIGGERMODE,
     TRIGSEQ,
     WINDOW,
-    check_range,
+)
+from elphel_camd.sensors.aptina import (
+    check_trigger,
+    check_window_and_modes,
+    sensor_height,
+    set_exposure_rows,
+    trigger_fps1000,
 )
 from elphel_camd.sensors.base import SensorDriver, State
 from elphel_camd.sensors.registers import Access, Register, RegisterTable
@@ -151,7 +155,6 @@ VERTICAL_BLANK_MAX = 2047
 SHUTTER_MAX = 0xFFFFF
 GAIN_MIN = 0x10000  # 1.0
 GAIN_MAX = 0xFC000  # 15.75, the largest analog code (x2 stage, 63/8)
-PF_COMPOSITE_MAX = 16384
 
 _GAIN_REGISTERS = {
     "GAINR": "red_gain",
@@ -184,11 +187,6 @@ def encode_gain(gain_16_16: int) -> int:
     if gain <= 3.94:
         return min(63, round(gain * 8))
     return 0x40 | min(63, round(gain * 4))
-
-
-def sensor_height(state: Mapping[str, int]) -> int:
-    """Rows the sensor reads per frame: the strip height in photo-finish, else the window."""
-    return state["PF_HEIGHT"] or state["WOI_HEIGHT"]
 
 
 def vertical_blank(state: Mapping[str, int]) -> int:
@@ -276,41 +274,16 @@ class MT9P006(SensorDriver):
 
     def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
         s = dict(state)
-        check_range("WOI_WIDTH", s["WOI_WIDTH"], 2, ACTIVE_WIDTH, even=True)
-        check_range("WOI_LEFT", s["WOI_LEFT"], 0, ACTIVE_WIDTH - s["WOI_WIDTH"], even=True)
-        pf = s["PF_HEIGHT"]
-        if pf:
-            check_range("PF_HEIGHT", pf, 2, ACTIVE_HEIGHT, even=True)
-            check_range("WOI_HEIGHT", s["WOI_HEIGHT"], pf, PF_COMPOSITE_MAX)
-            if s["WOI_HEIGHT"] % pf:
-                raise ParameterRangeError(
-                    "WOI_HEIGHT", s["WOI_HEIGHT"], f"a multiple of PF_HEIGHT={pf} up to 16384"
-                )
-        else:
-            check_range("WOI_HEIGHT", s["WOI_HEIGHT"], 2, ACTIVE_HEIGHT, even=True)
-        height = sensor_height(s)
-        check_range("WOI_TOP", s["WOI_TOP"], 0, ACTIVE_HEIGHT - height, even=True)
-        for name in ("FLIPH", "FLIPV"):
-            check_range(name, s[name], 0, 1)
-        for name in _GAIN_REGISTERS:
-            check_range(name, s[name], GAIN_MIN, GAIN_MAX)
-        if s["TRIG"] not in TRIG_VALUES:
-            raise ParameterRangeError("TRIG", s["TRIG"], "0 (free-run), 4 (snapshot), 20 (GRR)")
-        check_range("FPSFLAGS", s["FPSFLAGS"], 0, 3)
-
+        height = check_window_and_modes(
+            s,
+            image_width=ACTIVE_WIDTH,
+            image_height=ACTIVE_HEIGHT,
+            gains=_GAIN_REGISTERS,
+            gain_min=GAIN_MIN,
+            gain_max=GAIN_MAX,
+        )
         row_s = row_time_s(s["WOI_WIDTH"])
-        if {"EXPOS", "VEXPOS"} <= changed:
-            raise ParameterRangeError("VEXPOS", s["VEXPOS"], "either EXPOS or VEXPOS, not both")
-        if "VEXPOS" in changed:
-            rows = s["VEXPOS"]
-            check_range("VEXPOS", rows, 1, SHUTTER_MAX)
-        else:
-            max_us = math.floor(SHUTTER_MAX * row_s * 1e6)
-            check_range("EXPOS", s["EXPOS"], 1, max_us)
-            rows = max(1, round(s["EXPOS"] / (row_s * 1e6)))
-        s["VEXPOS"] = rows
-        s["EXPOS"] = round(rows * row_s * 1e6)
-
+        rows = set_exposure_rows(s, changed, row_s=row_s, max_rows=SHUTTER_MAX)
         blank = vertical_blank(s)
         if blank > VERTICAL_BLANK_MAX:
             lowest = math.ceil(1000 / (row_s * (height + VERTICAL_BLANK_MAX)))
@@ -322,26 +295,9 @@ class MT9P006(SensorDriver):
             raise ParameterRangeError(
                 "EXPOS", s["EXPOS"], f"1..{longest} us while FPSFLAGS bit 1 keeps the frame rate"
             )
-
-        period = s["TRIG_PERIOD"]
-        if 1 < period < TRIG_PERIOD_MIN_REPEAT:
-            raise ParameterRangeError("TRIG_PERIOD", period, "0 (stop), 1 (single), >= 256")
-        check_range("TRIG_DECIMATE", s["TRIG_DECIMATE"], 0, 0xFFFF)
-        snapshot = bool(s["TRIG"] & TRIG_SNAPSHOT)
-        busy_10ns = math.ceil((rows + height + VERTICAL_BLANK_MIN) * row_s * 1e8)
-        if (
-            snapshot
-            and period >= TRIG_PERIOD_MIN_REPEAT
-            and period * (s["TRIG_DECIMATE"] + 1) < busy_10ns
-        ):
-            raise ParameterRangeError(
-                "TRIG_PERIOD",
-                period,
-                f">= {busy_10ns} (x10 ns: exposure plus readout at this window), 0 or 1",
-            )
-        if snapshot:
-            effective = period * (s["TRIG_DECIMATE"] + 1)
-            s["FP1000S"] = round(1e11 / effective) if period >= TRIG_PERIOD_MIN_REPEAT else 0
+        busy_s = (rows + height + VERTICAL_BLANK_MIN) * row_s
+        if check_trigger(s, busy_s=busy_s):
+            s["FP1000S"] = trigger_fps1000(s)
         else:
             s["FP1000S"] = round(1000 / self.frame_period_s(s))
         s["SENSOR"] = SENSOR_CODE
