@@ -23,7 +23,7 @@ from typing import Any, Protocol
 from elphel_host.burst.io import MANIFEST, VERSION
 from elphel_host.camera.client import CameraClient
 from elphel_host.errors import InputFormatError
-from elphel_host.stage.positioning import MoveResult, Positioner
+from elphel_host.stage.positioning import MoveResult, Positioner, StageModel
 
 
 class Engine(Protocol):
@@ -208,7 +208,6 @@ def add_capture_parser(sub: Any) -> None:
 
 def run_capture(args: argparse.Namespace) -> int:
     from elphel_host.cli import emit
-    from elphel_host.stage.cli import _load_model
     from elphel_host.stage.client import StageClient
 
     if not args.camera or not args.stage:
@@ -227,7 +226,7 @@ def run_capture(args: argparse.Namespace) -> int:
     if all(v is not None for v in optics.values()):
         top["optics"] = optics
     with StageClient(args.stage) as stage, CameraClient(args.camera, args.token) as camera:
-        positioner = Positioner(stage, _load_model(args.model))
+        positioner = Positioner(stage, StageModel.load(args.model))
         progress_so_far = load_progress(args.out)
         if progress_so_far is not None:
             start_mm = float(progress_so_far["capture"]["start_mm"])

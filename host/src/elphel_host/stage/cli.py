@@ -8,7 +8,6 @@ in a small JSON file (--model) so later closed-loop moves can use them.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from dataclasses import asdict
 from pathlib import Path
@@ -29,34 +28,6 @@ def _url(args: argparse.Namespace) -> str:
     if not url:
         raise StageConnectionError(f"no stage URL: pass --url or set {ENV_URL}")
     return url
-
-
-def _load_model(path: Path) -> StageModel:
-    if not path.exists():
-        return StageModel()
-    data = json.loads(path.read_text())
-    return StageModel(
-        mm_per_step=float(data["mm_per_step"]),
-        offset_mm=data.get("offset_mm"),
-        backlash_mm=float(data.get("backlash_mm", 0.0)),
-        calibrated=True,
-        spread_mm_per_step=float(data.get("spread_mm_per_step", float("nan"))),
-    )
-
-
-def _save_model(path: Path, model: StageModel) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(
-        json.dumps(
-            {
-                "mm_per_step": model.mm_per_step,
-                "offset_mm": model.offset_mm,
-                "backlash_mm": model.backlash_mm,
-                "spread_mm_per_step": model.spread_mm_per_step,
-            },
-            indent=1,
-        )
-    )
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -83,7 +54,7 @@ def _status(args: argparse.Namespace) -> int:
 def _move(args: argparse.Namespace) -> int:
     model_path = Path(args.model)
     with StageClient(_url(args)) as client:
-        pos = Positioner(client, _load_model(model_path))
+        pos = Positioner(client, StageModel.load(model_path))
         target = args.position_mm
         if args.relative:
             target += pos.read_mm()
@@ -142,7 +113,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     with StageClient(_url(args)) as client:
         pos = Positioner(client, StageModel())
         cal = pos.calibrate(span_mm=args.span_mm, start_mm=args.start_mm, repeats=args.repeats)
-    _save_model(model_path, pos.model)
+    pos.model.save(model_path)
     result = {
         "mm_per_step": cal.mm_per_step,
         "spread_mm_per_step": cal.spread_mm_per_step,
@@ -163,9 +134,9 @@ def _calibrate(args: argparse.Namespace) -> int:
 def _backlash(args: argparse.Namespace) -> int:
     model_path = Path(args.model)
     with StageClient(_url(args)) as client:
-        pos = Positioner(client, _load_model(model_path))
+        pos = Positioner(client, StageModel.load(model_path))
         backlash_mm = pos.measure_backlash(at_mm=args.at_mm, repeats=args.repeats)
-    _save_model(model_path, pos.model)
+    pos.model.save(model_path)
     emit(
         args,
         {"backlash_mm": backlash_mm, "mm_per_step": pos.model.mm_per_step},

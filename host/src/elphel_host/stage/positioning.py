@@ -9,11 +9,13 @@ ended; a move whose caliper change does not match the steps raises StageStallErr
 
 from __future__ import annotations
 
+import json
 import math
 import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from elphel_host.errors import (
     StageClosedLoopError,
@@ -54,6 +56,31 @@ class StageModel:
     calibrated: bool = False
     spread_mm_per_step: float = math.nan
     readings: list[tuple[int, float]] = field(default_factory=list)
+
+    @classmethod
+    def load(cls, path: Path) -> StageModel:
+        """A calibration saved by `save` (a default model if the file does not exist)."""
+        if not path.exists():
+            return cls()
+        data = json.loads(path.read_text())
+        return cls(
+            mm_per_step=float(data["mm_per_step"]),
+            offset_mm=data.get("offset_mm"),
+            backlash_mm=float(data.get("backlash_mm", 0.0)),
+            calibrated=True,
+            spread_mm_per_step=float(data.get("spread_mm_per_step", math.nan)),
+        )
+
+    def save(self, path: Path) -> None:
+        """Keep the calibration for later commands (elphel stage ... --model PATH)."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = {
+            "mm_per_step": self.mm_per_step,
+            "offset_mm": self.offset_mm,
+            "backlash_mm": self.backlash_mm,
+            "spread_mm_per_step": self.spread_mm_per_step,
+        }
+        path.write_text(json.dumps(data, indent=1))
 
     def steps_for(self, mm: float) -> float:
         if self.offset_mm is None:
