@@ -171,9 +171,6 @@ class Plane:
         v = _unit(tuple(v), "v_axis (orthogonalised)")
         return u, v, np.cross(u, v)
 
-    def origin_at(self, time_s: float) -> FloatArray:
-        return np.asarray(self.origin, float) + time_s * np.asarray(self.velocity_mm_s, float)
-
 
 @dataclass
 class Scene:

@@ -15,6 +15,44 @@ from elphel_camd.params import TRIG_PERIOD_MIN_REPEAT, TRIG_SNAPSHOT, TRIG_VALUE
 
 PF_COMPOSITE_MAX = 16384
 
+# Colour gain parameters and the registers that hold them (same names on both sensors).
+GAIN_REGISTERS = {
+    "GAINR": "red_gain",
+    "GAING": "green1_gain",
+    "GAINGB": "green2_gain",
+    "GAINB": "blue_gain",
+}
+
+WRITABLE = frozenset(
+    {
+        "WOI_LEFT",
+        "WOI_TOP",
+        "WOI_WIDTH",
+        "WOI_HEIGHT",
+        "FLIPH",
+        "FLIPV",
+        "EXPOS",
+        "VEXPOS",
+        *GAIN_REGISTERS,
+        "TRIG",
+        "TRIG_PERIOD",
+        "TRIG_MASTER",
+        "TRIG_DELAY",
+        "TRIG_DECIMATE",
+        "PF_HEIGHT",
+        "FP1000SLIM",
+        "FPSFLAGS",
+    }
+)
+
+
+def default_state(*, width: int, height: int, gain: int) -> dict[str, int]:
+    """The state after init: the whole image, 10 ms, equal gains, free-run, no limits."""
+    state = dict.fromkeys(WRITABLE, 0)
+    state.update(WOI_WIDTH=width, WOI_HEIGHT=height, EXPOS=10_000)
+    state.update(dict.fromkeys(GAIN_REGISTERS, gain))
+    return state
+
 
 def sensor_height(state: Mapping[str, int]) -> int:
     """Rows the sensor reads per frame: the strip height in photo-finish, else the window."""

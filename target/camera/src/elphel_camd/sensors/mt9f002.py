@@ -29,8 +29,11 @@ from elphel_camd.params import (
     WINDOW,
 )
 from elphel_camd.sensors.aptina import (
+    GAIN_REGISTERS,
+    WRITABLE,
     check_trigger,
     check_window_and_modes,
+    default_state,
     sensor_height,
     set_exposure_rows,
     trigger_fps1000,
@@ -281,13 +284,6 @@ INIT_WRITES: tuple[tuple[str, int], ...] = (
     ("reset_register", 0x011C),
 )
 
-_GAIN_REGISTERS = {
-    "GAINR": "red_gain",
-    "GAING": "green1_gain",
-    "GAINGB": "green2_gain",
-    "GAINB": "blue_gain",
-}
-
 
 def line_length_pck(width: int) -> int:
     """Row period register for an output width (Elphel's minimum, reference 2.4)."""
@@ -369,27 +365,7 @@ class MT9F002(SensorDriver):
         EXPOSURE: (2, 2),
         TRIGSEQ: (2, 1),
     }
-    writable = frozenset(
-        {
-            "WOI_LEFT",
-            "WOI_TOP",
-            "WOI_WIDTH",
-            "WOI_HEIGHT",
-            "FLIPH",
-            "FLIPV",
-            "EXPOS",
-            "VEXPOS",
-            *_GAIN_REGISTERS,
-            "TRIG",
-            "TRIG_PERIOD",
-            "TRIG_MASTER",
-            "TRIG_DELAY",
-            "TRIG_DECIMATE",
-            "PF_HEIGHT",
-            "FP1000SLIM",
-            "FPSFLAGS",
-        }
-    )
+    writable = WRITABLE
 
     def init(self) -> None:
         """Read the shadows, then write Elphel's init list (every entry, whatever it read)."""
@@ -398,28 +374,7 @@ class MT9F002(SensorDriver):
             self.write(name, value)
 
     def defaults(self) -> State:
-        state = {
-            "WOI_LEFT": 0,
-            "WOI_TOP": 0,
-            "WOI_WIDTH": IMAGE_WIDTH,
-            "WOI_HEIGHT": IMAGE_HEIGHT,
-            "FLIPH": 0,
-            "FLIPV": 0,
-            "EXPOS": 10_000,
-            "VEXPOS": 0,
-            "GAINR": GAIN_MIN,
-            "GAING": GAIN_MIN,
-            "GAINGB": GAIN_MIN,
-            "GAINB": GAIN_MIN,
-            "TRIG": 0,
-            "TRIG_PERIOD": 0,
-            "TRIG_MASTER": 0,
-            "TRIG_DELAY": 0,
-            "TRIG_DECIMATE": 0,
-            "PF_HEIGHT": 0,
-            "FP1000SLIM": 0,
-            "FPSFLAGS": 0,
-        }
+        state = default_state(width=IMAGE_WIDTH, height=IMAGE_HEIGHT, gain=GAIN_MIN)
         return self.normalize(state, frozenset({"EXPOS"}))
 
     def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
@@ -428,7 +383,7 @@ class MT9F002(SensorDriver):
             s,
             image_width=IMAGE_WIDTH,
             image_height=IMAGE_HEIGHT,
-            gains=_GAIN_REGISTERS,
+            gains=GAIN_REGISTERS,
             gain_min=GAIN_MIN,
             gain_max=GAIN_MAX,
         )
@@ -484,7 +439,7 @@ class MT9F002(SensorDriver):
         if function == EXPOSURE:
             return {"coarse_integration_time": state["VEXPOS"]}
         if function == GAINS:
-            return {reg: encode_gain(state[name]) for name, reg in _GAIN_REGISTERS.items()}
+            return {reg: encode_gain(state[name]) for name, reg in GAIN_REGISTERS.items()}
         if function == TRIGGERMODE:
             triggered = state["TRIG"] & TRIG_SNAPSHOT
             return {"slave_mode": SLAVE_MODE_TRIGGERED if triggered else SLAVE_MODE_FREE_RUN}
@@ -498,5 +453,5 @@ class MT9F002(SensorDriver):
     def actual_gains(self, state: Mapping[str, int]) -> dict[str, int]:
         """16.16 gains the register codes really give (the request minus its residual)."""
         return {
-            name: round(decode_gain(encode_gain(state[name])) * 0x10000) for name in _GAIN_REGISTERS
+            name: round(decode_gain(encode_gain(state[name])) * 0x10000) for name in GAIN_REGISTERS
         }

@@ -21,8 +21,11 @@ from elphel_camd.params import (
     WINDOW,
 )
 from elphel_camd.sensors.aptina import (
+    GAIN_REGISTERS,
+    WRITABLE,
     check_trigger,
     check_window_and_modes,
+    default_state,
     sensor_height,
     set_exposure_rows,
     trigger_fps1000,
@@ -156,13 +159,6 @@ SHUTTER_MAX = 0xFFFFF
 GAIN_MIN = 0x10000  # 1.0
 GAIN_MAX = 0xFC000  # 15.75, the largest analog code (x2 stage, 63/8)
 
-_GAIN_REGISTERS = {
-    "GAINR": "red_gain",
-    "GAING": "green1_gain",
-    "GAINGB": "green2_gain",
-    "GAINB": "blue_gain",
-}
-
 
 def row_time_s(width: int, *, horizontal_blank: int = HORIZONTAL_BLANK) -> float:
     """Duration of one row at a window width (Elphel's timing model)."""
@@ -220,27 +216,7 @@ class MT9P006(SensorDriver):
         EXPOSURE: (2, 1),
         TRIGSEQ: (2, 1),
     }
-    writable = frozenset(
-        {
-            "WOI_LEFT",
-            "WOI_TOP",
-            "WOI_WIDTH",
-            "WOI_HEIGHT",
-            "FLIPH",
-            "FLIPV",
-            "EXPOS",
-            "VEXPOS",
-            *_GAIN_REGISTERS,
-            "TRIG",
-            "TRIG_PERIOD",
-            "TRIG_MASTER",
-            "TRIG_DELAY",
-            "TRIG_DECIMATE",
-            "PF_HEIGHT",
-            "FP1000SLIM",
-            "FPSFLAGS",
-        }
-    )
+    writable = WRITABLE
 
     def init(self) -> None:
         super().init()
@@ -248,28 +224,7 @@ class MT9P006(SensorDriver):
         self.write_if_changed("reserved_7f", 0)  # against blue blooming columns
 
     def defaults(self) -> State:
-        state = {
-            "WOI_LEFT": 0,
-            "WOI_TOP": 0,
-            "WOI_WIDTH": ACTIVE_WIDTH,
-            "WOI_HEIGHT": ACTIVE_HEIGHT,
-            "FLIPH": 0,
-            "FLIPV": 0,
-            "EXPOS": 10_000,
-            "VEXPOS": 0,
-            "GAINR": 0x10000,
-            "GAING": 0x10000,
-            "GAINGB": 0x10000,
-            "GAINB": 0x10000,
-            "TRIG": 0,
-            "TRIG_PERIOD": 0,
-            "TRIG_MASTER": 0,
-            "TRIG_DELAY": 0,
-            "TRIG_DECIMATE": 0,
-            "PF_HEIGHT": 0,
-            "FP1000SLIM": 0,
-            "FPSFLAGS": 0,
-        }
+        state = default_state(width=ACTIVE_WIDTH, height=ACTIVE_HEIGHT, gain=0x10000)
         return self.normalize(state, frozenset({"EXPOS"}))
 
     def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
@@ -278,7 +233,7 @@ class MT9P006(SensorDriver):
             s,
             image_width=ACTIVE_WIDTH,
             image_height=ACTIVE_HEIGHT,
-            gains=_GAIN_REGISTERS,
+            gains=GAIN_REGISTERS,
             gain_min=GAIN_MIN,
             gain_max=GAIN_MAX,
         )
@@ -326,7 +281,7 @@ class MT9P006(SensorDriver):
             rows = state["VEXPOS"]
             return {"shutter_width_upper": rows >> 16, "shutter_width_lower": rows & 0xFFFF}
         if function == GAINS:
-            return {reg: encode_gain(state[name]) for name, reg in _GAIN_REGISTERS.items()}
+            return {reg: encode_gain(state[name]) for name, reg in GAIN_REGISTERS.items()}
         if function == TRIGGERMODE:
             mode = self.shadow.get("read_mode_1", 0x4006) & ~0x0180
             if state["TRIG"] & TRIG_SNAPSHOT:
@@ -341,5 +296,5 @@ class MT9P006(SensorDriver):
     def actual_gains(self, state: Mapping[str, int]) -> dict[str, int]:
         """16.16 gains the register codes really give (the request minus its residual)."""
         return {
-            name: round(decode_gain(encode_gain(state[name])) * 0x10000) for name in _GAIN_REGISTERS
+            name: round(decode_gain(encode_gain(state[name])) * 0x10000) for name in GAIN_REGISTERS
         }
