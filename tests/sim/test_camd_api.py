@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 
 from elphel_camd.api import create_app
 from elphel_camd.board import Camera
-from elphel_camd.config import ParamStore
+from elphel_camd.config import ParamStore, last_journal_line
 from elphel_camd.params import PARAMS
 from elphel_sim.board import SimBoard
 from elphel_sim.scenarios import PortSpec, build
@@ -140,7 +140,9 @@ def test_read_only_unknown_and_malformed_bodies_are_422(client):
 def test_patch_persists_every_accepted_change(client, tmp_path):
     r = client.patch("/api/v1/ports/0/params", json={"EXPOS": 5000, "GAINR": 0x20000}, headers=AUTH)
     assert r.status_code == 200
-    saved = json.loads((tmp_path / "params" / "port0.json").read_text())
+    line = last_journal_line(tmp_path / "params" / "port0.log")
+    assert line is not None  # in the journal before the answer
+    saved = json.loads(line)
     assert saved["sensor"] == "MT9P006"
     assert saved["params"]["EXPOS"] == r.json()["params"]["EXPOS"]
     assert saved["params"]["GAINR"] == 0x20000

@@ -5,10 +5,10 @@ variables, the JSON config file (``--config``; ``/etc/elphel-camd/config.json`` 
 exists) and the defaults below. A file key that is no setting is a keyword argument of
 the board factory (``board_options``); the factory rejects names it does not take.
 
-Files the daemon writes (token, parameters) are replaced atomically: written to a
-temporary file in the same directory, flushed to disk, then renamed over the old one, so
-a crash or ``kill -9`` at any moment leaves either the old or the new file, never a torn
-one.
+Files the daemon writes are never left torn: the token file and parameter snapshots are
+written to a temporary file in the same directory, flushed to disk, then renamed over the
+old one; parameter changes are appended to a per-port journal whose lines carry a CRC, so
+a crash or ``kill -9`` at any moment leaves the last acknowledged state readable.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import os
 import secrets
 import tempfile
 import threading
+import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -206,6 +207,21 @@ def fsync_path(path: Path) -> None:
         os.close(fd)
 
 
+def last_journal_line(path: Path) -> bytes | None:
+    """The last intact line of a `ParamStore` journal (without its CRC), or None."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    for line in reversed(data.split(b"\n")):
+        text, _, crc = line.rpartition(b"\t")
+        if text and crc == b"%08x" % zlib.crc32(text):
+            return text
+        if line:
+            log.warning("skipping a torn line at the end of %s", path)
+    return None
+
+
 def remove_stale_temporaries(directory: Path) -> None:
     """Delete temporary files a killed writer left behind."""
     if directory.is_dir():
@@ -239,29 +255,38 @@ def load_or_create_token(path: Path) -> str:
 
 
 class ParamStore:
-    """Accepted parameters of each port, one JSON file per port, replaced atomically.
+    """Accepted parameters of each port: a snapshot file plus an append-only journal.
 
-    A save returns once the new file has replaced the old one: from then on a killed
-    daemon restarts with it. Flushing to the disk (for a power loss) costs milliseconds on
-    flash, so by default a background thread does it right after; ``sync_each=True`` does
-    it before `save` returns.
+    A save appends one line, the port's whole state, to ``port<N>.log`` with a single
+    ``write`` call and returns: from then on a killed daemon restarts with it (the kernel
+    holds the line even if the process dies), and it costs microseconds where replacing a
+    file costs a rename in the file system's journal. Loading takes the last intact line
+    (each carries a CRC-32, so a line torn by a power loss is skipped), or the snapshot
+    ``port<N>.json`` when the journal is empty. A background thread flushes the journals to
+    the disk within `flush_interval_s` (``sync_each=True`` flushes before `save`
+    returns) and, once a journal passes `compact_bytes`, writes its last state as the new
+    snapshot (atomically) and empties the journal.
 
     Parameters
     ----------
     directory
-        Where ``port<N>.json`` files live.
+        Where ``port<N>.json`` and ``port<N>.log`` live.
     sync_each
-        fsync every file before `save` returns.
+        Flush every line to the disk before `save` returns (for a power loss).
     """
 
     flush_interval_s = 0.25
+    compact_bytes = 64 * 1024
 
     def __init__(self, directory: Path, *, sync_each: bool = False) -> None:
         self.directory = directory
         self.sync_each = sync_each
         directory.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(directory)
-        self._dirty: set[Path] = set()
+        self._journals: dict[int, int] = {}  # port -> file descriptor (O_APPEND)
+        self._last: dict[int, bytes] = {}  # port -> the last line saved
+        self._locks: dict[int, threading.Lock] = {}
+        self._dirty: set[int] = set()
         self._wake = threading.Condition()
         self._closed = False
         self._flusher: threading.Thread | None = None
@@ -271,16 +296,58 @@ class ParamStore:
             self._flusher.start()
 
     def path(self, port: int) -> Path:
+        """The snapshot file of a port."""
         return self.directory / f"port{port}.json"
+
+    def journal_path(self, port: int) -> Path:
+        return self.directory / f"port{port}.log"
+
+    def _journal(self, port: int) -> int:
+        fd = self._journals.get(port)
+        if fd is None:
+            flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_CLOEXEC", 0)
+            fd = self._journals[port] = os.open(self.journal_path(port), flags, 0o644)
+            fsync_path(self.directory)  # the new journal's directory entry, once
+        return fd
 
     def save(self, port: int, sensor: str, params: Mapping[str, int]) -> None:
         body = {"version": PARAMS_VERSION, "port": port, "sensor": sensor, "params": dict(params)}
-        path = self.path(port)
-        write_atomic(path, json.dumps(body, sort_keys=True).encode(), sync=self.sync_each)
+        text = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
+        line = text + b"\t%08x\n" % zlib.crc32(text)
+        with self._locks.setdefault(port, threading.Lock()):
+            fd = self._journal(port)
+            if os.write(fd, line) != len(line):
+                raise OSError(f"short write to {self.journal_path(port)}")
+            self._last[port] = text
+            if self.sync_each:
+                os.fsync(fd)
+                if os.fstat(fd).st_size > self.compact_bytes:
+                    self._compact(port)
         if not self.sync_each:
             with self._wake:
-                self._dirty.add(path)
+                self._dirty.add(port)
                 self._wake.notify()
+
+    def _compact(self, port: int) -> None:
+        """The last state as the snapshot, then an empty journal (the port's lock held).
+
+        A kill between the two leaves a snapshot equal to the journal's last line.
+        """
+        write_atomic(self.path(port), self._last[port], sync=True)
+        fd = self._journals[port]
+        os.ftruncate(fd, 0)
+        os.fsync(fd)
+
+    def _flush(self, ports: set[int]) -> None:
+        for port in ports:
+            with self._locks[port]:
+                fd = self._journals[port]
+                try:
+                    os.fsync(fd)
+                    if os.fstat(fd).st_size > self.compact_bytes:
+                        self._compact(port)
+                except OSError as e:  # the next save or flush tries again
+                    log.error("port %d: cannot flush saved parameters: %s", port, e)
 
     def _flush_loop(self) -> None:
         while True:
@@ -289,14 +356,7 @@ class ParamStore:
                     self._wake.wait()
                 dirty, self._dirty = self._dirty, set()
                 closed = self._closed
-            for path in dirty:
-                try:
-                    fsync_path(path)
-                except OSError as e:  # replaced meanwhile: the newer file is flushed next
-                    log.debug("fsync %s: %s", path, e)
-            if dirty:
-                with contextlib.suppress(OSError):
-                    fsync_path(self.directory)
+            self._flush(dirty)
             if closed:
                 return
             # Coalesce: a burst of changes costs one flush per interval, not one per change
@@ -305,18 +365,26 @@ class ParamStore:
                 self._wake.wait_for(lambda: self._closed, timeout=self.flush_interval_s)
 
     def close(self) -> None:
-        """Flush what is pending and stop the background thread."""
+        """Flush what is pending, stop the background thread and close the journals."""
         with self._wake:
             self._closed = True
             self._wake.notify()
         if self._flusher is not None:
             self._flusher.join(timeout=10)
+        for port, fd in list(self._journals.items()):
+            with self._locks[port]:
+                os.close(fd)
+                del self._journals[port]
 
     def load(self, port: int, sensor: str) -> dict[str, int] | None:
         """Saved parameters of a port, or None (no file, other sensor, unreadable file)."""
-        path = self.path(port)
+        path = self.journal_path(port)
         try:
-            body = json.loads(path.read_text())
+            text = last_journal_line(path)
+            if text is None:
+                path = self.path(port)
+                text = path.read_bytes()
+            body = json.loads(text)
         except FileNotFoundError:
             return None
         except (OSError, json.JSONDecodeError) as e:

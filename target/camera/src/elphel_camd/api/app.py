@@ -265,7 +265,7 @@ def create_app(
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
     expected = token.encode()
 
-    def require_token(credentials: HTTPAuthorizationCredentials | None = _BEARER) -> None:
+    async def require_token(credentials: HTTPAuthorizationCredentials | None = _BEARER) -> None:
         if credentials is None or not secrets.compare_digest(
             credentials.credentials.encode(), expected
         ):
@@ -275,9 +275,9 @@ def create_app(
                 headers={"WWW-Authenticate": "Bearer"},
             )
 
-    def require_read(credentials: HTTPAuthorizationCredentials | None = _BEARER) -> None:
+    async def require_read(credentials: HTTPAuthorizationCredentials | None = _BEARER) -> None:
         if read_protected:
-            require_token(credentials)
+            await require_token(credentials)
 
     writes = [Depends(require_token)]
     reads = [Depends(require_read)]
