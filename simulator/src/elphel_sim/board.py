@@ -285,18 +285,21 @@ class SimBoard:
         return dict(truth)
 
     def _image(self, record: FrameRecord) -> np.ndarray:
+        # Rendered outside the board's lock: a full frame takes seconds, and the frame
+        # clock and the other ports must not wait for it. The image depends only on the
+        # record and the seed, so two threads forming the same frame get the same pixels.
+        with self._cond:
+            if record.image is not None:
+                return record.image
+            spec = self.ports[record.port]
+            form_image = self.chips[record.port].form_image
+        rng = np.random.default_rng([self.seed, record.port, record.frame]) if self.noise else None
+        image = form_image(
+            record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+        )
         with self._cond:
             if record.image is None:
-                spec = self.ports[record.port]
-                rng = (
-                    np.random.default_rng([self.seed, record.port, record.frame])
-                    if self.noise
-                    else None
-                )
-                form_image = self.chips[record.port].form_image
-                record.image = form_image(
-                    record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
-                )
+                record.image = image
             return record.image
 
     # -- real time -------------------------------------------------------------------------
