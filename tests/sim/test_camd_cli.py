@@ -30,7 +30,7 @@ def rig(sim_rig):
         try:
             yield env
         finally:
-            cam.set_params({k: before[k] for k in (*WINDOW, "EXPOS", "GAINR")})
+            cam.set_params({k: before[k] for k in (*WINDOW, "EXPOS", "GAINR", "PF_HEIGHT")})
             deadline = time.monotonic() + 30
             while cam.params(0)["WOI_WIDTH"] != before["WOI_WIDTH"]:
                 assert time.monotonic() < deadline, "the full window did not come back"
@@ -70,6 +70,28 @@ def test_cli_set_get_capture_through_the_simulated_chip(rig, tmp_path):
     r = run_cli("camera", "set", "WOI_WIDTH=3", "--json", env=rig)
     assert r.returncode == 1 and r.stdout == ""
     assert "422" in r.stderr and "WOI_WIDTH" in r.stderr and "even" in r.stderr
+
+
+def test_cli_joins_photofinish_composites_with_row_times(rig, tmp_path):
+    photofinish = {**WINDOW, "PF_HEIGHT": 2, "EXPOS": 100}
+    assignments = [f"{k}={v}" for k, v in photofinish.items()]
+    r = run_cli("camera", "set", *assignments, "--ahead", "4", "--json", env=rig)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "pf.tif"
+    r = run_cli("camera", "capture", "--count", "3", "--join", "--out", str(out), "--json", env=rig)
+    assert r.returncode == 0, r.stderr
+    result = json.loads(r.stdout)
+    with tifffile.TiffFile(out) as tif:
+        image = tif.asarray()
+        metadata = json.loads(tif.pages.first.description)
+    assert image.shape == (3 * 64, 96) and image.dtype == np.uint16
+    assert metadata["frames"] == result["frames"] and len(result["frames"]) == 3
+    strips = metadata["pf_strips"]
+    assert strips == 32 and metadata["PF_HEIGHT"] == 2
+    times = np.array(metadata["pf_strip_times_ns"])
+    assert len(times) == 3 * strips and times[0] == metadata["timestamp_ns"]
+    # One strip period between every two strips, across the composites' joins too.
+    assert np.all(np.diff(times) == metadata["pf_strip_period_ns"])
 
 
 def test_cli_watch_prints_frames_and_changes(rig):

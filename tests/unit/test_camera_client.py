@@ -3,10 +3,12 @@
 import json
 
 import httpx
+import numpy as np
 import pytest
 
-from elphel_host.camera import Camera, CameraHTTPError, CameraUnauthorizedError
+from elphel_host.camera import Burst, Camera, CameraHTTPError, CameraUnauthorizedError
 from elphel_host.camera.client import _SSEParser
+from elphel_host.errors import CameraClientError
 
 
 class FakeDaemon:
@@ -81,3 +83,34 @@ def test_sse_parser_reads_events_ids_and_skips_comments():
     events = [e for e in map(parser.feed, lines) if e is not None]
     assert len(events) == 1
     assert (events[0].type, events[0].id, events[0].data) == ("frame", 3, {"frame": 9})
+
+
+def _composites(starts: list[int], *, period: int = 1000, strips: int = 4) -> Burst:
+    meta = [
+        {
+            "frame": 10 + k,
+            "timestamp_ns": t,
+            "PF_HEIGHT": 2,
+            "pf_strips": strips,
+            "pf_strip_period_ns": period,
+        }
+        for k, t in enumerate(starts)
+    ]
+    images = np.arange(len(starts) * 2 * strips * 3, dtype=np.uint16).reshape(len(starts), -1, 3)
+    return Burst(tiff=b"", images=images, metadata=meta)
+
+
+def test_photofinish_joins_contiguous_composites_with_row_times():
+    joined = _composites([5000, 9000, 13000]).photofinish()
+    assert joined.image.shape == (24, 3) and joined.frames == [10, 11, 12]
+    assert joined.image[8, 0] == 24  # first row of the second composite
+    assert joined.row_times_ns[:4].tolist() == [5000, 5000, 6000, 6000]
+    assert np.all(np.diff(joined.row_times_ns[::2]) == 1000)
+
+
+def test_photofinish_refuses_gaps_and_plain_frames():
+    with pytest.raises(CameraClientError, match=r"not contiguous: \+1\.0 strips"):
+        _composites([5000, 10000]).photofinish()
+    plain = Burst(tiff=b"", images=np.zeros((2, 4, 4), np.uint16), metadata=[{"frame": 1}] * 2)
+    with pytest.raises(CameraClientError, match="PF_HEIGHT"):
+        plain.photofinish()

@@ -134,7 +134,10 @@ class SimBoard:
         wanted = fpga.frame + 1 if frame is None else frame
         record = self._wait_for(port, wanted, timeout_s)
         return Frame(
-            image=self._image(record), frame=record.frame, timestamp_ns=record.timestamp_ns
+            image=self._image(record),
+            frame=record.frame,
+            timestamp_ns=record.timestamp_ns,
+            strip_period_ns=round(record.strip_period_s * 1e9) if record.strips else 0,
         )
 
     def close(self) -> None:

@@ -9,6 +9,7 @@ from elphel_host.camera.client import (
     CameraHTTPError,
     CameraUnauthorizedError,
     CapturedFrame,
+    PhotoFinish,
 )
 
 __all__ = [
@@ -20,4 +21,5 @@ __all__ = [
     "CameraHTTPError",
     "CameraUnauthorizedError",
     "CapturedFrame",
+    "PhotoFinish",
 ]

@@ -63,6 +63,12 @@ def register(sub: Any) -> None:
     cap.add_argument(
         "--count", type=int, default=1, help="N consecutive frames as one multi-page TIFF"
     )
+    cap.add_argument(
+        "--join",
+        action="store_true",
+        help="photo-finish: join the N composites into one image (rows in time order) "
+        "and record each row's time",
+    )
     cap.set_defaults(func=cmd_capture, parser=cap)
 
     watch = cmd.add_parser(
@@ -153,7 +159,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
     if args.count < 1:
         args.parser.error("--count must be 1 or more")
     with _client(args) as client:
-        if args.count == 1:
+        if args.count == 1 and not args.join:
             frame = client.capture(args.port, frame=args.frame)
             tiff, image, metadata = frame.tiff, frame.image, frame.metadata
             first, frames = frame.frame, [frame.frame]
@@ -161,6 +167,16 @@ def cmd_capture(args: argparse.Namespace) -> int:
             burst = client.burst(args.count, port=args.port, frame=args.frame)
             tiff, image, metadata = burst.tiff, burst.images[0], burst.metadata[0]
             first, frames = burst.frames[0], burst.frames
+            if args.join:
+                joined = burst.photofinish()
+                image = joined.image
+                metadata = {
+                    **metadata,
+                    "shape": list(image.shape),
+                    "frames": frames,
+                    "pf_strip_times_ns": joined.row_times_ns[:: joined.strip_height].tolist(),
+                }
+                tiff = _tiff_bytes(image, metadata)
     out: Path = args.out or Path(f"port{args.port}-frame{first}.tif")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(tiff)
@@ -174,9 +190,23 @@ def cmd_capture(args: argparse.Namespace) -> int:
     if args.png:
         result["png"] = str(save_preview(image, args.png, bayer=metadata.get("bayer")))
     h, w = image.shape[:2]
-    what = f"frame {first}" if args.count == 1 else f"frames {frames[0]}..{frames[-1]}"
+    what = f"frame {first}" if len(frames) == 1 else f"frames {frames[0]}..{frames[-1]}"
+    if args.join:
+        what = f"photo-finish {what} joined"
     emit(args, result, f"{what} from port {args.port}: {w}x{h} {image.dtype} -> {out}")
     return 0
+
+
+def _tiff_bytes(image: Any, metadata: dict[str, Any]) -> bytes:
+    """A one-page 16-bit TIFF with JSON metadata, as the daemon writes them."""
+    import io
+    import json
+
+    import tifffile
+
+    buffer = io.BytesIO()
+    tifffile.imwrite(buffer, image, description=json.dumps(metadata), metadata=None)
+    return buffer.getvalue()
 
 
 def _event_line(event: CameraEvent) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import itertools
 import json
 import socket
 from collections.abc import Iterator, Mapping
@@ -74,6 +75,53 @@ class Burst:
     @property
     def frames(self) -> list[int]:
         return [int(m["frame"]) for m in self.metadata]
+
+    def photofinish(self) -> PhotoFinish:
+        """Join consecutive photo-finish composites into one image, with each row's time.
+
+        Raises `CameraClientError` if the frames are not photo-finish composites of one
+        shape, or if a strip is missing between two of them.
+        """
+        if not self.metadata or any("pf_strip_period_ns" not in m for m in self.metadata):
+            raise CameraClientError("not photo-finish composites: set PF_HEIGHT first")
+        first = self.metadata[0]
+        height, period = int(first["PF_HEIGHT"]), int(first["pf_strip_period_ns"])
+        strips = int(first["pf_strips"])
+        for a, b in itertools.pairwise(self.metadata):
+            if (b["PF_HEIGHT"], b["pf_strips"], b["pf_strip_period_ns"]) != (
+                height,
+                strips,
+                period,
+            ):
+                raise CameraClientError(
+                    f"frames {a['frame']} and {b['frame']}: photo-finish settings changed"
+                )
+            gap = int(b["timestamp_ns"]) - int(a["timestamp_ns"]) - strips * period
+            if abs(gap) > period // 2:
+                raise CameraClientError(
+                    f"frames {a['frame']} and {b['frame']} are not contiguous: "
+                    f"{gap / period:+.1f} strips between them"
+                )
+        starts = np.array([int(m["timestamp_ns"]) for m in self.metadata], dtype=np.int64)
+        strip = np.arange(strips * height, dtype=np.int64) // height
+        row_times = starts[:, None] + strip[None, :] * period
+        image = self.images.reshape(-1, self.images.shape[-1])
+        return PhotoFinish(image, row_times.reshape(-1), height, period, self.frames)
+
+
+@dataclass(frozen=True)
+class PhotoFinish:
+    """Photo-finish composites joined: one row per scan-line time.
+
+    ``row_times_ns[r]`` is when row ``r`` was read (the start of its strip, on the
+    camera's clock); rows run forward in time.
+    """
+
+    image: NDArray[np.uint16]
+    row_times_ns: NDArray[np.int64]
+    strip_height: int
+    strip_period_ns: int
+    frames: list[int]
 
 
 @dataclass(frozen=True)

@@ -55,6 +55,7 @@ class Frame:
     image: NDArray[np.uint16]
     frame: int
     timestamp_ns: int
+    strip_period_ns: int = 0  # photo-finish: time from one strip to the next (0 otherwise)
 
 
 class Board(Protocol):
@@ -384,6 +385,12 @@ class Camera:
             ),
             **params,
         }
+        if params.get("PF_HEIGHT"):
+            # Row r of a composite was read in strip r // PF_HEIGHT, which started at
+            # timestamp_ns + (r // PF_HEIGHT) * pf_strip_period_ns.
+            period = got.strip_period_ns or round(1e12 / max(params["FP1000S"], 1))
+            metadata["pf_strips"] = params["WOI_HEIGHT"] // params["PF_HEIGHT"]
+            metadata["pf_strip_period_ns"] = period
         return got, metadata
 
     def burst(
