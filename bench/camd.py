@@ -9,7 +9,9 @@
    frame must reach the ring buffer and the event stream with consecutive numbers and
    evenly spaced timestamps (none dropped), while a client follows the events.
 
-The daemon and the plain endpoint each run as their own process, as deployed.
+The daemon and the plain endpoints each run as their own process, as deployed. A PATCH to
+a plain FastAPI endpoint that validates the same body and does nothing is timed too: the
+framework's own floor on this machine.
 
 Usage: python bench/camd.py [--seconds 60] [--patches 500] [--fetches 20]
 """
@@ -35,6 +37,7 @@ from typing import Any
 import httpx
 import uvicorn
 from fastapi import FastAPI, Response
+from pydantic import BaseModel
 
 from elphel_host.camera.client import _SSEParser
 
@@ -106,6 +109,12 @@ def plain_server(body: Path, state: Path) -> Iterator[str]:
         proc.wait(timeout=20)
 
 
+class Change(BaseModel):
+    """The body of the plain PATCH endpoint."""
+
+    GAINR: int
+
+
 def serve_plain(path: Path) -> int:
     """Serve GET /frame returning the bytes of ``path`` from memory (the reference)."""
     body = path.read_bytes()
@@ -114,6 +123,11 @@ def serve_plain(path: Path) -> int:
     @app.get("/frame")
     def frame_bytes() -> Response:
         return Response(content=body, media_type="image/tiff")
+
+    @app.patch("/ports/{port}/params")
+    def set_gain(port: int, change: Change) -> dict[str, Any]:
+        """The floor for a PATCH: a validated body answered, nothing done."""
+        return {"frame": 0, "params": change.model_dump()}
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.bind(("127.0.0.1", 0))
@@ -128,6 +142,23 @@ def serve_plain(path: Path) -> int:
 def percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, round(q / 100 * (len(ordered) - 1)))]
+
+
+def bench_plain_patch(url: str, count: int) -> dict[str, Any]:
+    """The same PATCH against a FastAPI endpoint that does nothing: the framework's floor."""
+    transport = httpx.HTTPTransport(socket_options=NODELAY)
+    times = []
+    with httpx.Client(base_url=url, timeout=30, transport=transport) as http:
+        for i in range(count + 20):
+            t0 = time.perf_counter()
+            http.patch("/ports/0/params", json={"GAINR": 0x10000 + i}).raise_for_status()
+            if i >= 20:
+                times.append((time.perf_counter() - t0) * 1e3)
+    return {
+        "count": count,
+        "p50_ms": round(percentile(times, 50), 3),
+        "p99_ms": round(percentile(times, 99), 3),
+    }
 
 
 def bench_patch(url: str, count: int) -> dict[str, Any]:
@@ -256,6 +287,9 @@ def main() -> int:
         state = Path(tmp)
         with daemon(state / "sync", params_fsync_each=True) as url:
             patch_fsync_each = bench_patch(url, max(args.patches // 5, 50))
+        (state / "frame.tif").write_bytes(b"")
+        with plain_server(state / "frame.tif", state) as plain_url:
+            plain_patch = bench_plain_patch(plain_url, args.patches)
         with daemon(state / "default") as url:
             patch = bench_patch(url, args.patches)
             acquisition = bench_acquisition(url, args.seconds)
@@ -263,6 +297,7 @@ def main() -> int:
     result = {
         "patch": patch,
         "patch_fsync_before_answer": patch_fsync_each,
+        "plain_fastapi_patch": plain_patch,
         "ring_fetch": ring,
         "acquisition": acquisition,
         "targets": {
