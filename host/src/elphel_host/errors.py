@@ -15,6 +15,14 @@ class CameraAuthError(CameraClientError, PermissionError):
     """The daemon answered 401/403: missing or wrong token."""
 
 
+class QuadCaptureError(CameraClientError):
+    """A quad set could not be taken: too few sensor ports, or frames not of one trigger."""
+
+
+class QuadCaptureTimeout(QuadCaptureError, TimeoutError):  # noqa: N818 - like StageTimeout
+    """The camera's frames did not reach the frame a quad capture waits for."""
+
+
 class InputFormatError(ElphelError, ValueError):
     """A file or directory given as input does not have the documented format."""
 

@@ -64,12 +64,14 @@ class SimBoard:
         self.seed = seed
         self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
+        self.quad = scenario.quad
         self._buses: dict[int, SimI2CBus] = {}
         self.chips: dict[int, SimSensor] = {}
         self.fpga: dict[int, PortFPGA] = {}
         self.camsync = Camsync()
         self.now_s = 0.0
         self._subscribers: list[FrameSync] = []
+        self._timestamp_skew_ns: dict[int, int] = {}
         self._truth: dict[int, OrderedDict[int, dict[str, object]]] = {}
         self._cond = threading.Condition(threading.RLock())
         self._clock: threading.Thread | None = None
@@ -195,7 +197,7 @@ class SimBoard:
         else:
             strip_period_s = timing.frame_s
         fpga.busy_until_s = self.now_s + timing.busy_s + strip_period_s * max(strips - 1, 0)
-        timestamp_ns = round(fpga.next_timestamp_s * 1e9)
+        timestamp_ns = round(fpga.next_timestamp_s * 1e9) + self._timestamp_skew_ns.get(port, 0)
         spec = self.ports[port]
         fpga.ring.append(
             FrameRecord(
@@ -273,6 +275,16 @@ class SimBoard:
                     self._cond.wait(min(remaining, 0.5))
                     continue
             self.sim_step()
+
+    def sim_timestamp_skew(self, port: int, skew_ns: int = 0) -> None:
+        """Fault: the port's frame timestamps run ``skew_ns`` off the common trigger's time.
+
+        As a port whose timestamps do not come from the common sync would; 0 heals it.
+        """
+        if port not in self.fpga:
+            raise PortError(f"port {port} has no simulated sensor; ports: {sorted(self.fpga)}")
+        with self._cond:
+            self._timestamp_skew_ns[port] = int(skew_ns)
 
     def sim_frame_truth(self, port: int, frame: int) -> dict[str, object]:
         """What the simulator knows of a past frame: its time and the camera's pose.

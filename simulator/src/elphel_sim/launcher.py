@@ -14,6 +14,7 @@ import secrets
 import signal
 import socket
 import sys
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -25,6 +26,7 @@ from elphel_camd.api import create_app
 from elphel_camd.board import Camera
 from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_sim.board import SimBoard
+from elphel_sim.quad import QuadScene, TileTruth, tile_truth
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
 
@@ -32,6 +34,7 @@ from elphel_sim.stage_server import SimStage
 def create_sim_app(board: SimBoard, stage: SimStage | None = None) -> FastAPI:
     """The inspection API: what the simulator knows to be true."""
     app = FastAPI(title="elphel-sim inspection")
+    lock = threading.Lock()
 
     @app.get("/stage")
     def stage_state() -> dict[str, Any]:
@@ -62,6 +65,71 @@ def create_sim_app(board: SimBoard, stage: SimStage | None = None) -> FastAPI:
                 str(port): {"model": spec.model, "mount": spec.mount}
                 for port, spec in board.ports.items()
             },
+        }
+
+    truths: list[TileTruth] = []  # computed on the first request (about a second)
+
+    def quad_scene() -> QuadScene:
+        if board.quad is None:
+            raise HTTPException(
+                status_code=404, detail="this scenario has no quad camera (try --scenario quad)"
+            )
+        return board.quad
+
+    @app.get("/quad")
+    def quad_geometry() -> dict[str, Any]:
+        """The quad camera's geometry and the scene's regions with their disparities.
+
+        ``cameras`` (port and position) and ``optics`` make it an `elphel tp capture
+        --geometry` file.
+        """
+        scene = quad_scene()
+        rig = scene.rig
+        return {
+            "cameras": [
+                {"port": i, "position": list(position)} for i, position in enumerate(rig.positions)
+            ],
+            "optics": {
+                "focal_length_mm": rig.focal_length_mm,
+                "pixel_pitch_um": rig.pixel_pitch_um,
+                "baseline_mm": rig.baseline_mm,
+            },
+            "image_size": [rig.width, rig.height],
+            "bayer": rig.bayer,
+            "regions": [
+                {
+                    "name": r.name,
+                    "textured": r.textured,
+                    "depth_mm": float(r.plane.origin[2]),
+                    "disparity_px": float(rig.disparity_px(r.plane.origin[2])),
+                }
+                for r in scene.regions
+            ],
+        }
+
+    @app.get("/quad/truth")
+    def quad_truth() -> dict[str, Any]:
+        """True disparity of every tile centre (8tx+4, 8ty+4) of the default window.
+
+        Also each tile's region (``label`` into ``names``), whether its footprint stays
+        inside that region (``interior``) and whether the region is textured; rows are
+        tiles-Y.
+        """
+        scene = quad_scene()
+        with lock:
+            if not truths:
+                truths.append(tile_truth(scene))
+        t = truths[0]
+        return {
+            "tile_size": 16,
+            "tile_stride": 8,
+            "tiles_x": int(t.disparity.shape[1]),
+            "tiles_y": int(t.disparity.shape[0]),
+            "names": list(t.names),
+            "disparity": t.disparity.tolist(),
+            "label": t.label.tolist(),
+            "interior": t.interior.tolist(),
+            "textured": t.textured.tolist(),
         }
 
     return app

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from elphel_camd.sensors import mt9f002
 from elphel_camd.sensors import mt9p006 as spec
 from elphel_sim.chips.lepton35 import lepton_intrinsics
+from elphel_sim.quad import QuadRig, QuadScene, standard_scene
 from elphel_sim.render import Intrinsics, SensorModel
 from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 
@@ -25,8 +26,11 @@ class PortSpec:
 
 @dataclass
 class Scenario:
+    """A world and the board's ports; ``quad`` when ports 0..3 form a quad camera."""
+
     world: World
     ports: list[PortSpec]
+    quad: QuadScene | None = None
 
 
 # A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
@@ -109,8 +113,61 @@ def mixed(seed: int) -> Scenario:
     )
 
 
+# Elphel's quad: 4.5 mm lenses on MT9P006 sensors, 150 mm apart (the square's side).
+QUAD_RIG = QuadRig(
+    width=spec.ACTIVE_WIDTH,
+    height=spec.ACTIVE_HEIGHT,
+    focal_length_mm=4.5,
+    pixel_pitch_um=spec.PIXEL_PITCH_UM,
+    baseline_mm=150.0,
+    bayer=spec.BAYER,
+)
+
+
+def quad_intrinsics(rig: QuadRig) -> Intrinsics:
+    """The MT9P006 array with the optical centre exactly on the default window's centre.
+
+    The default window starts at Elphel's clear-area origin, so the window's pixel (x, y)
+    is the quad rig's pixel (x, y) and tile truth needs no offset.
+    """
+    return Intrinsics(
+        focal_length_mm=rig.focal_length_mm,
+        pixel_pitch_um=rig.pixel_pitch_um,
+        width=spec.ARRAY_WIDTH,
+        height=spec.ARRAY_HEIGHT,
+        cx=spec.CLEAR_LEFT + rig.width / 2,
+        cy=spec.CLEAR_TOP + rig.height / 2,
+    )
+
+
+def quad(seed: int) -> Scenario:
+    """A quad camera: four MT9P006 on ports 0..3 at the corners of a 150 mm square.
+
+    Port i is camera i of the Elphel square (DESIGN 4.4: positions (-0.5, -0.5),
+    (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5) of the side, +x right, +y down), all looking
+    along +z with parallel axes. They see the tile processor's standard scene
+    (`elphel_sim.quad.standard_scene`): a background at disparity 0, fronto-parallel
+    rectangles at 0.37, 2.5 and 5.2 px (59 m to 830 m away with this rig), a slanted
+    and a texture-less rectangle. Share one trigger (TRIG=4 on every port, TRIG_PERIOD
+    on the master) and the four frames of a trigger are one quad set.
+    """
+    rig = QUAD_RIG
+    scene = standard_scene(rig, seed=seed)
+    mounts = {
+        f"cam{i}": CameraMount(
+            f"cam{i}", offset_mm=(rig.baseline_mm * x, rig.baseline_mm * y, 0.0), on_stage=False
+        )
+        for i, (x, y) in enumerate(rig.positions)
+    }
+    world = World(scene.scene, Rig(axis=(1.0, 0.0, 0.0), mounts=mounts))
+    intrinsics = quad_intrinsics(rig)
+    ports = [PortSpec("MT9P006", f"cam{i}", intrinsics, LAB_LIGHT) for i in range(4)]
+    return Scenario(world, ports, quad=scene)
+
+
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
 SCENARIOS["mixed"] = mixed
+SCENARIOS["quad"] = quad
 
 
 def build(name: str, *, seed: int) -> Scenario:

@@ -1,34 +1,96 @@
-"""``elphel tp QUAD_DIR --out DSI.tif [--json]``: the tile processor on a quad directory."""
+"""``elphel tp QUAD_DIR --out DSI.tif [--json]``: the tile processor on a quad directory.
+
+``elphel tp capture --camera URL --out QUAD_DIR [--json]`` takes that directory from a quad
+camera first (`elphel_host.tp.capture`). Both forms share one parser: ``capture`` in the
+place of QUAD_DIR selects the capture (write ``./capture`` for a directory of that name).
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import tifffile
 
+from elphel_host.camera.client import Camera
 from elphel_host.cli import emit
+from elphel_host.tp.capture import DEFAULT_TRIGGER_PERIOD_MS, capture_quad, read_layout
 from elphel_host.tp.io import read_quad_dir, write_dsi, write_ml_data
 from elphel_host.tp.processor import TpConfig, correlation_tiles, disparity_map
 from elphel_host.tp.texture import rendered_images, rgba_texture
 
+CAPTURE = "capture"
+USAGE = """elphel tp QUAD_DIR --out DSI.tif [--json] [tile processor options]
+       elphel tp capture --camera URL [--token T] --out QUAD_DIR [--geometry FILE]
+                         [--trigger-period-ms MS] [--force] [--json]"""
+
 
 def register(subparsers: Any) -> None:
-    """Add the ``tp`` subcommand."""
+    """Add the ``tp`` subcommand (and its ``capture`` form)."""
     p = subparsers.add_parser(
         "tp",
-        help="disparity space image (DSI) of a quad directory",
+        usage=USAGE,
+        help="disparity space image (DSI) of a quad directory; `tp capture` takes one",
         description="Tile processor: per-tile sub-pixel disparity and strength of a quad image set "
-        "(DESIGN 4.4 in, 4.5 out).",
+        "(DESIGN 4.4 in, 4.5 out). `elphel tp capture` takes the quad set from a camera: one "
+        "trigger, four sensor ports, the same timestamp.",
     )
-    p.add_argument("quad_dir", metavar="QUAD_DIR", help="quad directory (quad.json + cam0..3.tif)")
-    p.add_argument("--out", required=True, metavar="DSI.tif", help="output ImageJ TIFF stack")
     p.add_argument(
+        "quad_dir",
+        metavar="QUAD_DIR",
+        help="quad directory (quad.json + cam0..3.tif), or `capture` to take one from a camera",
+    )
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="PATH",
+        help="DSI.tif to write (ImageJ stack); with `capture`, the quad directory to create",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    cap = p.add_argument_group("capture (elphel tp capture ...)")
+    cap.add_argument(
+        "--camera",
+        default=os.environ.get("ELPHEL_CAMERA_URL"),
+        metavar="URL",
+        help="camera daemon URL (env ELPHEL_CAMERA_URL)",
+    )
+    cap.add_argument(
+        "--token",
+        default=os.environ.get("ELPHEL_CAMERA_TOKEN"),
+        help="bearer token (env ELPHEL_CAMERA_TOKEN)",
+    )
+    cap.add_argument(
+        "--geometry",
+        metavar="FILE",
+        help='JSON {"cameras": [{"port": P, "position": [x, y]}, x4], "optics": {...}} '
+        "(a quad.json works); default ports 0..3 on Elphel's square",
+    )
+    cap.add_argument(
+        "--trigger-period-ms",
+        type=float,
+        metavar="MS",
+        help="common trigger period while capturing (default: the camera's repeating period, "
+        f"else {DEFAULT_TRIGGER_PERIOD_MS:g} ms)",
+    )
+    cap.add_argument(
+        "--force", action="store_true", help="replace an existing non-empty quad directory"
+    )
+    cap.add_argument(
+        "--timeout",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="seconds to wait for the frames (default 60)",
+    )
+    tp = p.add_argument_group("tile processor (elphel tp QUAD_DIR ...)")
+    tp.add_argument(
         "--refine", type=int, default=1, metavar="N", help="refinement passes (default 1)"
     )
-    p.add_argument(
+    tp.add_argument(
         "--scan",
         type=float,
         nargs="+",
@@ -36,23 +98,88 @@ def register(subparsers: Any) -> None:
         metavar="D",
         help="first-pass target disparities; each tile keeps the strongest (default 0)",
     )
-    p.add_argument(
+    tp.add_argument(
         "--fat-zero", type=float, default=TpConfig.fat_zero, help="fat zero (full scale = 1)"
     )
-    p.add_argument("--threads", type=int, default=TpConfig.threads, help="worker threads")
-    p.add_argument(
+    tp.add_argument("--threads", type=int, default=TpConfig.threads, help="worker threads")
+    tp.add_argument(
         "--ml-data", metavar="PATH", help="also write the correlation tiles in ML_DATA layout"
     )
-    p.add_argument(
+    tp.add_argument(
         "--texture",
         metavar="PATH",
         help="also write an RGBA float32 TIFF: the four cameras blended at the measured disparity",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, parser=p)
+
+
+# Options of one form that make no sense in the other (compared with their defaults).
+_TP_ONLY = ("refine", "scan", "fat_zero", "threads", "ml_data", "texture")
+_CAPTURE_ONLY = ("geometry", "trigger_period_ms", "force", "timeout")
+
+
+def _misplaced(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
+    parser: argparse.ArgumentParser = args.parser
+    return ["--" + n.replace("_", "-") for n in names if getattr(args, n) != parser.get_default(n)]
 
 
 def run(args: argparse.Namespace) -> int:
+    """Dispatch ``elphel tp capture ...`` and ``elphel tp QUAD_DIR ...``."""
+    if args.quad_dir == CAPTURE:
+        return run_capture(args)
+    wrong = _misplaced(args, _CAPTURE_ONLY)
+    if wrong:
+        args.parser.error(f"{', '.join(wrong)}: only with `elphel tp capture`")
+    return run_tp(args)
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    """``elphel tp capture``: one trigger-synchronised quad set into a quad directory."""
+    wrong = _misplaced(args, _TP_ONLY)
+    if wrong:
+        args.parser.error(f"{', '.join(wrong)}: only with `elphel tp QUAD_DIR`, not `capture`")
+    if not args.camera:
+        hint = " (for a quad directory named capture, write ./capture)"
+        args.parser.error(
+            "capture needs a camera: give --camera URL or set ELPHEL_CAMERA_URL"
+            + (hint if Path(CAPTURE, "quad.json").is_file() else "")
+        )
+    layout = read_layout(args.geometry) if args.geometry else None
+    t0 = time.perf_counter()
+    # A simulated board forms each full frame when it is fetched: allow it time.
+    with Camera(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+        got = capture_quad(
+            camera,
+            args.out,
+            layout=layout,
+            trigger_period_ms=args.trigger_period_ms,
+            force=args.force,
+            timeout_s=args.timeout,
+        )
+    seconds = time.perf_counter() - t0
+    cams = got.manifest["cameras"]
+    result: dict[str, Any] = {
+        "quad_dir": str(got.path),
+        "frames": {str(p): f for p, f in got.frames.items()},
+        "timestamp_ns": got.timestamp_ns,
+        "width": got.width,
+        "height": got.height,
+        "bayer": got.bayer,
+        "cameras": [{k: c[k] for k in ("file", "port", "position", "frame")} for c in cams],
+        "trigger": got.manifest["capture"]["trigger"],
+        "seconds": round(seconds, 3),
+    }
+    frames = ", ".join(f"port {p} #{f}" for p, f in got.frames.items())
+    human = (
+        f"{got.path}: quad set of one trigger (t={got.timestamp_ns} ns; {frames}), "
+        f"4 x {got.width}x{got.height} {got.bayer or 'mono'}, {seconds:.1f} s"
+    )
+    emit(args, result, human)
+    return 0
+
+
+def run_tp(args: argparse.Namespace) -> int:
+    """``elphel tp QUAD_DIR --out DSI.tif``: the DSI of a quad directory."""
     qs = read_quad_dir(args.quad_dir)
     config = TpConfig(
         refine_passes=args.refine,
