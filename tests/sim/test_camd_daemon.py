@@ -131,6 +131,35 @@ def test_journal_keeps_the_last_intact_line_and_compacts(tmp_path):
         assert ParamStore(store.directory).load(1, "MT9F002") is not None
 
 
+def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
+    from elphel_camd import config
+
+    store = ParamStore(tmp_path, sync_each=True)
+    store.compact_bytes = 200
+    real = config.write_atomic
+    raced = []
+
+    def write_then_race(path, data, **kw):
+        real(path, data, **kw)
+        if not raced:  # another request's save lands while the snapshot is written
+            raced.append(1)
+            limit, store.compact_bytes = store.compact_bytes, 1 << 30  # no compaction of its own
+            store.save(0, "MT9P006", {"EXPOS": 99})
+            store.compact_bytes = limit
+
+    monkeypatch.setattr(config, "write_atomic", write_then_race)
+    i = 0
+    while not raced:  # until the journal is long enough to be compacted
+        store.save(0, "MT9P006", {"EXPOS": i})
+        i += 1
+    # The snapshot holds the state before the race; the raced save's line was not thrown
+    # away with the journal, and it is what a restart restores.
+    assert json.loads(store.path(0).read_text())["params"] == {"EXPOS": i - 1}
+    assert b'"EXPOS":99' in store.journal_path(0).read_bytes()
+    store.close()
+    assert ParamStore(tmp_path).load(0, "MT9P006") == {"EXPOS": 99}
+
+
 # -- the daemon as a process -----------------------------------------------------------------
 
 

@@ -314,40 +314,50 @@ class ParamStore:
         body = {"version": PARAMS_VERSION, "port": port, "sensor": sensor, "params": dict(params)}
         text = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
         line = text + b"\t%08x\n" % zlib.crc32(text)
-        with self._locks.setdefault(port, threading.Lock()):
+        lock = self._locks.get(port) or self._locks.setdefault(port, threading.Lock())
+        with lock:
             fd = self._journal(port)
             if os.write(fd, line) != len(line):
                 raise OSError(f"short write to {self.journal_path(port)}")
             self._last[port] = text
             if self.sync_each:
                 os.fsync(fd)
-                if os.fstat(fd).st_size > self.compact_bytes:
-                    self._compact(port)
-        if not self.sync_each:
+        if self.sync_each:
+            if os.fstat(fd).st_size > self.compact_bytes:
+                self._compact(port)
+        else:
             with self._wake:
                 self._dirty.add(port)
                 self._wake.notify()
 
     def _compact(self, port: int) -> None:
-        """The last state as the snapshot, then an empty journal (the port's lock held).
+        """Write the last state as the snapshot, then empty the journal.
 
-        A kill between the two leaves a snapshot equal to the journal's last line.
+        The snapshot is written (and flushed, milliseconds) without the port's lock, so
+        saves go on meanwhile; the journal is emptied only if none came in between, else
+        the next flush tries again. A kill between the two steps leaves a snapshot equal
+        to the journal's last line.
         """
-        write_atomic(self.path(port), self._last[port], sync=True)
-        fd = self._journals[port]
-        os.ftruncate(fd, 0)
-        os.fsync(fd)
+        lock = self._locks[port]
+        with lock:
+            text = self._last[port]
+        write_atomic(self.path(port), text, sync=True)
+        with lock:
+            if self._last[port] is not text:
+                return
+            os.ftruncate(self._journals[port], 0)
+        os.fsync(self._journals[port])
 
     def _flush(self, ports: set[int]) -> None:
+        # Without the port's lock: an fsync takes milliseconds, a save must not wait for it.
         for port in ports:
-            with self._locks[port]:
-                fd = self._journals[port]
-                try:
-                    os.fsync(fd)
-                    if os.fstat(fd).st_size > self.compact_bytes:
-                        self._compact(port)
-                except OSError as e:  # the next save or flush tries again
-                    log.error("port %d: cannot flush saved parameters: %s", port, e)
+            fd = self._journals[port]
+            try:
+                os.fsync(fd)
+                if os.fstat(fd).st_size > self.compact_bytes:
+                    self._compact(port)
+            except OSError as e:  # the next save or flush tries again
+                log.error("port %d: cannot flush saved parameters: %s", port, e)
 
     def _flush_loop(self) -> None:
         while True:
