@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,7 +25,7 @@ from typing import Any
 import httpx
 import numpy as np
 from numpy.typing import NDArray
-from PIL import Image
+from PIL import Image, ImageDraw
 
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_preview
@@ -182,6 +183,83 @@ def reference_image(
     return out
 
 
+def _tone(a: NDArray[np.floating], lo: float, hi: float) -> NDArray[np.uint8]:
+    scaled = np.clip((np.asarray(a, np.float64) - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
+    out: NDArray[np.uint8] = (scaled ** (1 / 2.2) * 255 + 0.5).astype(np.uint8)
+    return out
+
+
+def comparison_picture(
+    panels: Sequence[tuple[str, NDArray[Any]]],
+    path: Path,
+    *,
+    size: int = 96,
+    zoom: int = 3,
+    centre: tuple[int, int] | None = None,
+) -> Path:
+    """Write the same crop of several images side by side, on one tone scale, labelled.
+
+    Parameters
+    ----------
+    panels
+        (label, image) pairs, images 2-D or (H, W, 3) on one grid; the last one (the
+        reference) sets the tone scale (0.5 and 99.5 percentiles of its crop, gamma 2.2),
+        so brightness and contrast compare between panels.
+    path
+        The PNG to write.
+    size
+        Crop size in image pixels.
+    zoom
+        Nearest-neighbour enlargement, so that single pixels can be seen.
+    centre
+        (row, column) of the crop's centre; None = the image centre.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    if not panels:
+        raise ValueError("panels is empty; allowed: one or more (label, image) pairs")
+    shape = panels[0][1].shape
+    for label, image in panels:
+        if image.shape != shape:
+            raise ValueError(f"panel {label!r} has shape {image.shape}; allowed: {shape}")
+    h, w = shape[:2]
+    cy, cx = (h // 2, w // 2) if centre is None else centre
+    size = min(size, h, w)
+    y0 = int(np.clip(cy - size // 2, 0, h - size))
+    x0 = int(np.clip(cx - size // 2, 0, w - size))
+    crops = [np.asarray(im[y0 : y0 + size, x0 : x0 + size], np.float64) for _, im in panels]
+    lo, hi = (float(v) for v in np.percentile(crops[-1], [0.5, 99.5]))
+    label_px, gap = 14, 4
+    side = size * zoom
+    sheet = Image.new("RGB", (len(crops) * (side + gap) - gap, side + label_px), (0, 0, 0))
+    draw = ImageDraw.Draw(sheet)
+    for i, ((label, _), crop) in enumerate(zip(panels, crops, strict=True)):
+        tile = _tone(crop, lo, hi).repeat(zoom, axis=0).repeat(zoom, axis=1)
+        x = i * (side + gap)
+        sheet.paste(Image.fromarray(tile).convert("RGB"), (x, label_px))
+        draw.text((x + 2, 1), label, fill=(255, 255, 255))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sheet.save(path, optimize=True)
+    return path
+
+
+def burst_crops(compare_dir: Path, reference: Path, path: Path) -> Path:
+    """Bicubic | baseline | robust | reference crops of an `elphel mfsr compare` run."""
+    import tifffile
+
+    scores = json.loads((compare_dir / "compare.json").read_text())["methods"]
+    panels: list[tuple[str, NDArray[Any]]] = []
+    for method in ("bicubic", "baseline", "robust"):
+        r = scores[method]
+        label = f"{method} {r['psnr_db']:.2f} dB, SSIM {r['ssim']:.3f}"
+        panels.append((label, tifffile.imread(compare_dir / f"{method}.tif")))
+    panels.append(("reference (simulator, pitch/2)", tifffile.imread(reference)))
+    return comparison_picture(panels, path)
+
+
 def burst_step(
     rig: dict[str, Any], out: Path, stage: dict[str, Any], *, seed: int
 ) -> dict[str, Any]:
@@ -214,6 +292,9 @@ def burst_step(
     )
     step(f"burst: x{SCALE} plan, {plan['frames']} frames over {plan['travel_mm']:.3f} mm")
     burst = out / "burst"
+    # `burst capture` resumes a directory of the same plan and refuses another plan's;
+    # each demo run captures a new burst from a new simulated rig
+    shutil.rmtree(burst, ignore_errors=True)
     captured = elphel(
         "burst",
         "capture",
@@ -252,13 +333,24 @@ def burst_step(
         "--out",
         str(out / "mfsr-compare"),
     )
-    scores = {m: r.get("psnr_db") for m, r in compare["methods"].items()}
     step(
-        "burst: PSNR against the simulator's truth: "
-        + ", ".join(f"{m} {v:.2f} dB" for m, v in scores.items() if v is not None)
+        "burst: against the simulator's truth: "
+        + ", ".join(
+            f"{m} {r['psnr_db']:.2f} dB SSIM {r['ssim']:.3f}"
+            for m, r in compare["methods"].items()
+            if r.get("psnr_db") is not None
+        )
         + f" -> {out / 'fused.tif'}"
     )
-    return {"plan": str(plan_path), "burst": str(burst), "fused": fused, "compare": compare}
+    crops = burst_crops(out / "mfsr-compare", ref_path, out / "burst-crops.png")
+    step(f"burst: crops bicubic | baseline | robust | reference -> {crops}")
+    return {
+        "plan": str(plan_path),
+        "burst": str(burst),
+        "fused": fused,
+        "compare": compare,
+        "crops_png": str(crops),
+    }
 
 
 def read_frame_metadata(path: Path) -> tuple[Any, dict[str, Any]]:

@@ -7,7 +7,9 @@ Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver):
    reference's own pixels). Frames are mirror-padded so that the
    periodic Fourier model has no seam inside the image.
 2. Least-squares solve with a gradient prior, weight ``(sigma / tau)^2``: sigma is the
-   noise (estimated from the data), tau the expected HR gradient (a fraction of the range).
+   noise, tau the expected HR gradient (a fraction of the range). With enough frames the
+   noise is measured from the burst itself (:func:`fit_noise`); a single frame cannot tell
+   fine, aliased texture from noise.
 3. Robust passes: every frame's shift is refined against the model (this removes the
    aliasing bias of LR registration), its residual clipped at ``huber * sigma`` (Huber
    regression by pseudo-data; invalid pixels take the prediction), and the system solved
@@ -57,6 +59,10 @@ class RobustConfig:
         this size, which costs a fraction of refining on the whole frame.
     noise_sigma
         Noise standard deviation in input units; None estimates it from the data.
+    fit_noise
+        Estimate the noise from the residuals of a weakly regularised fit of the burst
+        (:func:`fit_noise`) when there are enough frames; False: from the reference frame
+        alone (:func:`estimate_noise`), which reads fine texture as noise.
     """
 
     passes: int = 1
@@ -67,6 +73,7 @@ class RobustConfig:
     refine: bool = True
     refine_window: int = 384
     noise_sigma: float | None = None
+    fit_noise: bool = True
 
     def __post_init__(self) -> None:
         if self.passes < 0:
@@ -93,6 +100,78 @@ def estimate_noise(image: F32) -> float:
     f = cv2.filter2D(np.asarray(image, np.float32), -1, _LAPLACE_NOISE)[1:-1, 1:-1]
     step = max(1, int(np.sqrt(f.size / 250_000)))
     return float(np.median(np.abs(f[::step, ::step])) / 0.6745 / 6.0)
+
+
+# The noise fit: a central window has samples enough for a spread estimate, and a prior
+# 16^2 times weaker than the reconstruction's only keeps the frequencies that no frame
+# observes bounded (it smooths nothing the data determine).
+_FIT_WINDOW = 256
+_FIT_TAU_FACTOR = 16.0
+
+
+def fit_noise(
+    frames: Sequence[F32],
+    shifts: Sequence[tuple[float, float]],
+    *,
+    scale: int,
+    aperture: int | None = None,
+    origin_shift: tuple[float, float] = (0.0, 0.0),
+    config: RobustConfig = DEFAULT_CONFIG,
+) -> float | None:
+    """Noise standard deviation measured from a registered burst.
+
+    Single-frame estimates (:func:`estimate_noise`) take whatever a Laplacian sees as
+    noise, fine texture included: on an image with detail near its Nyquist frequency, and
+    above all on one colour plane of a Bayer mosaic (samples two pixels apart, heavily
+    aliased), they measure mostly texture. A burst whose frames outnumber the unknowns
+    predicts each frame from the others: the residual of a least-squares fit with a weak
+    prior, divided by the degrees of freedom left (``1 - s^2 / K`` for K frames at scale s),
+    is the noise.
+
+    The fit uses the largest scale ``s <= scale`` with at least ``2 s^2`` frames (and the
+    same pixel aperture in LR units), a central window of up to 256 px and the model of
+    :func:`reconstruct`, shifts refined; residuals are measured by their median.
+
+    Parameters
+    ----------
+    frames, shifts, scale, aperture, origin_shift
+        As for :func:`reconstruct`.
+    config
+        Reconstruction options (the fit uses a 256 times weaker prior, one pass).
+
+    Returns
+    -------
+    float or None
+        The noise standard deviation in input units; None when no scale >= 2 has enough
+        frames.
+    """
+    k = len(frames)
+    ap = int(aperture or scale)
+    fit_scale = next(
+        (s for s in range(int(scale), 1, -1) if k >= 2 * s * s and (ap * s) % scale == 0), None
+    )
+    if fit_scale is None:
+        return None
+    h, w = frames[0].shape
+    wy, wx = min(h, _FIT_WINDOW), min(w, _FIT_WINDOW)
+    y0, x0 = (h - wy) // 2, (w - wx) // 2
+    crop = [np.ascontiguousarray(f[y0 : y0 + wy, x0 : x0 + wx]) for f in frames]
+    _, info = reconstruct(
+        crop,
+        shifts,
+        scale=fit_scale,
+        aperture=ap * fit_scale // scale,
+        origin_shift=origin_shift,
+        config=replace(
+            config,
+            passes=1,
+            tau=config.tau * _FIT_TAU_FACTOR,
+            noise_sigma=None,
+            fit_noise=False,
+            refine_window=max(wy, wx, 32),
+        ),
+    )
+    return float(info["noise_sigma"])
 
 
 def _aligned(frame: F32, reference: F32, n: tuple[int, int]) -> tuple[F32, NDArray[np.bool_]]:
@@ -165,6 +244,28 @@ def reconstruct(
             raise ValueError(f"frames[{i}].shape={f.shape}; allowed: {(h, w)} (all alike, 2-D)")
     if min(h, w) < 4:
         raise ValueError(f"frame size {h}x{w}; allowed: at least 4x4")
+    ref = np.asarray(frames[0], dtype=np.float32)
+    # the noise sets the prior's weight and the first clipping level
+    if config.noise_sigma is not None:
+        sigma, source = float(config.noise_sigma), "given"
+    else:
+        sigma, source = estimate_noise(ref), "frame"
+        fitted = (
+            fit_noise(
+                frames,
+                shifts,
+                scale=int(scale),
+                aperture=aperture,
+                origin_shift=origin_shift,
+                config=config,
+            )
+            if config.fit_noise
+            else None
+        )
+        # texture only adds to a single frame's estimate: a fit above it went wrong
+        # (motion, bad registration), and the frame's estimate is the safer bound
+        if fitted is not None and fitted < sigma:
+            sigma, source = fitted, "fit"
     # refining shifts needs a determined model: at least one frame per HR unknown
     refine_here = config.refine and len(frames) >= scale * scale
     if refine_here and config.passes > 0 and max(h, w) > config.refine_window:
@@ -179,11 +280,15 @@ def reconstruct(
             scale=scale,
             aperture=aperture,
             origin_shift=origin_shift,
-            config=replace(config, refine_window=max(h, w)),
+            config=replace(
+                config,
+                refine_window=max(h, w),
+                noise_sigma=sigma if source == "fit" else config.noise_sigma,
+                fit_noise=False,
+            ),
         )
         shifts = [(a, b) for a, b in cinfo["shifts_refined"]]
         refine_here = False
-    ref = np.asarray(frames[0], dtype=np.float32)
     sh = np.asarray(shifts, dtype=np.float64) + np.asarray(origin_shift, dtype=np.float64)
     n_int = np.rint(sh).astype(int)
     frac = sh - n_int
@@ -197,8 +302,8 @@ def reconstruct(
     step = max(1, int(np.sqrt(ref.size / 250_000)))  # a quarter-million samples suffice
     lo, hi = np.percentile(ref[::step, ::step], [0.1, 99.9])
     span = max(float(hi - lo), 1e-6)
-    sigma = config.noise_sigma if config.noise_sigma is not None else estimate_noise(ref)
     tau = config.tau * span
+    noise = sigma
     lam = max((sigma / tau) ** 2, 1e-6)
     solver = FourierSolver(model, [tuple(v) for v in frac], lam=lam)
     t0_start = solver.t[0].copy()
@@ -256,7 +361,8 @@ def reconstruct(
             # unknown it under-estimates the noise, so it must not weaken the prior
             sigma = max(1.4826 * float(np.median(mads)) / np.sqrt(dof), 1e-6 * span)
             if k_frames >= 2 * s2:  # enough frames per unknown for the estimate to hold
-                solver.lam = max((sigma / tau) ** 2, 1e-6)
+                noise = sigma
+                solver.lam = max((noise / tau) ** 2, 1e-6)
         del spectra
         X = solver.solve()
     # The shifts are refined jointly, the reference's too: the common part of the
@@ -268,7 +374,8 @@ def reconstruct(
     out = np.ascontiguousarray(img[y0 : y0 + h * scale, x0 : x0 + w * scale])
     refined = solver.shifts_lr() - drift / scale + n_int - np.asarray(origin_shift)
     info = {
-        "noise_sigma": sigma,
+        "noise_sigma": noise,  # the one that set the prior's weight
+        "noise_source": source,
         "lambda": solver.lam,
         "shifts_refined": [[float(a), float(b)] for a, b in refined],
     }
