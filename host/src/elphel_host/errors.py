@@ -27,6 +27,10 @@ class InputFormatError(ElphelError, ValueError):
     """A file or directory given as input does not have the documented format."""
 
 
+class FusionError(ElphelError, RuntimeError):
+    """Fusing a burst failed (a frame could not be loaded, the reconstruction raised, ...)."""
+
+
 class StageError(ElphelError):
     """The linear stage failed or refused an operation."""
 

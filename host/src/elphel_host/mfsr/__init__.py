@@ -5,5 +5,8 @@
 * :mod:`~elphel_host.mfsr.forward`, :mod:`~elphel_host.mfsr.robust` - forward-model
   reconstruction solved exactly in the Fourier domain, with Huber outlier rejection.
 * :mod:`~elphel_host.mfsr.fuse` - burst in, image out (mono and Bayer).
+* :mod:`~elphel_host.mfsr.stream` - the same fusion fed frame by frame while a burst is
+  captured (``elphel burst capture --fuse``).
+* :mod:`~elphel_host.mfsr.output` - the fused TIFF and its preview, written atomically.
 * :mod:`~elphel_host.mfsr.metrics` - PSNR, SSIM; :mod:`~elphel_host.mfsr.synth` - test bursts.
 """

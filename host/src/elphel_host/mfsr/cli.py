@@ -26,6 +26,7 @@ from elphel_host.cli import emit
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
+from elphel_host.mfsr.output import fused_meta, write_image
 from elphel_host.mfsr.robust import RobustConfig
 from elphel_host.preview import save_preview
 
@@ -82,23 +83,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _write_image(
-    path: Path, image: NDArray[np.float32], *, as_float: bool, meta: dict[str, Any]
-) -> dict[str, Any]:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rgb = image.ndim == 3
-    if as_float:
-        data: NDArray[Any] = image.astype(np.float32)
-        clipped = 0
-    else:
-        r = np.rint(image)
-        clipped = int(np.count_nonzero((r < 0) | (r > 65535)))
-        data = np.clip(r, 0, 65535).astype(np.uint16)
-    tifffile.imwrite(path, data, photometric="rgb" if rgb else "minisblack", metadata=meta)
-    preview = save_preview(image, path.with_suffix(".png"))
-    return {"out": str(path), "preview": str(preview), "clipped_pixels": clipped}
-
-
 def _fuse_one(
     burst_dir: str,
     scale: int,
@@ -116,14 +100,8 @@ def _fuse_one(
         use_prior=use_prior,
         config=RobustConfig(blur_sigma=blur_sigma),
     )
-    meta = {
-        "method": method,
-        "scale": scale,
-        "burst": str(burst_dir),
-        "bayer": burst.bayer,
-        "grid": "cv2.resize: LR pixel i centre at scale*i + (scale-1)/2",
-    }
-    written = _write_image(Path(out), res.image, as_float=as_float, meta=meta)
+    meta = fused_meta(method=method, scale=scale, burst=burst_dir, bayer=burst.bayer)
+    written = write_image(Path(out), res.image, as_float=as_float, meta=meta)
     return {"burst": str(burst_dir), **written, **res.report()}
 
 
@@ -232,7 +210,7 @@ def run_compare(args: argparse.Namespace) -> int:
             use_prior=not args.no_prior,
             config=RobustConfig(blur_sigma=args.blur_sigma),
         )
-        entry = _write_image(
+        entry = write_image(
             out / f"{method}.tif",
             res.image,
             as_float=args.float,

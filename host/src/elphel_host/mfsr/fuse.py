@@ -12,7 +12,7 @@ from __future__ import annotations
 import resource
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -79,14 +79,14 @@ def peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _bayer_luma(mosaic: F32) -> F32:
+def bayer_luma(mosaic: F32) -> F32:
     """2x2-cell mean: a half-resolution luminance for registration."""
     h, w = mosaic.shape
     a = mosaic[: h // 2 * 2, : w // 2 * 2]
     return np.asarray(a.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3)), dtype=np.float32)
 
 
-def _sites(bayer: str) -> dict[str, list[tuple[int, int]]]:
+def bayer_sites(bayer: str) -> dict[str, list[tuple[int, int]]]:
     out: dict[str, list[tuple[int, int]]] = {"R": [], "G": [], "B": []}
     for idx, c in enumerate(bayer):
         out[c].append((idx // 2, idx % 2))
@@ -143,35 +143,61 @@ def fuse_frames(
         img = _bicubic(fl[0], scale, bayer)
         regs = [FrameRegistration(0, (0.0, 0.0), 1.0, "reference", True)]
         return FusionResult(img, method, regs, [], time.perf_counter() - t0)
-    if bayer is None:
-        regs = register_frames(fl, prior=prior, min_correlation=min_correlation)
-    else:
-        half = None if prior is None else [(a / 2, b / 2) for a, b in prior]
-        regs = register_frames(
-            [_bayer_luma(f) for f in fl], prior=half, min_correlation=min_correlation
-        )
-        regs = [
-            FrameRegistration(
-                r.index,
-                None if r.shift is None else (2 * r.shift[0], 2 * r.shift[1]),
-                r.correlation,
-                r.initial,
-                r.ok,
-                r.reason,
-            )
-            for r in regs
-        ]
-    used = [r.index for r in regs if r.ok]
+    lumas = fl if bayer is None else [bayer_luma(f) for f in fl]
+    regs = register_lumas(
+        lumas, mosaic=bayer is not None, prior=prior, min_correlation=min_correlation
+    )
+    img, info = fuse_registered(fl, regs, scale=scale, method=method, bayer=bayer, config=config)
     excluded = [r.index for r in regs if not r.ok]
+    return FusionResult(img, method, regs, excluded, time.perf_counter() - t0, info)
+
+
+def register_lumas(
+    lumas: Sequence[F32],
+    *,
+    mosaic: bool,
+    prior: Sequence[tuple[float, float]] | None = None,
+    min_correlation: float = 0.5,
+) -> list[FrameRegistration]:
+    """Register frames to the first; for Bayer mosaics their `bayer_luma` images.
+
+    A mosaic's luminance has half its resolution: the prior (full-resolution px) is halved
+    for registration and the shifts found are doubled back.
+    """
+    if not mosaic:
+        return register_frames(lumas, prior=prior, min_correlation=min_correlation)
+    half = None if prior is None else [(a / 2, b / 2) for a, b in prior]
+    regs = register_frames(lumas, prior=half, min_correlation=min_correlation)
+    return [
+        replace(r, shift=None if r.shift is None else (2 * r.shift[0], 2 * r.shift[1]))
+        for r in regs
+    ]
+
+
+def fuse_registered(
+    frames: Sequence[F32],
+    regs: Sequence[FrameRegistration],
+    *,
+    scale: int,
+    method: str,
+    bayer: str | None,
+    config: RobustConfig = DEFAULT_CONFIG,
+) -> tuple[F32, dict[str, Any]]:
+    """Fuse registered float32 frames (the frames whose registration is ok) with a method.
+
+    Returns the image (RGB for a Bayer burst) and the method's details.
+    """
+    fl = list(frames)
+    used = [r.index for r in regs if r.ok]
     shifts = [regs[i].shift for i in used]
     info: dict[str, Any] = {}
+    img: NDArray[Any]
     if method == "baseline":
         if bayer is None:
             img, binfo = fuse_baseline([fl[i] for i in used], scale=scale)
         else:
             planes = []
-            for c, sites in _sites(bayer).items():
-                del c
+            for sites in bayer_sites(bayer).values():
                 # each colour: bilinear demosaic of that plane, then the published method
                 ch = [_demosaic_plane(fl[i], sites) for i in used]
                 planes.append(fuse_baseline(ch, scale=scale)[0])
@@ -189,7 +215,7 @@ def fuse_frames(
         info.update(rinfo)
     else:
         planes = []
-        for sites in _sites(bayer).values():
+        for sites in bayer_sites(bayer).values():
             pf: list[F32] = []
             ps: list[tuple[float, float]] = []
             for i, s in zip(used, shifts, strict=True):
@@ -201,9 +227,7 @@ def fuse_frames(
             planes.append(plane)
             info.setdefault("noise_sigma_rgb", []).append(rinfo["noise_sigma"])
         img = np.stack(planes, axis=-1)
-    return FusionResult(
-        np.asarray(img, np.float32), method, regs, excluded, time.perf_counter() - t0, info
-    )
+    return np.asarray(img, np.float32), info
 
 
 def _demosaic_plane(mosaic: F32, sites: list[tuple[int, int]]) -> F32:
@@ -223,7 +247,7 @@ def _bicubic(frame: F32, scale: int, bayer: str | None) -> F32:
     if bayer is None:
         planes = [frame]
     else:
-        planes = [_demosaic_plane(frame, s) for s in _sites(bayer).values()]
+        planes = [_demosaic_plane(frame, s) for s in bayer_sites(bayer).values()]
     up = [cv2.resize(p, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC) for p in planes]
     return np.asarray(up[0] if bayer is None else np.stack(up, axis=-1), dtype=np.float32)
 
