@@ -82,3 +82,22 @@ def test_bad_arguments_name_the_value(burst2):
         fuse_frames(frames, scale=2, method="magic")
     with pytest.raises(ValueError, match="scale=0"):
         fuse_frames(frames, scale=0)
+
+
+@pytest.mark.parametrize("aliases", [1, 4, 9, 16])
+def test_block_solver_matches_a_direct_solve(aliases):
+    from elphel_host.mfsr.forward import _solve_blocks
+
+    rng = np.random.default_rng(aliases)
+    c = rng.normal(size=(20, aliases)) + 1j * rng.normal(size=(20, aliases))
+    g = (c.conj().T @ c).astype(np.complex64)
+    d = rng.uniform(0.1, 1.0, (aliases, 6, 7)).astype(np.float32)
+    mu = rng.uniform(0.01, 1.0, (aliases, 6, 7)).astype(np.float32)
+    b = (rng.normal(size=(aliases, 6, 7)) + 1j * rng.normal(size=(aliases, 6, 7))).astype(
+        np.complex64
+    )
+    x = _solve_blocks(d, g, mu, b)
+    for i, j in [(0, 0), (3, 4), (5, 6)]:
+        m = np.diag(d[:, i, j]) @ g.astype(np.complex128) @ np.diag(d[:, i, j])
+        direct = np.linalg.solve(m + np.diag(mu[:, i, j]), b[:, i, j])
+        assert np.abs(x[:, i, j] - direct).max() <= 1e-5 * np.abs(direct).max()

@@ -13,7 +13,9 @@ when it lands far from every initial guess that was given.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -135,9 +137,9 @@ def register_frames(
     qy, qx = _window(shape, min(window, 256))
     ref = np.ascontiguousarray(frames[0][sy, sx], dtype=np.float32)
     ref_small = np.ascontiguousarray(frames[0][qy, qx], dtype=np.float32)
-    out = [FrameRegistration(0, (0.0, 0.0), 1.0, "reference", True)]
     p0 = prior[0] if prior is not None else (0.0, 0.0)
-    for i in range(1, len(frames)):
+
+    def register_one(i: int) -> FrameRegistration:
         img = np.ascontiguousarray(frames[i][sy, sx], dtype=np.float32)
         img_small = np.ascontiguousarray(frames[i][qy, qx], dtype=np.float32)
         starts: dict[str, tuple[float, float]] = {
@@ -160,31 +162,27 @@ def register_frames(
             fine = ecc_shift(ref, img, best[1], gauss_size=gauss_size)
             best = None if fine is None else (best[0], fine[0], fine[1])
         if best is None:
-            out.append(
-                FrameRegistration(
-                    i, None, 0.0, "", False, "ECC did not converge from any initial guess"
-                )
+            return FrameRegistration(
+                i, None, 0.0, "", False, "ECC did not converge from any initial guess"
             )
-            continue
         name, shift, cc = best
         dist = min(float(np.hypot(shift[0] - s[0], shift[1] - s[1])) for s in starts.values())
         if cc < min_correlation:
-            out.append(
-                FrameRegistration(
-                    i, None, cc, name, False, f"correlation {cc:.3f} < {min_correlation}"
-                )
+            return FrameRegistration(
+                i, None, cc, name, False, f"correlation {cc:.3f} < {min_correlation}"
             )
-        elif dist > max_disagreement_px:
-            out.append(
-                FrameRegistration(
-                    i,
-                    None,
-                    cc,
-                    name,
-                    False,
-                    f"ECC result {dist:.2f} px from every initial guess (> {max_disagreement_px})",
-                )
+        if dist > max_disagreement_px:
+            return FrameRegistration(
+                i,
+                None,
+                cc,
+                name,
+                False,
+                f"ECC result {dist:.2f} px from every initial guess (> {max_disagreement_px})",
             )
-        else:
-            out.append(FrameRegistration(i, shift, cc, name, True))
-    return out
+        return FrameRegistration(i, shift, cc, name, True)
+
+    # Frames are independent and OpenCV releases the GIL: one per core at a time.
+    with ThreadPoolExecutor(max_workers=min(os.cpu_count() or 1, 8)) as pool:
+        rest = list(pool.map(register_one, range(1, len(frames))))
+    return [FrameRegistration(0, (0.0, 0.0), 1.0, "reference", True), *rest]

@@ -308,16 +308,25 @@ def reconstruct(
     solver = FourierSolver(model, [tuple(v) for v in frac], lam=lam)
     t0_start = solver.t[0].copy()
 
+    # The robust passes need every padded frame again: kept (memory grows by the input
+    # size, N LR frames, not by N x the output size).
+    padded: dict[int, tuple[F32, NDArray[np.bool_]]] = {}
+
     def frame_k(k: int) -> tuple[F32, NDArray[np.bool_]]:
+        if k in padded:
+            return padded[k]
         f, v = _aligned(
             np.asarray(frames[k], np.float32),
             ref,
             (int(n_int[k, 0]), int(n_int[k, 1])),
         )
-        return (
+        out = (
             np.asarray(_padded(f, pads, mode="reflect"), np.float32),
             np.asarray(_padded(v, pads, mode="zero"), bool),
         )
+        if config.passes:
+            padded[k] = out
+        return out
 
     ks = list(range(len(frames)))
     for start in range(0, len(ks), 4):
