@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 
 import numpy as np
 import pytest
@@ -112,7 +113,10 @@ def test_several_bursts_in_parallel(tmp_path, burst2, capsys):
         dn = [np.clip(np.rint(f * 4000), 0, 65535).astype(np.uint16) for f in frames[sl]]
         dirs.append(str(write_burst(tmp_path / name, dn)))
     out = tmp_path / "out"
+    environ = dict(os.environ)
     assert main(["mfsr", *dirs, "--scale", "2", "--out", str(out), "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
     assert [b["used"] for b in r["bursts"]] == [6, 6]
     assert (out / "a.tif").is_file() and (out / "b.tif").is_file()
+    # The local cluster's single-threaded BLAS settings do not stay in this process.
+    assert dict(os.environ) == environ

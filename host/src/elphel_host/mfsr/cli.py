@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -158,6 +159,10 @@ def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
         )
     outs = [str(out_dir / f"{n}.tif") for n in names]
     cluster = None
+    # A local cluster's nannies set OMP/MKL/OPENBLAS_NUM_THREADS=1 (and more) in this
+    # process's environment for their workers; put it back afterwards, so that processes
+    # started later from here do not inherit single-threaded BLAS.
+    environ = dict(os.environ)
     if args.scheduler:
         client = Client(args.scheduler)
     else:
@@ -183,6 +188,8 @@ def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
         client.close()
         if cluster is not None:
             cluster.close()
+        os.environ.clear()
+        os.environ.update(environ)
 
 
 def _crop(image: NDArray[np.float32], size: int) -> NDArray[np.float32]:
