@@ -35,6 +35,7 @@ import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 import scipy.fft as sfft
@@ -43,11 +44,27 @@ from numpy.typing import NDArray
 F32 = NDArray[np.float32]
 C64 = NDArray[np.complex64]
 F64 = NDArray[np.float64]
+_T = TypeVar("_T")
 
 # A frame source: index -> (aligned LR frame float32, validity mask bool or None)
 FrameSource = Callable[[int], tuple[F32, NDArray[np.bool_] | None]]
 
 _CHUNK_FRAMES = 4
+_THREADS = min(os.cpu_count() or 1, 8)
+
+
+def parallel_map(fn: Callable[[Any], _T], items: Sequence[Any]) -> list[_T]:
+    """``fn`` over ``items`` on every core, results in order.
+
+    NumPy's element-wise work, SciPy's FFTs and OpenCV release the GIL, so threads run
+    truly in parallel on large arrays.
+    """
+    if _THREADS == 1 or len(items) < 2:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(max_workers=min(_THREADS, len(items))) as pool:
+        return list(pool.map(fn, items))
+
+
 _SOLVE_ROWS = 128
 
 
@@ -185,9 +202,9 @@ class FourierSolver:
         rx = np.exp(-2j * np.pi * self._vx * tx / Nx).astype(np.complex64)
         return ry, rx
 
-    def frame_term(self, k: int, frame: F32) -> C64:
+    def frame_term(self, k: int, frame: F32, *, workers: int = -1) -> C64:
         """FFT of a frame times its frequency ramp (P_k in the module notes)."""
-        spec = sfft.rfft2(frame, workers=-1)
+        spec = sfft.rfft2(frame, workers=workers)
         ry, rx = self._ramps(k)
         spec *= ry[:, None]
         spec *= rx[None, :]
@@ -198,12 +215,9 @@ class FourierSolver:
         ny, nxh = self.model.lr_shape[0], self.nxh
         for start in range(0, len(ks), _CHUNK_FRAMES):
             idx = list(ks[start : start + _CHUNK_FRAMES])
-            P = np.stack(
-                [
-                    self.frame_term(k, f)
-                    for k, f in zip(idx, frames[start : start + _CHUNK_FRAMES], strict=True)
-                ]
-            )
+            pairs = list(zip(idx, frames[start : start + _CHUNK_FRAMES], strict=True))
+            # one frame per core, each FFT on one thread
+            P = np.stack(parallel_map(lambda kf: self.frame_term(*kf, workers=1), pairs))
             coef = (sign * self.C[idx]).T  # (A, k)
             self.rhs += (coef @ P.reshape(len(idx), -1)).reshape(-1, ny, nxh)
 
@@ -231,9 +245,7 @@ class FourierSolver:
             mu = np.float32(self.lam) * s2 * l_all[:, r0:r1]
             out[:, r0:r1] = _solve_blocks(D, g, mu, s2 * D * self.rhs[:, r0:r1])
 
-        # NumPy's element-wise work releases the GIL: row bands run on every core
-        with ThreadPoolExecutor(max_workers=min(os.cpu_count() or 1, 8)) as pool:
-            list(pool.map(rows, range(0, ny, _SOLVE_ROWS)))
+        parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
         return out
 
     def to_image(self, X: C64, *, shift_hr: tuple[float, float] = (0.0, 0.0)) -> F32:
@@ -334,6 +346,7 @@ def refine_and_pseudo(
     huber: float,
     sigma: float,
     refine: bool,
+    workers: int = -1,
 ) -> tuple[F32, tuple[float, float], F32]:
     """One frame's robust step: refine its shift against the model, then clip its residual.
 
@@ -350,7 +363,7 @@ def refine_and_pseudo(
     q = (ck @ spectra.Z).reshape(ny, nxh)
     q *= ryc
     q *= rxc
-    pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=-1), dtype=np.float32)
+    pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
     del q
     dt = (0.0, 0.0)
     if refine:
@@ -359,8 +372,8 @@ def refine_and_pseudo(
         for g in (gy, gx):
             g *= ryc
             g *= rxc
-        dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=-1), dtype=np.float32).ravel()
-        dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=-1), dtype=np.float32).ravel()
+        dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
+        dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
         del gy, gx
         r = (frame - pred).ravel()
         w = (valid.ravel() & (np.abs(r) <= huber * sigma)).astype(np.float32)

@@ -27,7 +27,13 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import ForwardModel, FourierSolver, ModelSpectra, refine_and_pseudo
+from elphel_host.mfsr.forward import (
+    ForwardModel,
+    FourierSolver,
+    ModelSpectra,
+    parallel_map,
+    refine_and_pseudo,
+)
 
 F32 = NDArray[np.float32]
 
@@ -340,9 +346,10 @@ def reconstruct(
         del X
         solver.reset()
         mads: list[float] = []
-        buf_k: list[int] = []
-        buf_f: list[F32] = []
-        for k in ks:
+
+        def robust_step(
+            k: int, spectra: ModelSpectra = spectra, sigma: float = sigma
+        ) -> tuple[F32, tuple[float, float], float]:
             f, v = frame_k(k)
             pseudo, dt, r = refine_and_pseudo(
                 solver,
@@ -353,18 +360,22 @@ def reconstruct(
                 huber=config.huber,
                 sigma=sigma,
                 refine=refine_here,
+                workers=1,
             )
             sub = np.abs(r[::3, ::3][v[::3, ::3]])
-            mads.append(float(np.median(sub)) if sub.size else 0.0)
-            if dt[0] or dt[1]:
-                solver.move(k, dt)
-            # frames are added in chunks (one matrix product each); a frame's own shift
-            # is final once refined, the others' are not used by its spectrum
-            buf_k.append(k)
-            buf_f.append(pseudo)
-            if len(buf_k) == 4 or k == ks[-1]:
-                solver.add_frames(buf_k, buf_f)
-                buf_k, buf_f = [], []
+            return pseudo, dt, float(np.median(sub)) if sub.size else 0.0
+
+        # A frame's step reads only its own shift and the model of the previous solve, so
+        # the frames of a chunk run on every core; they are added in chunks (one matrix
+        # product each) once their refined shifts are in.
+        for start in range(0, len(ks), 4):
+            chunk = ks[start : start + 4]
+            steps = parallel_map(robust_step, chunk)
+            for k, (_, dt, mad) in zip(chunk, steps, strict=True):
+                mads.append(mad)
+                if dt[0] or dt[1]:
+                    solver.move(k, dt)
+            solver.add_frames(chunk, [pseudo for pseudo, _, _ in steps])
         if config.noise_sigma is None:
             # the residual spread sets the clipping level only: with few frames per
             # unknown it under-estimates the noise, so it must not weaken the prior
