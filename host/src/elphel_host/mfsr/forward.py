@@ -35,6 +35,7 @@ import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, TypeVar
 
 import numpy as np
@@ -212,14 +213,21 @@ class FourierSolver:
 
     def add_frames(self, ks: Sequence[int], frames: Sequence[F32], *, sign: float = 1.0) -> None:
         """Add (or with sign=-1 remove) frames' contributions to the right-hand side."""
-        ny, nxh = self.model.lr_shape[0], self.nxh
         for start in range(0, len(ks), _CHUNK_FRAMES):
             idx = list(ks[start : start + _CHUNK_FRAMES])
             pairs = list(zip(idx, frames[start : start + _CHUNK_FRAMES], strict=True))
             # one frame per core, each FFT on one thread
-            P = np.stack(parallel_map(lambda kf: self.frame_term(*kf, workers=1), pairs))
-            coef = (sign * self.C[idx]).T  # (A, k)
-            self.rhs += (coef @ P.reshape(len(idx), -1)).reshape(-1, ny, nxh)
+            spectra = parallel_map(lambda kf: self.frame_term(*kf, workers=1), pairs)
+            coef = sign * self.C[idx]  # (k, A)
+            # memory-bound and in place: one alias per core
+            parallel_map(partial(self._accumulate, spectra, coef), range(len(self.offsets)))
+
+    def _accumulate(self, spectra: Sequence[C64], coef: C64, a: int) -> None:
+        """rhs[a] += sum_k coef[k, a] P_k without temporaries of the whole stack."""
+        rhs, term = self.rhs[a], np.empty_like(spectra[0])
+        for j, spec in enumerate(spectra):
+            np.multiply(spec, coef[j, a], out=term)
+            rhs += term
 
     # -- solve ---------------------------------------------------------------------------
     def _block_factors(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
