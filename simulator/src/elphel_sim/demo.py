@@ -3,7 +3,8 @@
 Starts a simulated rig with `elphel-sim up` and drives it only through what a user has:
 the `elphel` CLI and the REST API. Steps: detect the sensor and capture a frame; home and
 calibrate the stage and check it against the simulator's truth; capture a sub-pixel burst
-and fuse it; render a quad set and compute its disparity map. Everything goes under
+and fuse it; capture one trigger-synchronised set from the simulated quad camera
+(`elphel-sim up --scenario quad`) and compute its disparity map. Everything goes under
 ``out/`` with a summary a person can read (``summary.json`` and the printed lines).
 """
 
@@ -36,10 +37,11 @@ class DemoError(RuntimeError):
 
 
 @contextmanager
-def simulated_rig(*, seed: int) -> Iterator[dict[str, Any]]:
+def simulated_rig(*, seed: int, scenario: str = "default") -> Iterator[dict[str, Any]]:
     """Run `elphel-sim up --json` in a child process; yield its announcement."""
+    command = ["up", "--json", "--seed", str(seed), "--scenario", scenario]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "elphel_sim.cli", "up", "--json", "--seed", str(seed)],
+        [sys.executable, "-m", "elphel_sim.cli", *command],
         stdout=subprocess.PIPE,
         text=True,
     )
@@ -379,34 +381,52 @@ def colour_map(values: NDArray[np.floating], lo: float, hi: float) -> NDArray[np
 
 
 def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
+    """The quad camera of the simulator: one synchronised set captured, then its DSI."""
     from elphel_host.tp.io import read_dsi
-    from elphel_sim.quad import QuadRig, simulate_quad_dir
 
-    step("quad: rendering four 2592x1936 Bayer images of planes at known distances")
-    rig = QuadRig()
-    quad_dir, truth = simulate_quad_dir(out / "quad", rig, seed=seed)
+    step("starting the simulated quad camera (elphel-sim up --scenario quad)")
+    with simulated_rig(seed=seed, scenario="quad") as rig:
+        scene = httpx.get(f"{rig['sim_url']}/quad", timeout=30).json()
+        geometry = out / "quad-geometry.json"
+        geometry.write_text(json.dumps(scene, indent=1) + "\n")
+        step("quad: capturing four 2592x1944 Bayer frames of one trigger (elphel tp capture)")
+        quad_dir = out / "quad"
+        camera = ["--camera", rig["camera_url"], "--token", rig["token"]]
+        capture = elphel(
+            "tp", "capture", *camera, "--geometry", str(geometry), "--out", str(quad_dir), "--force"
+        )
+        frames = ", ".join(f"port {p} #{f}" for p, f in capture["frames"].items())
+        step(
+            f"quad: one trigger at t={capture['timestamp_ns']} ns ({frames}) in "
+            f"{capture['seconds']:.1f} s -> {quad_dir}"
+        )
+        truth = httpx.get(f"{rig['sim_url']}/quad/truth", timeout=120).json()
     dsi_path = out / "dsi.tif"
     result = elphel("tp", str(quad_dir), "--out", str(dsi_path))
     layers, _ = read_dsi(dsi_path)
     disparity, strength = layers["disparity"], layers["strength"]
-    err = disparity - truth.disparity
+    true_disparity = np.asarray(truth["disparity"], dtype=np.float64)
+    label = np.asarray(truth["label"])
+    interior, textured_tiles = np.asarray(truth["interior"]), np.asarray(truth["textured"])
+    depth_mm = {r["name"]: r["depth_mm"] for r in scene["regions"]}
+    err = disparity - true_disparity
     regions: dict[str, Any] = {}
-    for index, name in enumerate(truth.names):
-        mask = (truth.label == index) & truth.interior & truth.textured
+    for index, name in enumerate(truth["names"]):
+        mask = (label == index) & interior & textured_tiles
         if mask.any():
-            true_d = float(np.median(truth.disparity[mask]))
+            true_d = float(np.median(true_disparity[mask]))
             regions[name] = {
                 "tiles": int(mask.sum()),
                 "true_disparity_px": round(true_d, 3),
-                "depth_m": round(rig.depth_mm(true_d) / 1000, 1) if true_d > 0 else None,
+                "depth_m": round(depth_mm[name] / 1000, 1) if name in depth_mm else None,
                 "rms_error_px": round(float(np.sqrt(np.mean(err[mask] ** 2))), 4),
             }
-    textured = truth.interior & truth.textured
+    textured = interior & textured_tiles
     rms_all = float(np.sqrt(np.mean(err[textured] ** 2)))
     shown = np.where(strength > 0.15, disparity, np.nan)
     picture = colour_map(shown, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
     Image.fromarray(picture).save(out / "disparity.png")
-    truth_picture = colour_map(truth.disparity, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
+    truth_picture = colour_map(true_disparity, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
     Image.fromarray(truth_picture).save(out / "disparity-truth.png")
     step(
         f"quad: DSI {result['tiles_x']}x{result['tiles_y']} tiles in {result['seconds']:.2f} s; "
