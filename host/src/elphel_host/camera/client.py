@@ -339,6 +339,12 @@ class Camera:
         ``changes`` is a parameter dict for ``port``, or ``{port: {...}, ...}`` for several
         ports. If a port's change fails, the ports already changed are restored before the
         error is raised. Yields ``{port: Applied}``.
+
+        Ports are restored in reverse order, each as soon as the previous one is accepted,
+        not once it is in effect. A port in snapshot mode takes a change only at its next
+        trigger, so do not restore a common trigger in the same block as the ports that
+        wait for it: nest two blocks (trigger outside) and wait in between, as
+        ``elphel tp capture`` does.
         """
         per_port: dict[int, dict[str, int]] = {}
         for key, value in changes.items():
