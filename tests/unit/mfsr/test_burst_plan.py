@@ -52,3 +52,17 @@ def test_plan_rejects(kw, needle):
     args.update(kw)
     with pytest.raises(ValueError, match=needle):
         plan_burst(**args)
+
+
+def test_bayer_plan_visits_every_phase_of_the_2px_period():
+    p = plan_burst(scale=2, focal_length_mm=35, pixel_pitch_um=2.2, distance_mm=500, bayer=True)
+    assert p.bayer and p.period_px == 2 and p.frames == 16
+    assert math.tan(math.radians(p.tilt_deg)) == pytest.approx(0.25)
+    shifts = np.asarray(p.shifts_px)
+    assert np.allclose(np.diff(shifts[:, 1]), 0.5, atol=1e-4)  # 1/S px along x
+    ph = np.asarray(p.phases)
+    assert ph.max() < 2 and sorted({round(v * 2) for v in ph[:, 1]}) == [0, 1, 2, 3]
+    assert len({(round(a, 3), round(b, 3)) for a, b in ph}) == 16
+    assert any("Bayer" in n for n in p.notes)
+    mono = plan_burst(scale=2, focal_length_mm=35, pixel_pitch_um=2.2, distance_mm=500)
+    assert not mono.bayer and any("--bayer" in n for n in mono.notes)

@@ -101,3 +101,39 @@ def test_block_solver_matches_a_direct_solve(aliases):
         m = np.diag(d[:, i, j]) @ g.astype(np.complex128) @ np.diag(d[:, i, j])
         direct = np.linalg.solve(m + np.diag(mu[:, i, j]), b[:, i, j])
         assert np.abs(x[:, i, j] - direct).max() <= 1e-5 * np.abs(direct).max()
+
+
+def test_bayer_plan_beats_the_mono_plan_on_a_bayer_burst():
+    # Measured with these 16 frames (256 px astronaut, x2): R +3.0, G +2.0, B +2.7 dB.
+    import skimage.data
+
+    from elphel_host.burst.plan import plan_burst
+
+    rgb = cv2.resize(
+        skimage.data.astronaut().astype(np.float32) / 255, (256, 256), interpolation=cv2.INTER_AREA
+    )
+
+    def mosaics(shifts):
+        per = [make_burst(rgb[..., c], shifts, scale=2, noise_sigma=0.01, seed=c) for c in range(3)]
+        out = []
+        for k in range(len(shifts)):
+            m = np.empty_like(per[0][k])  # GRBG
+            m[0::2, 0::2] = per[1][k][0::2, 0::2]
+            m[0::2, 1::2] = per[0][k][0::2, 1::2]
+            m[1::2, 0::2] = per[2][k][1::2, 0::2]
+            m[1::2, 1::2] = per[1][k][1::2, 1::2]
+            out.append(m)
+        return out
+
+    scores = {}
+    for bayer in (False, True):
+        plan = plan_burst(
+            scale=2, focal_length_mm=35, pixel_pitch_um=2.2, distance_mm=500, frames=16, bayer=bayer
+        )
+        img = fuse_frames(mosaics(plan.shifts_px), scale=2, method="robust", bayer="GRBG").image
+        scores[bayer] = [
+            psnr(rgb[..., c], img[..., c], data_range=1.0, border=16) for c in range(3)
+        ]
+    gain = np.subtract(scores[True], scores[False])
+    assert gain[0] >= 2.0 and gain[2] >= 2.0, gain  # red, blue: their 2 px period covered
+    assert gain[1] >= 1.0, gain

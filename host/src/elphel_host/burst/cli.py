@@ -24,7 +24,7 @@ def register(subparsers: Any) -> None:
         "plan",
         help="stage positions giving the sub-pixel phases a scale needs",
         description="Positions along the stage axis for a x S burst, the "
-        "recommended mount tilt (tan theta = 1/S) and the parallax limit.",
+        "recommended mount tilt (tan theta = 1/S; 1/(2S) with --bayer) and the parallax limit.",
     )
     pl.add_argument("--scale", type=int, required=True, metavar="S")
     pl.add_argument("--focal-length-mm", type=float, required=True, metavar="F")
@@ -37,7 +37,15 @@ def register(subparsers: Any) -> None:
         help="distance of the object plane from the lens",
     )
     pl.add_argument("--mm-per-step", type=float, metavar="M", help="round to whole stage steps")
-    pl.add_argument("--frames", type=int, metavar="N", help="number of frames (default S*S)")
+    pl.add_argument(
+        "--frames", type=int, metavar="N", help="number of frames (default S*S, Bayer (2S)^2)"
+    )
+    pl.add_argument(
+        "--bayer",
+        action="store_true",
+        help="plan for a Bayer sensor: the phases of each colour's 2 px period "
+        "(tan theta = 1/(2S))",
+    )
     pl.add_argument("--out", metavar="plan.json", help="save the plan as JSON")
     pl.add_argument("--json", action="store_true", help="print one JSON object")
     pl.set_defaults(func=run_plan)
@@ -52,13 +60,15 @@ def run_plan(args: argparse.Namespace) -> int:
         distance_mm=args.distance_mm,
         mm_per_step=args.mm_per_step,
         frames=args.frames,
+        bayer=args.bayer,
     )
     result = plan.to_json()
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
         result["out"] = str(args.out)
     lines = [
-        f"x{plan.scale} burst, {plan.frames} frames, {plan.px_per_mm:.2f} px/mm at the "
+        f"x{plan.scale} {'Bayer ' if plan.bayer else ''}burst, {plan.frames} frames, "
+        f"{plan.px_per_mm:.2f} px/mm at the "
         f"object plane, travel {plan.travel_mm:.4f} mm"
     ]
     for i, (p, sh) in enumerate(zip(plan.positions_mm, plan.shifts_px, strict=True)):

@@ -8,6 +8,12 @@ that the axis makes an angle theta with the rows, tan(theta) = 1/S, turns the 1-
 into 2-D sampling: steps of 1/S px along x move y by 1/S^2 px, so S^2 steps visit S^2
 distinct (x, y) phases. Objects at other depths shift by other amounts (parallax): their
 phases differ from the plan, and they move relative to the plane by the depth ratio.
+
+A Bayer sensor samples each colour every 2 px: red and blue (and each green site) need
+the phases of a 2 px period, (2S)^2 of them. The Bayer plan is the same construction on
+that period: tan(theta) = 1/(2S), steps of 1/S px along x, (2S)^2 frames by default.
+On a simulated x2 Bayer burst of 16 frames it gave red and blue about 4 dB more than the
+mono plan with the same frames (docs/mfsr.md).
 """
 
 from __future__ import annotations
@@ -23,6 +29,8 @@ class BurstPlan:
 
     scale: int
     frames: int
+    bayer: bool
+    period_px: int
     px_per_mm: float
     tilt_deg: float
     positions_mm: list[float]
@@ -45,6 +53,7 @@ def plan_burst(
     distance_mm: float,
     mm_per_step: float | None = None,
     frames: int | None = None,
+    bayer: bool = False,
 ) -> BurstPlan:
     """Stage positions of a burst for super-resolution by ``scale``.
 
@@ -58,13 +67,17 @@ def plan_burst(
         Stage resolution; positions are rounded to whole steps and the phases reported
         are those of the rounded positions.
     frames
-        Number of frames (default S^2, the fewest that visit every phase).
+        Number of frames (default S^2, or (2S)^2 for Bayer: the fewest that visit every
+        phase).
+    bayer
+        Plan for a Bayer sensor: the phases of each colour's 2 px period.
 
     Returns
     -------
     BurstPlan
         Positions along the axis (mm, first at 0), image shifts (dy, dx) px with the
-        recommended tilt, their phases modulo 1 px, the depth tolerance and notes.
+        recommended tilt, their phases modulo the period (1 px, 2 px for Bayer), the
+        depth tolerance and notes.
     """
     if not isinstance(scale, int) or not 2 <= scale <= 8:
         raise ValueError(f"scale={scale!r}; allowed: an integer 2..8")
@@ -82,13 +95,16 @@ def plan_burst(
         )
     if mm_per_step is not None and not (math.isfinite(mm_per_step) and mm_per_step > 0):
         raise ValueError(f"mm_per_step={mm_per_step!r}; allowed: a number > 0")
-    n = scale * scale if frames is None else frames
+    period = 2 if bayer else 1
+    lattice = period * scale  # phases per period and axis
+    n = lattice * lattice if frames is None else frames
     if not isinstance(n, int) or not 2 <= n <= 1024:
         raise ValueError(f"frames={frames!r}; allowed: an integer 2..1024")
     px_per_mm = focal_length_mm / (distance_mm - focal_length_mm) * 1000.0 / pixel_pitch_um
-    theta = math.atan(1.0 / scale)
-    # x advances S/n px per frame: S^2 frames -> steps of 1/S px, y = x / S
-    step_x = scale / n
+    theta = math.atan(1.0 / lattice)
+    # x advances period * lattice / n px per frame: lattice^2 frames -> steps of 1/S px
+    # (period/lattice), y = x / lattice
+    step_x = period * lattice / n
     along_px = [i * step_x / math.cos(theta) for i in range(n)]
     positions = [a / px_per_mm for a in along_px]
     steps = None
@@ -106,7 +122,7 @@ def plan_burst(
         if len(set(steps)) < len(steps):
             notes.append("several frames round to the same step: duplicated phases")
     shifts = [[p * px_per_mm * math.sin(theta), p * px_per_mm * math.cos(theta)] for p in positions]
-    phases = [[round(v % 1.0, 4) for v in s] for s in shifts]
+    phases = [[round(v % period, 4) for v in s] for s in shifts]
     travel = max(positions) - min(positions)
     travel_px = travel * px_per_mm
     # depth error dZ changes the shift by travel_px * dZ / (Z - f); keep it under 1/(4S) px
@@ -115,15 +131,29 @@ def plan_burst(
         "one linear axis moves the image along one direction only: with the axis parallel "
         "to the sensor rows, only x phases change and the gain in y is lost",
         f"mount the camera so that the stage axis makes theta = {math.degrees(theta):.2f} deg "
-        f"(tan theta = 1/{scale}) with the sensor rows: the 1-D motion then samples 2-D phases",
+        f"(tan theta = 1/{lattice}) with the sensor rows: the 1-D motion then samples 2-D "
+        "phases",
         f"parallax: only the plane at {distance_mm:g} mm gets these phases; objects more than "
         f"about {depth_tol:.1f} mm nearer or farther shift by > 1/(4*{scale}) px differently "
         "over the burst, and objects at other depths move relative to this plane "
         "(registration follows the dominant plane)",
     ]
+    if bayer:
+        notes.append(
+            "Bayer: each colour is sampled every 2 px, so the phases cover a 2 px period "
+            f"({lattice}x{lattice} of them); the travel is {period}x that of a mono plan with "
+            "the same frames, and the parallax limit tighter by as much"
+        )
+    else:
+        notes.append(
+            "for a Bayer sensor use --bayer: a mono plan gives each colour only some of "
+            "the phases of its 2 px period"
+        )
     return BurstPlan(
         scale=scale,
         frames=n,
+        bayer=bayer,
+        period_px=period,
         px_per_mm=px_per_mm,
         tilt_deg=math.degrees(theta),
         positions_mm=positions,
