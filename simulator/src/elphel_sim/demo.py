@@ -289,10 +289,11 @@ def burst_step(
         f"{DISTANCE_MM}",
         "--mm-per-step",
         f"{stage['mm_per_step']}",
+        "--bayer",
         "--out",
         str(plan_path),
     )
-    step(f"burst: x{SCALE} plan, {plan['frames']} frames over {plan['travel_mm']:.3f} mm")
+    step(f"burst: x{SCALE} Bayer plan, {plan['frames']} frames over {plan['travel_mm']:.3f} mm")
     burst = out / "burst"
     # `burst capture` resumes a directory of the same plan and refuses another plan's;
     # each demo run captures a new burst from a new simulated rig

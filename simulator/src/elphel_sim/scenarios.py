@@ -64,7 +64,8 @@ def tilted_mount(name: str, tilt_deg: float) -> CameraMount:
 def default(seed: int) -> Scenario:
     """The burst rig: an MT9P006 on the stage carriage, 1 m in front of a textured wall.
 
-    The camera is rolled by atan(1/2) for x2 bursts, and the wall's texture has detail
+    The camera is rolled by atan(1/4), the tilt `elphel burst plan --bayer` asks for at
+    x2 (its Bayer sensor samples each colour every 2 px), and the wall's texture has detail
     down to about 1.6 px, finer than the sensor resolves alone.
     """
     wall = Plane(
@@ -72,7 +73,7 @@ def default(seed: int) -> Scenario:
         origin=(0.0, 0.0, 1000.0),
         albedo_rgb=(0.9, 1.0, 0.8),
     )
-    mount = tilted_mount("cam0", math.degrees(math.atan(1 / 2)))
+    mount = tilted_mount("cam0", math.degrees(math.atan(1 / 4)))
     world = World(Scene([wall]), Rig(axis=(1.0, 0.0, 0.0), mounts={"cam0": mount}))
     return Scenario(world, [PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5), LAB_LIGHT)])
 
