@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from elphel_host.burst.io import MANIFEST, VERSION
+from elphel_host.camera.cli import add_camera_options
 from elphel_host.camera.client import CameraClient
 from elphel_host.errors import InputFormatError
 from elphel_host.stage.positioning import MoveResult, Positioner, StageModel
@@ -203,12 +204,7 @@ def add_capture_parser(sub: Any) -> None:
         "the fused image (what 'elphel mfsr OUT --scale S --method M --out FUSED' gives) is "
         "written moments after the last frame; a fusion failure keeps the frames and exits 1.",
     )
-    cp.add_argument(
-        "--camera", default=os.environ.get("ELPHEL_CAMERA_URL"), help="camera daemon URL"
-    )
-    cp.add_argument(
-        "--token", default=os.environ.get("ELPHEL_CAMERA_TOKEN"), help="camera bearer token"
-    )
+    add_camera_options(cp)
     cp.add_argument(
         "--stage", default=os.environ.get("ELPHEL_STAGE_URL"), help="stage pyserial URL"
     )

@@ -12,18 +12,28 @@ from typing import Any
 from elphel_host.camera.client import Camera, CameraEvent
 
 
-def register(sub: Any) -> None:
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument(
-        "--url",
+def add_camera_options(parser: Any, *, flag: str = "--camera") -> None:
+    """The camera daemon's URL (``flag``) and bearer token, defaulting to the environment.
+
+    Every command that talks to the daemon takes them this way: ``ELPHEL_CAMERA_URL`` and
+    ``ELPHEL_CAMERA_TOKEN``.
+    """
+    parser.add_argument(
+        flag,
         default=os.environ.get("ELPHEL_CAMERA_URL"),
-        help="daemon URL (env ELPHEL_CAMERA_URL)",
+        metavar="URL",
+        help="camera daemon URL (env ELPHEL_CAMERA_URL)",
     )
-    common.add_argument(
+    parser.add_argument(
         "--token",
         default=os.environ.get("ELPHEL_CAMERA_TOKEN"),
         help="bearer token (env ELPHEL_CAMERA_TOKEN)",
     )
+
+
+def register(sub: Any) -> None:
+    common = argparse.ArgumentParser(add_help=False)
+    add_camera_options(common, flag="--url")
     common.add_argument("--json", action="store_true", help="print one JSON object")
     ported = argparse.ArgumentParser(add_help=False)
     ported.add_argument("--port", type=int, default=0, help="sensor port (default 0)")

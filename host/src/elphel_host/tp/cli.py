@@ -8,7 +8,6 @@ place of QUAD_DIR selects the capture (write ``./capture`` for a directory of th
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -16,6 +15,7 @@ from typing import Any
 import numpy as np
 import tifffile
 
+from elphel_host.camera.cli import add_camera_options
 from elphel_host.camera.client import Camera
 from elphel_host.cli import emit
 from elphel_host.tp.capture import DEFAULT_TRIGGER_PERIOD_MS, capture_quad, read_layout
@@ -52,17 +52,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     cap = p.add_argument_group("capture (elphel tp capture ...)")
-    cap.add_argument(
-        "--camera",
-        default=os.environ.get("ELPHEL_CAMERA_URL"),
-        metavar="URL",
-        help="camera daemon URL (env ELPHEL_CAMERA_URL)",
-    )
-    cap.add_argument(
-        "--token",
-        default=os.environ.get("ELPHEL_CAMERA_TOKEN"),
-        help="bearer token (env ELPHEL_CAMERA_TOKEN)",
-    )
+    add_camera_options(cap)
     cap.add_argument(
         "--geometry",
         metavar="FILE",
