@@ -31,39 +31,24 @@ system solved again.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, TypeVar
 
 import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
+from elphel_host.mfsr.parallel import parallel_map
+
 F32 = NDArray[np.float32]
 C64 = NDArray[np.complex64]
 F64 = NDArray[np.float64]
-_T = TypeVar("_T")
 
 # A frame source: index -> (aligned LR frame float32, validity mask bool or None)
 FrameSource = Callable[[int], tuple[F32, NDArray[np.bool_] | None]]
 
 _CHUNK_FRAMES = 4
-_THREADS = min(os.cpu_count() or 1, 8)
-
-
-def parallel_map(fn: Callable[[Any], _T], items: Sequence[Any]) -> list[_T]:
-    """``fn`` over ``items`` on every core, results in order.
-
-    NumPy's element-wise work, SciPy's FFTs and OpenCV release the GIL, so threads run
-    truly in parallel on large arrays.
-    """
-    if _THREADS == 1 or len(items) < 2:
-        return [fn(item) for item in items]
-    with ThreadPoolExecutor(max_workers=min(_THREADS, len(items))) as pool:
-        return list(pool.map(fn, items))
 
 
 _SOLVE_ROWS = 128

@@ -13,15 +13,15 @@ when it lands far from every initial guess that was given.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from elphel_host.mfsr.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 
@@ -182,7 +182,5 @@ def register_frames(
             )
         return FrameRegistration(i, shift, cc, name, True)
 
-    # Frames are independent and OpenCV releases the GIL: one per core at a time.
-    with ThreadPoolExecutor(max_workers=min(os.cpu_count() or 1, 8)) as pool:
-        rest = list(pool.map(register_one, range(1, len(frames))))
+    rest = parallel_map(register_one, range(1, len(frames)))  # frames are independent
     return [FrameRegistration(0, (0.0, 0.0), 1.0, "reference", True), *rest]

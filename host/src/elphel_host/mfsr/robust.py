@@ -31,9 +31,9 @@ from elphel_host.mfsr.forward import (
     ForwardModel,
     FourierSolver,
     ModelSpectra,
-    parallel_map,
     refine_and_pseudo,
 )
+from elphel_host.mfsr.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 
