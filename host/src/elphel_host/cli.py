@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import sys
 from collections.abc import Sequence
-from typing import Any
 
 from elphel_host import __version__
 from elphel_host.errors import ElphelError
@@ -26,14 +24,6 @@ AREAS = (
     "elphel_host.mfsr.cli",
     "elphel_host.tp.cli",
 )
-
-
-def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
-    """Print a command's result: one JSON object with --json, else the human text."""
-    if getattr(args, "json", False):
-        print(json.dumps(result, sort_keys=True))
-    else:
-        print(human)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from elphel_host.burst.io import MANIFEST, VERSION
-from elphel_host.camera.cli import add_camera_options
 from elphel_host.camera.client import CameraClient
+from elphel_host.cli_common import add_camera_options, add_sensor_port_option
 from elphel_host.errors import InputFormatError
 from elphel_host.stage.positioning import MoveResult, Positioner, StageModel
 
@@ -210,7 +210,7 @@ def add_capture_parser(sub: Any) -> None:
     )
     cp.add_argument("--plan", type=Path, required=True, help="plan JSON (elphel burst plan --out)")
     cp.add_argument("--out", type=Path, required=True, help="burst directory to write")
-    cp.add_argument("--port", type=int, default=0, help="camera sensor port")
+    add_sensor_port_option(cp, help="sensor port of the camera (default 0)")
     cp.add_argument("--start-mm", type=float, help="plan origin on the stage (default: here)")
     cp.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="stage calibration file")
     cp.add_argument("--settle-s", type=float, default=0.05, help="wait after each move")
@@ -268,7 +268,7 @@ def _fuse_options(
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    from elphel_host.cli import emit
+    from elphel_host.cli_common import emit
     from elphel_host.stage.client import StageClient
 
     if not args.camera or not args.stage:
@@ -310,7 +310,7 @@ def run_capture(args: argparse.Namespace) -> int:
             top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
             if "tilt_deg" in plan:
                 top["stage"]["axis_angle_deg"] = float(plan["tilt_deg"])
-            engine = RigEngine(positioner, camera, port=args.port, settle_s=args.settle_s)
+            engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
 
             def progress(done: int, total: int, message: str) -> None:
                 fusion = "" if stream is None else f"; fusion: {stream.status()}"

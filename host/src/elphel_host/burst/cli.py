@@ -9,7 +9,7 @@ from typing import Any
 
 from elphel_host.burst.capture import add_capture_parser
 from elphel_host.burst.plan import plan_burst
-from elphel_host.cli import emit
+from elphel_host.cli_common import emit
 
 
 def register(subparsers: Any) -> None:

@@ -1,9 +1,13 @@
 """REST client for elphel-camd."""
 
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
 from elphel_host.camera.client import (
     Applied,
     Burst,
-    Camera,
     CameraClient,
     CameraEvent,
     CameraHTTPError,
@@ -15,7 +19,6 @@ from elphel_host.camera.client import (
 __all__ = [
     "Applied",
     "Burst",
-    "Camera",
     "CameraClient",
     "CameraEvent",
     "CameraHTTPError",
@@ -23,3 +26,13 @@ __all__ = [
     "CapturedFrame",
     "PhotoFinish",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # `Camera` was the client's name before 0.2; scripts that import it keep working.
+    if name == "Camera":
+        warnings.warn(
+            "elphel_host.camera.Camera is now CameraClient", DeprecationWarning, stacklevel=2
+        )
+        return CameraClient
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -4,39 +4,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
-from elphel_host.camera.client import Camera, CameraEvent
-
-
-def add_camera_options(parser: Any, *, flag: str = "--camera") -> None:
-    """The camera daemon's URL (``flag``) and bearer token, defaulting to the environment.
-
-    Every command that talks to the daemon takes them this way: ``ELPHEL_CAMERA_URL`` and
-    ``ELPHEL_CAMERA_TOKEN``.
-    """
-    parser.add_argument(
-        flag,
-        default=os.environ.get("ELPHEL_CAMERA_URL"),
-        metavar="URL",
-        help="camera daemon URL (env ELPHEL_CAMERA_URL)",
-    )
-    parser.add_argument(
-        "--token",
-        default=os.environ.get("ELPHEL_CAMERA_TOKEN"),
-        help="bearer token (env ELPHEL_CAMERA_TOKEN)",
-    )
+from elphel_host.camera.client import CameraClient, CameraEvent
+from elphel_host.cli_common import add_camera_options, add_sensor_port_option, emit
 
 
 def register(sub: Any) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    add_camera_options(common, flag="--url")
+    add_camera_options(common, aliases=("--url",))
     common.add_argument("--json", action="store_true", help="print one JSON object")
     ported = argparse.ArgumentParser(add_help=False)
-    ported.add_argument("--port", type=int, default=0, help="sensor port (default 0)")
+    add_sensor_port_option(ported)
 
     p = sub.add_parser("camera", help="camera daemon: info, get, set, capture, watch")
     cmd = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -89,15 +70,15 @@ def register(sub: Any) -> None:
     watch.add_argument(
         "--types", default="frame,params,error", help="comma-separated: frame,params,error"
     )
-    watch.add_argument("--port", type=int, help="only this port's events")
+    add_sensor_port_option(watch, default=None, help="only this sensor port's events")
     watch.add_argument("--count", type=int, help="stop after N events")
     watch.set_defaults(func=cmd_watch, parser=watch)
 
 
-def _client(args: argparse.Namespace) -> Camera:
-    if not args.url:
-        args.parser.error("no camera URL: give --url or set ELPHEL_CAMERA_URL")
-    return Camera(args.url, args.token)
+def _client(args: argparse.Namespace) -> CameraClient:
+    if not args.camera:
+        args.parser.error("no camera URL: give --camera (or --url) or set ELPHEL_CAMERA_URL")
+    return CameraClient(args.camera, args.token)
 
 
 def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, int]:
@@ -114,7 +95,6 @@ def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dic
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from elphel_host.cli import emit
 
     with _client(args) as client:
         info = client.info()
@@ -133,10 +113,9 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_get(args: argparse.Namespace) -> int:
-    from elphel_host.cli import emit
 
     with _client(args) as client:
-        params = client.params(args.port, frame=args.frame)
+        params = client.params(args.sensor_port, frame=args.frame)
     if args.names:
         missing = [n for n in args.names if n not in params]
         if missing:
@@ -149,32 +128,32 @@ def cmd_get(args: argparse.Namespace) -> int:
 
 
 def cmd_set(args: argparse.Namespace) -> int:
-    from elphel_host.cli import emit
 
     changes = _parse_assignments(args.parser, args.assignments)
     with _client(args) as client:
-        applied = client.set_params(changes, port=args.port, frame=args.frame, ahead=args.ahead)
+        applied = client.set_params(
+            changes, port=args.sensor_port, frame=args.frame, ahead=args.ahead
+        )
     now = {k: applied.params[k] for k in changes if k in applied.params}
-    human = f"port {args.port}, frame {applied.frame}: " + " ".join(
+    human = f"port {args.sensor_port}, frame {applied.frame}: " + " ".join(
         f"{k}={v}" for k, v in now.items()
     )
-    emit(args, {"port": args.port, "frame": applied.frame, "params": applied.params}, human)
+    emit(args, {"port": args.sensor_port, "frame": applied.frame, "params": applied.params}, human)
     return 0
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
-    from elphel_host.cli import emit
     from elphel_host.preview import save_preview
 
     if args.count < 1:
         args.parser.error("--count must be 1 or more")
     with _client(args) as client:
         if args.count == 1 and not args.join:
-            frame = client.capture(args.port, frame=args.frame)
+            frame = client.capture(args.sensor_port, frame=args.frame)
             tiff, image, metadata = frame.tiff, frame.image, frame.metadata
             first, frames = frame.frame, [frame.frame]
         else:
-            burst = client.burst(args.count, port=args.port, frame=args.frame)
+            burst = client.burst(args.count, port=args.sensor_port, frame=args.frame)
             tiff, image, metadata = burst.tiff, burst.images[0], burst.metadata[0]
             first, frames = burst.frames[0], burst.frames
             if args.join:
@@ -187,7 +166,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                     "pf_strip_times_ns": joined.row_times_ns[:: joined.strip_height].tolist(),
                 }
                 tiff = _tiff_bytes(image, metadata)
-    out: Path = args.out or Path(f"port{args.port}-frame{first}.tif")
+    out: Path = args.out or Path(f"port{args.sensor_port}-frame{first}.tif")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(tiff)
     result: dict[str, Any] = {
@@ -203,7 +182,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
     what = f"frame {first}" if len(frames) == 1 else f"frames {frames[0]}..{frames[-1]}"
     if args.join:
         what = f"photo-finish {what} joined"
-    emit(args, result, f"{what} from port {args.port}: {w}x{h} {image.dtype} -> {out}")
+    emit(args, result, f"{what} from port {args.sensor_port}: {w}x{h} {image.dtype} -> {out}")
     return 0
 
 
@@ -231,13 +210,12 @@ def _event_line(event: CameraEvent) -> str:
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
-    from elphel_host.cli import emit
 
     types = tuple(t.strip() for t in args.types.split(",") if t.strip())
     collected: list[dict[str, Any]] = []
     with _client(args) as client:
         try:
-            for event in client.events(types, port=args.port, count=args.count):
+            for event in client.events(types, port=args.sensor_port, count=args.count):
                 entry = {"type": event.type, "id": event.id, **event.data}
                 if args.json:
                     collected.append(entry)

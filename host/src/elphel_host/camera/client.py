@@ -197,7 +197,7 @@ def read_burst(data: bytes) -> tuple[NDArray[Any], list[dict[str, Any]]]:
     return images, metadata
 
 
-class Camera:
+class CameraClient:
     """Talks to one camera daemon.
 
     Parameters
@@ -213,7 +213,7 @@ class Camera:
 
     Examples
     --------
-    >>> with Camera("http://127.0.0.1:8000", token) as cam:  # doctest: +SKIP
+    >>> with CameraClient("http://127.0.0.1:8000", token) as cam:  # doctest: +SKIP
     ...     cam.set_params({"EXPOS": 5000}, ahead=3)
     ...     with cam.staged({"WOI_WIDTH": 640, "WOI_HEIGHT": 480}):
     ...         frame = cam.capture()
@@ -240,7 +240,7 @@ class Camera:
             base_url=self.url + API, headers=headers, timeout=timeout_s, transport=transport
         )
 
-    def __enter__(self) -> Camera:
+    def __enter__(self) -> CameraClient:
         return self
 
     def __exit__(
@@ -452,6 +452,3 @@ class Camera:
         except httpx.HTTPError as e:
             raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
 
-
-# The name earlier code used.
-CameraClient = Camera

@@ -23,7 +23,7 @@ import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.burst.io import read_burst
-from elphel_host.cli import emit
+from elphel_host.cli_common import emit
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim

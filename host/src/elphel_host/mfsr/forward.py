@@ -39,7 +39,7 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.parallel import parallel_map
+from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 C64 = NDArray[np.complex64]

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.parallel import parallel_map
+from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 

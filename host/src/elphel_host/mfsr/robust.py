@@ -33,7 +33,7 @@ from elphel_host.mfsr.forward import (
     ModelSpectra,
     refine_and_pseudo,
 )
-from elphel_host.mfsr.parallel import parallel_map
+from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 

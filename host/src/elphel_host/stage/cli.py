@@ -13,7 +13,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from elphel_host.cli import emit
+from elphel_host.cli_common import emit
 from elphel_host.errors import StageConnectionError
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.discovery import find_stage_boards

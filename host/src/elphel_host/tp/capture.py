@@ -6,7 +6,7 @@ take a quad camera from capture to DSI. The capture:
 1. reads the daemon's info and requires a sensor on each of the four ports of the layout;
 2. puts the four ports in snapshot mode on one common trigger (``TRIG`` 4, the same
    ``TRIG_MASTER``, no delay or decimation, ``TRIG_PERIOD`` on the master) inside
-   `Camera.staged`, so the previous settings come back afterwards, even after an error
+   `CameraClient.staged`, so the previous settings come back afterwards, even after an error
    (the trigger last, once no port waits for it any more);
 3. waits until the change is in effect on every port, matches the ports' frame numbers
    by their timestamps (each frame of a trigger carries the trigger's time), picks a
@@ -33,7 +33,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from elphel_host.camera.client import Camera, CameraHTTPError, CapturedFrame
+from elphel_host.camera.client import CameraClient, CameraHTTPError, CapturedFrame
 from elphel_host.errors import InputFormatError, QuadCaptureError, QuadCaptureTimeout
 from elphel_host.tp.geometry import IDEAL_POSITIONS, QuadGeometry
 
@@ -58,7 +58,7 @@ class QuadLayout:
     ports
         Sensor port of cameras 0..3.
     positions
-        Camera centres in units of the square's side, +x right, +y down (DESIGN 4.4).
+        CameraClient centres in units of the square's side, +x right, +y down (DESIGN 4.4).
     optics
         Optional optics record copied into quad.json (``focal_length_mm``, ...).
     """
@@ -140,7 +140,7 @@ def trigger_ticks(period_ms: float) -> int:
 
 
 def capture_quad(
-    camera: Camera,
+    camera: CameraClient,
     out: str | Path,
     *,
     layout: QuadLayout | None = None,
@@ -248,7 +248,7 @@ def _check_target(target: Path, *, force: bool) -> None:
 
 
 def _quad_sensors(
-    camera: Camera, info: Mapping[str, Any], layout: QuadLayout
+    camera: CameraClient, info: Mapping[str, Any], layout: QuadLayout
 ) -> dict[int, dict[str, Any]]:
     sensors: dict[int, dict[str, Any]] = {
         int(p["port"]): p["sensor"] for p in info.get("ports", []) if p.get("sensor")
@@ -292,7 +292,7 @@ def _sync_changes(
 
 @contextlib.contextmanager
 def _on_common_trigger(
-    camera: Camera, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
+    camera: CameraClient, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
 ) -> Iterator[dict[int, int]]:
     """Every port in snapshot mode on the master's trigger; the old settings back after.
 
@@ -317,7 +317,7 @@ def _on_common_trigger(
 
 
 def _wait_restored(
-    camera: Camera,
+    camera: CameraClient,
     before: Mapping[int, Mapping[str, int]],
     changed: Mapping[int, Mapping[str, int]],
     period: int,
@@ -340,7 +340,9 @@ def _wait_restored(
     )
 
 
-def _wait_for(camera: Camera, frames: Mapping[int, int], deadline: float, period: int) -> None:
+def _wait_for(
+    camera: CameraClient, frames: Mapping[int, int], deadline: float, period: int
+) -> None:
     """Poll until each port's current frame is at least ``frames[port]``."""
     poll_s = min(0.05, period / 4e8)
     pending = dict(frames)
@@ -364,7 +366,7 @@ def _wait_for(camera: Camera, frames: Mapping[int, int], deadline: float, period
         time.sleep(poll_s)
 
 
-def _pick_frames(camera: Camera, ports: tuple[int, ...], period: int) -> dict[int, int]:
+def _pick_frames(camera: CameraClient, ports: tuple[int, ...], period: int) -> dict[int, int]:
     """Frame numbers of one future trigger on every port.
 
     Ports count frames on their own; in snapshot mode a frame's timestamp is its trigger's
@@ -385,7 +387,7 @@ def _pick_frames(camera: Camera, ports: tuple[int, ...], period: int) -> dict[in
     return {p: newest + AHEAD_FRAMES + offset[p] for p in ports}
 
 
-def _fetch(camera: Camera, frames: Mapping[int, int]) -> dict[int, CapturedFrame]:
+def _fetch(camera: CameraClient, frames: Mapping[int, int]) -> dict[int, CapturedFrame]:
     """Fetch every port's frame from the ring buffer, all at once (none is overwritten)."""
     with ThreadPoolExecutor(max_workers=len(frames), thread_name_prefix="quad-fetch") as pool:
         futures = {p: pool.submit(camera.capture, p, frame=f) for p, f in frames.items()}
@@ -429,7 +431,7 @@ def _check_set(
 
 
 def _manifest(
-    camera: Camera,
+    camera: CameraClient,
     info: Mapping[str, Any],
     layout: QuadLayout,
     captured: Mapping[int, CapturedFrame],

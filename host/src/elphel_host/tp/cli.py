@@ -15,9 +15,8 @@ from typing import Any
 import numpy as np
 import tifffile
 
-from elphel_host.camera.cli import add_camera_options
-from elphel_host.camera.client import Camera
-from elphel_host.cli import emit
+from elphel_host.camera.client import CameraClient
+from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.tp.capture import DEFAULT_TRIGGER_PERIOD_MS, capture_quad, read_layout
 from elphel_host.tp.io import read_quad_dir, write_dsi, write_ml_data
 from elphel_host.tp.processor import TpConfig, correlation_tiles, disparity_map
@@ -137,7 +136,7 @@ def run_capture(args: argparse.Namespace) -> int:
     layout = read_layout(args.geometry) if args.geometry else None
     t0 = time.perf_counter()
     # A simulated board forms each full frame when it is fetched: allow it time.
-    with Camera(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+    with CameraClient(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
         got = capture_quad(
             camera,
             args.out,

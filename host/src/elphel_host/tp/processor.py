@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from elphel_host.errors import InputFormatError
-from elphel_host.tp import _threads
+from elphel_host.parallel import parallel_map, single_threaded_blas
 from elphel_host.tp.bayer import colour_weights
 from elphel_host.tp.clt import tile_grid
 from elphel_host.tp.correlation import (
@@ -398,13 +397,8 @@ def measure(
 def _run_chunks(
     fn: Callable[[tuple[int, int]], None], bounds: list[tuple[int, int]], threads: int
 ) -> None:
-    with _threads.single_threaded_blas():
-        if threads == 1 or len(bounds) == 1:
-            for b in bounds:
-                fn(b)
-        else:
-            with ThreadPoolExecutor(max_workers=threads) as pool:
-                list(pool.map(fn, bounds))
+    with single_threaded_blas():
+        parallel_map(fn, bounds, threads=threads)
 
 
 def disparity_map(quad: QuadImages, *, config: TpConfig = TpConfig()) -> dict[str, F32]:

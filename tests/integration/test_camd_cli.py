@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from elphel_host.camera import Camera, CameraHTTPError
+from elphel_host.camera import CameraClient, CameraHTTPError
 
 from .conftest import run_cli
 
@@ -25,7 +25,7 @@ SLOW = {"EXPOS": 150_000}
 def rig(sim_rig):
     """The session's rig, put back to its full window afterwards (other tests capture it)."""
     env = {"ELPHEL_CAMERA_URL": sim_rig["camera_url"], "ELPHEL_CAMERA_TOKEN": sim_rig["token"]}
-    with Camera(sim_rig["camera_url"], sim_rig["token"]) as cam:
+    with CameraClient(sim_rig["camera_url"], sim_rig["token"]) as cam:
         before = cam.params(0)
         try:
             yield env
@@ -95,7 +95,7 @@ def test_cli_joins_photofinish_composites_with_row_times(rig, tmp_path):
 
 
 def test_cli_watch_prints_frames_and_changes(rig):
-    with Camera(rig["ELPHEL_CAMERA_URL"], rig["ELPHEL_CAMERA_TOKEN"]) as cam:
+    with CameraClient(rig["ELPHEL_CAMERA_URL"], rig["ELPHEL_CAMERA_TOKEN"]) as cam:
         cam.set_params({**WINDOW, **SLOW})
     r = run_cli("camera", "watch", "--types", "frame", "--count", "4", "--json", env=rig)
     assert r.returncode == 0, r.stderr
@@ -114,7 +114,7 @@ def test_cli_watch_prints_frames_and_changes(rig):
         text=True,
     )
     try:
-        with Camera(rig["ELPHEL_CAMERA_URL"], rig["ELPHEL_CAMERA_TOKEN"]) as cam:
+        with CameraClient(rig["ELPHEL_CAMERA_URL"], rig["ELPHEL_CAMERA_TOKEN"]) as cam:
             deadline = time.monotonic() + 60
             while watcher.poll() is None and time.monotonic() < deadline:
                 cam.set_params({"GAINR": 0x18000})  # until the watcher has subscribed
@@ -130,7 +130,7 @@ def test_cli_watch_prints_frames_and_changes(rig):
 
 
 def test_python_client_staged_restores_and_reports_errors(rig):
-    with Camera(rig["ELPHEL_CAMERA_URL"], rig["ELPHEL_CAMERA_TOKEN"]) as cam:
+    with CameraClient(rig["ELPHEL_CAMERA_URL"], rig["ELPHEL_CAMERA_TOKEN"]) as cam:
         before = cam.params(0)
         with cam.staged({"EXPOS": 2000, "FLIPV": 1}) as applied:
             assert applied[0].params["FLIPV"] == 1

@@ -2,7 +2,7 @@
 
 Every operation gets generated requests; no answer may be a server error or contradict
 the schema (status code, content type, body). The event stream is left out: it never
-ends by itself (tests/sim/test_camd_cli.py follows it).
+ends by itself (tests/integration/test_camd_cli.py follows it).
 """
 
 import schemathesis

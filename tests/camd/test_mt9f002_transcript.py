@@ -10,7 +10,7 @@ from elphel_camd.params import EXPOSURE, GAINS, LIMITFPS, TRIGGERMODE, WINDOW
 from elphel_camd.sensors import MT9F002, detect
 from elphel_camd.sensors import mt9f002 as spec
 from elphel_camd.sensors.registers import Access
-from tests.unit.scripted_bus import ScriptedBus
+from tests.camd.scripted_bus import ScriptedBus
 
 A = 0x10  # the MT9F002's address
 

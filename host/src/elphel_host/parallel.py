@@ -1,21 +1,41 @@
-"""Keep OpenBLAS single-threaded while the tile processor runs its own worker threads.
+"""Run independent pieces of numeric work on every core.
 
-The tile processor multiplies many small matrices from several threads; OpenBLAS's own
-threads would then fight for the same cores and slow each product down several times.
+NumPy's element-wise work, SciPy's FFTs and OpenCV release the GIL on large arrays, so
+plain threads run them truly in parallel: one frame, alias, row band or tile band per
+thread. While such threads multiply many small matrices, OpenBLAS's own threads would
+fight them for the same cores, so `single_threaded_blas` keeps OpenBLAS to one thread.
 NumPy does not expose a thread setting, so the OpenBLAS library NumPy loaded is found in
 the process's memory map and its ``*_set_num_threads`` entry point is called through
-ctypes. Without such a library (other BLAS, other OS) this is a no-op.
+ctypes. Without such a library (other BLAS, other OS) that is a no-op.
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
 import re
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+_T = TypeVar("_T")
+
+THREADS = min(os.cpu_count() or 1, 8)
+
+
+def parallel_map(
+    fn: Callable[[Any], _T], items: Sequence[Any], *, threads: int | None = None
+) -> list[_T]:
+    """``fn`` over ``items`` on every core (or ``threads`` of them), results in order."""
+    workers = min(THREADS if threads is None else threads, len(items))
+    if workers <= 1:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(fn, items))
+
 
 _lock = threading.Lock()
 _depth = 0

@@ -19,7 +19,7 @@ import uvicorn
 
 from elphel_camd.api import create_app
 from elphel_camd.board import Camera as DaemonCamera
-from elphel_host.camera import Camera
+from elphel_host.camera import CameraClient
 from elphel_host.tp.io import read_dsi
 from elphel_sim.board import SimBoard
 from elphel_sim.launcher import bind_loopback
@@ -44,7 +44,7 @@ def test_capture_then_tp_recovers_the_scene_disparities(quad_rig, tmp_path):
     cam_url, token, sim_url = quad_rig["camera_url"], quad_rig["token"], quad_rig["sim_url"]
     geometry = httpx.get(f"{sim_url}/quad").json()
     (tmp_path / "geometry.json").write_text(json.dumps(geometry))
-    with Camera(cam_url, token) as cam:
+    with CameraClient(cam_url, token) as cam:
         before = {p: {k: cam.params(p)[k] for k in TRIGGER} for p in range(4)}
     quad, dsi = tmp_path / "quad", tmp_path / "dsi.tif"
 
@@ -89,7 +89,7 @@ def test_capture_then_tp_recovers_the_scene_disparities(quad_rig, tmp_path):
         assert abs(np.median(error[good & (label == i)])) < 0.01, truth["names"][i]
 
     # the camera's trigger settings are back
-    with Camera(cam_url, token) as cam:
+    with CameraClient(cam_url, token) as cam:
         after = {p: {k: cam.params(p)[k] for k in TRIGGER} for p in range(4)}
     assert after == before
 
@@ -143,7 +143,7 @@ def test_frames_of_different_timestamps_are_refused_and_nothing_is_written(
 ):
     url, board = skewed_quad
     small = {"WOI_WIDTH": 256, "WOI_HEIGHT": 192, "WOI_LEFT": 1168, "WOI_TOP": 876}
-    with Camera(url, "tok") as cam:
+    with CameraClient(url, "tok") as cam:
         for p in range(4):
             cam.set_params(small, port=p)
         before = {p: {k: cam.params(p)[k] for k in TRIGGER} for p in range(4)}
@@ -157,6 +157,6 @@ def test_frames_of_different_timestamps_are_refused_and_nothing_is_written(
     assert len(r.stderr.strip().splitlines()) == 1
     assert "not of one trigger" in r.stderr and "+1.000 ms" in r.stderr
     assert list(tmp_path.iterdir()) == []  # no quad dir, no temporary leftovers
-    with Camera(url, "tok") as cam:
+    with CameraClient(url, "tok") as cam:
         after = {p: {k: cam.params(p)[k] for k in TRIGGER} for p in range(4)}
     assert after == before

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from elphel_host.camera import Camera
+from elphel_host.camera import CameraClient
 
 from .conftest import run_cli
 
@@ -32,7 +32,7 @@ def fused_burst(sim_rig, tmp_path_factory):
         "ELPHEL_STAGE_URL": sim_rig["stage_url"],
     }
     tmp = tmp_path_factory.mktemp("fuse")
-    with Camera(sim_rig["camera_url"], sim_rig["token"]) as cam:
+    with CameraClient(sim_rig["camera_url"], sim_rig["token"]) as cam:
         before = cam.params(0)
         cam.set_params(WINDOW)
         try:

@@ -8,7 +8,7 @@ from smbus2 import i2c_msg
 from elphel_camd.errors import I2CError
 from elphel_camd.i2c import RegisterIO, open_bus
 from elphel_camd.sensors import MT9P006, detect
-from tests.unit.scripted_bus import ScriptedBus
+from tests.camd.scripted_bus import ScriptedBus
 
 
 def test_read_8bit_register_address_is_write_then_combined_read():

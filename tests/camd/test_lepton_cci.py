@@ -8,7 +8,7 @@ from elphel_camd.errors import I2CError, LeptonError
 from elphel_camd.i2c import RegisterIO
 from elphel_camd.params import EXPOSURE, WINDOW
 from elphel_camd.sensors import Lepton35, cci, detect
-from tests.unit.scripted_bus import ScriptedBus
+from tests.camd.scripted_bus import ScriptedBus
 
 A = 0x2A  # the Lepton's address
 READY = 0x0006  # booted (bits 1, 2), not busy

@@ -6,7 +6,7 @@ import httpx
 import numpy as np
 import pytest
 
-from elphel_host.camera import Burst, Camera, CameraHTTPError, CameraUnauthorizedError
+from elphel_host.camera import Burst, CameraClient, CameraHTTPError, CameraUnauthorizedError
 from elphel_host.camera.client import _SSEParser
 from elphel_host.errors import CameraClientError
 
@@ -34,8 +34,8 @@ class FakeDaemon:
         return httpx.Response(200, json={"frame": 7, "params": self.params[port]})
 
 
-def camera(daemon: FakeDaemon, token: str = "t") -> Camera:
-    return Camera("http://cam", token, transport=httpx.MockTransport(daemon))
+def camera(daemon: FakeDaemon, token: str = "t") -> CameraClient:
+    return CameraClient("http://cam", token, transport=httpx.MockTransport(daemon))
 
 
 def test_staged_restores_the_previous_values_on_exit():

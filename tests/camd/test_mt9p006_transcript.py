@@ -7,7 +7,7 @@ from elphel_camd.params import EXPOSURE, GAINS, LIMITFPS, TRIGGERMODE, WINDOW
 from elphel_camd.sensors import MT9P006
 from elphel_camd.sensors import mt9p006 as spec
 from elphel_camd.sensors.registers import Access
-from tests.unit.scripted_bus import ScriptedBus
+from tests.camd.scripted_bus import ScriptedBus
 
 A = 0x48
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-FIRMWARE = Path(__file__).resolve().parents[3] / "target" / "esp8266"
+FIRMWARE = Path(__file__).resolve().parents[2] / "target" / "esp8266"
 if str(FIRMWARE) not in sys.path:
     sys.path.insert(0, str(FIRMWARE))
 

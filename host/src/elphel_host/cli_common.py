@@ -1,0 +1,78 @@
+"""What every `elphel` subcommand shares: printing results and the common options.
+
+The option helpers give one spelling per idea across subcommands: ``--camera`` for a
+camera URL, ``--stage`` for a stage URL, ``--sensor-port`` for a sensor port of the
+camera. Older spellings (``--url``, ``--port``) stay accepted as aliases so scripts keep
+working; they set the same value.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+CAMERA_URL_ENV = "ELPHEL_CAMERA_URL"
+CAMERA_TOKEN_ENV = "ELPHEL_CAMERA_TOKEN"
+STAGE_URL_ENV = "ELPHEL_STAGE_URL"
+DEFAULT_STAGE_MODEL = Path.home() / ".config" / "elphel" / "stage-model.json"
+
+
+def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
+    """Print a command's result: one JSON object with --json, else the human text."""
+    if getattr(args, "json", False):
+        print(json.dumps(result, sort_keys=True))
+    else:
+        print(human)
+
+
+def _alias_note(aliases: tuple[str, ...]) -> str:
+    return f"; {', '.join(aliases)} is the older spelling" if aliases else ""
+
+
+def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
+    """``--camera URL`` and ``--token T``, defaulting to ELPHEL_CAMERA_URL / _TOKEN.
+
+    ``aliases`` are older spellings of ``--camera`` kept for scripts (``--url``).
+    """
+    parser.add_argument(
+        "--camera",
+        *aliases,
+        dest="camera",
+        default=os.environ.get(CAMERA_URL_ENV),
+        metavar="URL",
+        help=f"camera URL (env {CAMERA_URL_ENV}{_alias_note(aliases)})",
+    )
+    parser.add_argument(
+        "--token",
+        default=os.environ.get(CAMERA_TOKEN_ENV),
+        help=f"bearer token (env {CAMERA_TOKEN_ENV})",
+    )
+
+
+def add_stage_option(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
+    """``--stage URL`` (a pyserial URL), defaulting to ELPHEL_STAGE_URL."""
+    parser.add_argument(
+        "--stage",
+        *aliases,
+        dest="stage",
+        default=os.environ.get(STAGE_URL_ENV),
+        metavar="URL",
+        help=f"pyserial URL of the stage (env {STAGE_URL_ENV}{_alias_note(aliases)})",
+    )
+
+
+def add_sensor_port_option(parser: Any, *, default: int | None = 0, help: str = "") -> None:
+    """``--sensor-port N`` (``--port N`` is the older spelling), a port of the camera."""
+    parser.add_argument(
+        "--sensor-port",
+        "--port",
+        dest="sensor_port",
+        type=int,
+        default=default,
+        metavar="N",
+        help=(help or f"sensor port of the camera (default {default})")
+        + "; --port is the older spelling",
+    )
