@@ -15,15 +15,8 @@ import httpx
 import pytest
 
 from elphel_camd.cli import build_camera, build_parser, settings_from_args
-from elphel_camd.config import (
-    ConfigError,
-    DaemonSettings,
-    ParamStore,
-    last_journal_line,
-    load_or_create_token,
-    load_settings,
-    write_atomic,
-)
+from elphel_camd.config import ConfigError, DaemonSettings, load_settings
+from elphel_camd.store import ParamStore, last_journal_line, load_or_create_token, write_atomic
 
 REPO = Path(__file__).resolve().parents[2]
 LAYER_CONFIG = REPO / "yocto/meta-elphel/recipes-camera/elphel-camd/files/config.json"
@@ -132,11 +125,11 @@ def test_journal_keeps_the_last_intact_line_and_compacts(tmp_path):
 
 
 def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
-    from elphel_camd import config
+    from elphel_camd import store as store_module
 
     store = ParamStore(tmp_path, sync_each=True)
     store.compact_bytes = 200
-    real = config.write_atomic
+    real = store_module.write_atomic
     raced = []
 
     def write_then_race(path, data, **kw):
@@ -147,7 +140,7 @@ def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
             store.save(0, "MT9P006", {"EXPOS": 99})
             store.compact_bytes = limit
 
-    monkeypatch.setattr(config, "write_atomic", write_then_race)
+    monkeypatch.setattr(store_module, "write_atomic", write_then_race)
     i = 0
     while not raced:  # until the journal is long enough to be compacted
         store.save(0, "MT9P006", {"EXPOS": i})

@@ -1,7 +1,8 @@
 """The `elphel-camd` command: run the daemon on a board.
 
 Settings come from the command line, then ``ELPHEL_CAMD_*`` environment variables, then
-the JSON config file (see `elphel_camd.config`).
+the JSON config file (see `elphel_camd.config`); what the daemon keeps on disk is
+`elphel_camd.store`'s.
 """
 
 from __future__ import annotations
@@ -16,15 +17,11 @@ from pathlib import Path
 from typing import Any
 
 from elphel_camd import __version__
-from elphel_camd.board import Camera, board_factories
-from elphel_camd.config import (
-    ConfigError,
-    DaemonSettings,
-    ParamStore,
-    load_or_create_token,
-    load_settings,
-)
+from elphel_camd.boards import board_factories
+from elphel_camd.config import ConfigError, DaemonSettings, load_settings
 from elphel_camd.events import EventHub
+from elphel_camd.service import CameraService
+from elphel_camd.store import ParamStore, load_or_create_token
 
 log = logging.getLogger("elphel_camd")
 
@@ -77,7 +74,7 @@ def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
     )
 
 
-def build_camera(settings: DaemonSettings) -> Camera:
+def build_camera(settings: DaemonSettings) -> CameraService:
     """The board named in the settings, with its sensors, events and saved parameters."""
     options: dict[str, Any] = dict(settings.board_options)
     if settings.bus_urls:
@@ -104,7 +101,7 @@ def build_camera(settings: DaemonSettings) -> Camera:
         else None
     )
     try:
-        return Camera(board, events=EventHub(settings.event_queue), store=store)
+        return CameraService(board, events=EventHub(settings.event_queue), store=store)
     except BaseException:
         board.close()
         raise
