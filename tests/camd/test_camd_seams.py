@@ -5,6 +5,7 @@ paths, the routes (paths, methods, operation ids, statuses) and the service reac
 through a dependency rather than a closure.
 """
 
+import re
 import warnings
 
 import numpy as np
@@ -19,52 +20,23 @@ from elphel_camd.service import CameraService
 from elphel_sim.board import SimBoard
 from elphel_sim.scenarios import build
 
+# method, path, route function, statuses: as the API had them before the routers were split.
+ROUTES_TABLE = """
+GET /api/v1/info info 200,401,503
+GET /api/v1/health health 200,503
+GET /api/v1/ports/{port}/params get_params 200,401,404,422,503
+PATCH /api/v1/ports/{port}/params patch_params 200,401,404,413,422,503
+GET /api/v1/ports/{port}/frame get_frame 200,401,404,422
+POST /api/v1/ports/{port}/capture capture 200,401,404,422,501,503,504
+GET /api/v1/ports/{port}/registers list_registers 200,401,404,422
+GET /api/v1/ports/{port}/registers/{addr} get_register 200,401,404,422,503
+PUT /api/v1/ports/{port}/registers/{addr} put_register 200,401,404,413,422,503
+GET /api/v1/events events 200,401,422
+"""
+# FastAPI's operationId: function name and path with non-word characters as "_", then method.
 ROUTES = [
-    ("GET", "/api/v1/info", "info_api_v1_info_get", ["200", "401", "503"]),
-    ("GET", "/api/v1/health", "health_api_v1_health_get", ["200", "503"]),
-    (
-        "GET",
-        "/api/v1/ports/{port}/params",
-        "get_params_api_v1_ports__port__params_get",
-        ["200", "401", "404", "422", "503"],
-    ),
-    (
-        "PATCH",
-        "/api/v1/ports/{port}/params",
-        "patch_params_api_v1_ports__port__params_patch",
-        ["200", "401", "404", "413", "422", "503"],
-    ),
-    (
-        "GET",
-        "/api/v1/ports/{port}/frame",
-        "get_frame_api_v1_ports__port__frame_get",
-        ["200", "401", "404", "422"],
-    ),
-    (
-        "POST",
-        "/api/v1/ports/{port}/capture",
-        "capture_api_v1_ports__port__capture_post",
-        ["200", "401", "404", "422", "501", "503", "504"],
-    ),
-    (
-        "GET",
-        "/api/v1/ports/{port}/registers",
-        "list_registers_api_v1_ports__port__registers_get",
-        ["200", "401", "404", "422"],
-    ),
-    (
-        "GET",
-        "/api/v1/ports/{port}/registers/{addr}",
-        "get_register_api_v1_ports__port__registers__addr__get",
-        ["200", "401", "404", "422", "503"],
-    ),
-    (
-        "PUT",
-        "/api/v1/ports/{port}/registers/{addr}",
-        "put_register_api_v1_ports__port__registers__addr__put",
-        ["200", "401", "404", "413", "422", "503"],
-    ),
-    ("GET", "/api/v1/events", "events_api_v1_events_get", ["200", "401", "422"]),
+    (method, path, re.sub(r"\W", "_", name + path) + "_" + method.lower(), codes.split(","))
+    for method, path, name, codes in (line.split() for line in ROUTES_TABLE.strip().splitlines())
 ]
 
 

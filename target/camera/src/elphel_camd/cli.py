@@ -60,18 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# Options named as the setting they override (an option left out is None: not given).
+_SETTING_OPTIONS = ("board", "host", "port", "token", "token_file", "state_dir", "read_protected")
+
+
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
-    return load_settings(
-        args.config,
-        board=args.board,
-        bus_urls=args.bus or None,
-        host=args.host,
-        port=args.port,
-        token=args.token,
-        token_file=args.token_file,
-        state_dir=args.state_dir,
-        read_protected=args.read_protected,
-    )
+    given = {name: getattr(args, name) for name in _SETTING_OPTIONS}
+    return load_settings(args.config, bus_urls=args.bus or None, **given)
 
 
 def build_camera(settings: DaemonSettings) -> CameraService:
