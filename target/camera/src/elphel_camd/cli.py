@@ -69,8 +69,8 @@ def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
     return load_settings(args.config, bus_urls=args.bus or None, **given)
 
 
-def build_camera(settings: DaemonSettings) -> CameraService:
-    """The board named in the settings, with its sensors, events and saved parameters."""
+def build_service(settings: DaemonSettings) -> CameraService:
+    """The service of the board named in the settings: sensors, events, saved parameters."""
     options: dict[str, Any] = dict(settings.board_options)
     if settings.bus_urls:
         options["bus_urls"] = list(settings.bus_urls)
@@ -102,6 +102,9 @@ def build_camera(settings: DaemonSettings) -> CameraService:
         raise
 
 
+build_camera = build_service  # the old name
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     import uvicorn
 
@@ -118,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             token = load_or_create_token(settings.token_path)
             log.info("bearer token from %s", settings.token_path)
-        camera = build_camera(settings)
+        service = build_service(settings)
     except (ConfigError, OSError) as e:
         print(f"elphel-camd: {e}", file=sys.stderr)
         return 1
@@ -132,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sock.listen(128)
         host, port = sock.getsockname()[:2]
         app = create_app(
-            camera,
+            service,
             token=token,
             read_protected=settings.read_protected,
             max_body_bytes=settings.max_body_bytes,
@@ -152,7 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     finally:
         sock.close()
-        camera.close()
+        service.close()
     return 0
 
 

@@ -177,10 +177,12 @@ class CameraService:
         return driver
 
     def sequencer(self, port: int) -> PortSequencer:
+        """The frame sequencer of a port (errors as `sensor`)."""
         self.sensor(port)
         return self.sequencers[port]
 
     def info(self) -> dict[str, Any]:
+        """Board, daemon version, capabilities, and each port with its sensor's identity."""
         ports = []
         for port, driver in sorted(self.sensors.items()):
             entry: dict[str, Any] = {"port": port, "sensor": None}
@@ -310,6 +312,7 @@ class CameraService:
         return register
 
     def read_register(self, port: int, address: int) -> tuple[Register, int]:
+        """Read a raw register now; its table entry and value."""
         register = self.register(port, address)
         if register.access is Access.WO:
             raise ParameterRangeError(register.name, f"0x{address:x}", "a readable register")
@@ -360,6 +363,7 @@ class CameraService:
         }
 
     def close(self) -> None:
+        """Close the board, then the store (its pending writes are flushed)."""
         self.board.close()
         if self.store is not None:
             self.store.close()
