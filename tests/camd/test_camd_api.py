@@ -11,9 +11,9 @@ import tifffile
 from fastapi.testclient import TestClient
 
 from elphel_camd.api import create_app
-from elphel_camd.board import Camera
-from elphel_camd.config import ParamStore, last_journal_line
 from elphel_camd.params import PARAMS
+from elphel_camd.service import CameraService
+from elphel_camd.store import ParamStore, last_journal_line
 from elphel_sim.board import SimBoard
 from elphel_sim.scenarios import PortSpec, build
 
@@ -35,7 +35,7 @@ def board():
 
 @pytest.fixture
 def camera(board, tmp_path):
-    cam = Camera(board, store=ParamStore(tmp_path / "params"))
+    cam = CameraService(board, store=ParamStore(tmp_path / "params"))
     cam.set_params(0, SMALL)
     board.sim_advance(frames=4)
     yield cam
@@ -52,7 +52,7 @@ def client(camera):
 def shared_client(tmp_path_factory):
     """One camera for the tests that must leave it unchanged."""
     board = SimBoard(build("default", seed=1), seed=1)
-    cam = Camera(board, store=ParamStore(tmp_path_factory.mktemp("params")))
+    cam = CameraService(board, store=ParamStore(tmp_path_factory.mktemp("params")))
     cam.set_params(0, SMALL)
     board.sim_advance(frames=4)
     with TestClient(create_app(cam, token=TOKEN)) as c:
@@ -151,11 +151,11 @@ def test_patch_persists_every_accepted_change(client, tmp_path):
 
 def test_saved_parameters_are_restored_at_start(tmp_path):
     store = ParamStore(tmp_path / "params")
-    first = Camera(SimBoard(build("default", seed=1), seed=1), store=store)
+    first = CameraService(SimBoard(build("default", seed=1), seed=1), store=store)
     first.set_params(0, {**SMALL, "EXPOS": 4321, "FLIPH": 1})
     expected = first.params(0, frame=first.sequencer(0).this_frame + 14)
     first.close()
-    second = Camera(
+    second = CameraService(
         SimBoard(build("default", seed=1), seed=1), store=ParamStore(tmp_path / "params")
     )
     got = second.params(0)
@@ -228,7 +228,7 @@ def test_registers_read_write_and_validation(client, camera):
 
 def test_i2c_fault_is_503_on_its_port_while_the_other_port_serves():
     board = two_port_board()
-    with TestClient(create_app(Camera(board), token=TOKEN)) as c:
+    with TestClient(create_app(CameraService(board), token=TOKEN)) as c:
         assert c.get("/api/v1/health").json()["status"] == "ok"
         board.bus(0).sim_stuck()
         h = c.get("/api/v1/health")

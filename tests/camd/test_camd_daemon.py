@@ -14,16 +14,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from elphel_camd.cli import build_camera, build_parser, settings_from_args
-from elphel_camd.config import (
-    ConfigError,
-    DaemonSettings,
-    ParamStore,
-    last_journal_line,
-    load_or_create_token,
-    load_settings,
-    write_atomic,
-)
+from elphel_camd.cli import build_parser, build_service, settings_from_args
+from elphel_camd.config import ConfigError, DaemonSettings, load_settings
+from elphel_camd.store import ParamStore, last_journal_line, load_or_create_token, write_atomic
 
 REPO = Path(__file__).resolve().parents[2]
 LAYER_CONFIG = REPO / "yocto/meta-elphel/recipes-camera/elphel-camd/files/config.json"
@@ -48,7 +41,7 @@ def test_unknown_or_invalid_settings_are_rejected(tmp_path, monkeypatch):
     settings = load_settings(cfg)  # not a setting: a board option, which the board rejects
     assert settings.board_options == {"hots": "0.0.0.0"}
     with pytest.raises(ConfigError, match=r"hots.*allowed: noise, scenario, seed"):
-        build_camera(settings.model_copy(update={"board": "sim"}))
+        build_service(settings.model_copy(update={"board": "sim"}))
     cfg.write_text(json.dumps({"scenario": "default", "seed": 3}))  # the file's first form
     assert load_settings(cfg).board_options == {"scenario": "default", "seed": 3}
     cfg.write_text("[1]")
@@ -68,7 +61,7 @@ def test_the_yocto_layer_config_file_is_valid_and_runs_the_i2c_board():
 
 def test_board_options_reach_the_board(tmp_path):
     s = DaemonSettings(board="sim", board_options={"seed": 4, "noise": False}, state_dir=tmp_path)
-    camera = build_camera(s)
+    camera = build_service(s)
     try:
         assert camera.board.seed == 4 and camera.board.noise is False
         assert camera.store is not None and camera.store.directory == tmp_path / "params"
@@ -132,11 +125,11 @@ def test_journal_keeps_the_last_intact_line_and_compacts(tmp_path):
 
 
 def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
-    from elphel_camd import config
+    from elphel_camd import store as store_module
 
     store = ParamStore(tmp_path, sync_each=True)
     store.compact_bytes = 200
-    real = config.write_atomic
+    real = store_module.write_atomic
     raced = []
 
     def write_then_race(path, data, **kw):
@@ -147,7 +140,7 @@ def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
             store.save(0, "MT9P006", {"EXPOS": 99})
             store.compact_bytes = limit
 
-    monkeypatch.setattr(config, "write_atomic", write_then_race)
+    monkeypatch.setattr(store_module, "write_atomic", write_then_race)
     i = 0
     while not raced:  # until the journal is long enough to be compacted
         store.save(0, "MT9P006", {"EXPOS": i})

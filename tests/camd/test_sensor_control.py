@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from elphel_camd.board import Camera
 from elphel_camd.errors import (
     FrameTooEarlyError,
     FrameTooLateError,
@@ -11,6 +10,7 @@ from elphel_camd.errors import (
     ParameterRangeError,
     UnsupportedError,
 )
+from elphel_camd.service import CameraService
 from elphel_sim.board import SimBoard
 from elphel_sim.scenarios import build
 
@@ -21,7 +21,7 @@ def camera(noise=True, ports=1):
     scenario = build("default", seed=3)
     scenario.ports = scenario.ports * ports
     board = SimBoard(scenario, seed=3, noise=noise)
-    return board, Camera(board)
+    return board, CameraService(board)
 
 
 def settle(cam, port=0, **params):
@@ -281,7 +281,7 @@ def test_unsupported_on_bare_i2c_board():
     class NoFpga(SimBoard):
         capabilities = frozenset({"frames", "capture"})
 
-    cam = Camera(NoFpga(build("default", seed=0)))
+    cam = CameraService(NoFpga(build("default", seed=0)))
     with pytest.raises(UnsupportedError, match="trigger"):
         cam.set_params(0, {"TRIG_PERIOD": 100_000})
 

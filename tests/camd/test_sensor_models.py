@@ -8,7 +8,6 @@ import pytest
 from fastapi.testclient import TestClient
 
 from elphel_camd.api import create_app
-from elphel_camd.board import Camera
 from elphel_camd.errors import (
     FrameTooLateError,
     LeptonError,
@@ -18,6 +17,7 @@ from elphel_camd.errors import (
 from elphel_camd.i2c import RegisterIO
 from elphel_camd.sensors import MT9F002, Lepton35, cci
 from elphel_camd.sensors import mt9f002 as f002
+from elphel_camd.service import CameraService
 from elphel_sim.board import SimBoard
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.lepton35 import SimLepton35
@@ -37,7 +37,7 @@ def camera(noise=True):
     rig = _MIXED.world.rig
     world = World(_MIXED.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
     board = SimBoard(Scenario(world, list(_MIXED.ports)), seed=3, noise=noise)
-    return board, Camera(board)
+    return board, CameraService(board)
 
 
 def settle(cam, port=F, **params):

@@ -18,7 +18,7 @@ import tifffile
 import uvicorn
 
 from elphel_camd.api import create_app
-from elphel_camd.board import Camera as DaemonCamera
+from elphel_camd.service import CameraService
 from elphel_host.camera import CameraClient
 from elphel_host.tp.io import read_dsi
 from elphel_sim.board import SimBoard
@@ -120,7 +120,7 @@ def test_a_non_empty_quad_dir_is_kept_without_force(tmp_path):
 def skewed_quad() -> Iterator[tuple[str, SimBoard]]:
     """The quad scenario served in this process, so a test can reach the board's hooks."""
     board = SimBoard(build("quad", seed=2), seed=2)
-    camera = DaemonCamera(board)
+    camera = CameraService(board)
     board.start_clock()
     sock = bind_loopback(0)
     app = create_app(camera, token="tok")

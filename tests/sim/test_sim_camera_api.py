@@ -9,7 +9,8 @@ import tifffile
 from fastapi.testclient import TestClient
 
 from elphel_camd.api import create_app
-from elphel_camd.board import Camera, board_factories
+from elphel_camd.boards import board_factories
+from elphel_camd.service import CameraService
 from elphel_sim.board import SimBoard, make_sim_board
 from elphel_sim.scenarios import build
 
@@ -24,7 +25,7 @@ def board():
 
 @pytest.fixture
 def client(board):
-    with TestClient(create_app(Camera(board), token=TOKEN)) as c:
+    with TestClient(create_app(CameraService(board), token=TOKEN)) as c:
         yield c
 
 
@@ -121,7 +122,7 @@ def test_sim_board_is_registered_for_the_daemon():
 
 
 def test_stuck_bus_surfaces_as_503_naming_the_port(board):
-    with TestClient(create_app(Camera(board), token=TOKEN)) as c:
+    with TestClient(create_app(CameraService(board), token=TOKEN)) as c:
         board.bus(0).sim_stuck()
         r = c.get("/api/v1/info")
         assert r.status_code == 503
@@ -135,7 +136,7 @@ def test_missing_sensor_reported_as_empty_port():
 
     scenario = build("default", seed=0)
     scenario.ports.append(PortSpec(None, "cam0", scenario.ports[0].intrinsics))
-    camera = Camera(SimBoard(scenario))
+    camera = CameraService(SimBoard(scenario))
     info = camera.info()
     assert info["ports"][1]["sensor"] is None
     with TestClient(create_app(camera, token=TOKEN)) as c:

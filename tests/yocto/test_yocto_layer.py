@@ -17,7 +17,7 @@ from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 from packaging.version import Version
 
-from elphel_camd.board import board_factories
+from elphel_camd.boards import board_factories
 from elphel_camd.cli import build_parser
 from tests.yocto.layer import (
     INIT_TEMPLATE,

@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from elphel_camd.board import Frame
+from elphel_camd.boards import Frame
 from elphel_camd.errors import CaptureUnavailableError, FrameNotAvailableError, PortError
 from elphel_camd.i2c.bus import I2CBus
 from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW

@@ -23,8 +23,8 @@ import uvicorn
 from fastapi import FastAPI, HTTPException
 
 from elphel_camd.api import create_app
-from elphel_camd.board import Camera
 from elphel_camd.errors import FrameNotAvailableError, PortError
+from elphel_camd.service import CameraService
 from elphel_sim.board import SimBoard
 from elphel_sim.quad import QuadScene, TileTruth, tile_truth
 from elphel_sim.scenarios import build
@@ -186,7 +186,7 @@ async def serve_all(served: list[Served]) -> None:
 
 def up(*, scenario: str, seed: int, camera_port: int, stage_port: int, as_json: bool) -> int:
     board = SimBoard(build(scenario, seed=seed), seed=seed)
-    camera = Camera(board)
+    camera = CameraService(board)
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     token = secrets.token_urlsafe(24)

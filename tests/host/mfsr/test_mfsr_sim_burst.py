@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from elphel_camd.board import Camera
+from elphel_camd.service import CameraService
 from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
@@ -33,7 +33,7 @@ START_MM = 40.0
 @pytest.fixture(scope="module")
 def sim_burst() -> tuple[list[np.ndarray], dict[str, Any], np.ndarray]:
     board = SimBoard(build("default", seed=SEED), seed=SEED, noise=True)
-    camera = Camera(board)
+    camera = CameraService(board)
     target = camera.set_params(0, WINDOW)
     while camera.capture(0)[0].frame < target:
         pass

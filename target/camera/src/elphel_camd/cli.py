@@ -1,7 +1,8 @@
 """The `elphel-camd` command: run the daemon on a board.
 
 Settings come from the command line, then ``ELPHEL_CAMD_*`` environment variables, then
-the JSON config file (see `elphel_camd.config`).
+the JSON config file (see `elphel_camd.config`); what the daemon keeps on disk is
+`elphel_camd.store`'s.
 """
 
 from __future__ import annotations
@@ -16,15 +17,11 @@ from pathlib import Path
 from typing import Any
 
 from elphel_camd import __version__
-from elphel_camd.board import Camera, board_factories
-from elphel_camd.config import (
-    ConfigError,
-    DaemonSettings,
-    ParamStore,
-    load_or_create_token,
-    load_settings,
-)
+from elphel_camd.boards import board_factories
+from elphel_camd.config import ConfigError, DaemonSettings, load_settings
 from elphel_camd.events import EventHub
+from elphel_camd.service import CameraService
+from elphel_camd.store import ParamStore, load_or_create_token
 
 log = logging.getLogger("elphel_camd")
 
@@ -63,22 +60,17 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# Options named as the setting they override (an option left out is None: not given).
+_SETTING_OPTIONS = ("board", "host", "port", "token", "token_file", "state_dir", "read_protected")
+
+
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
-    return load_settings(
-        args.config,
-        board=args.board,
-        bus_urls=args.bus or None,
-        host=args.host,
-        port=args.port,
-        token=args.token,
-        token_file=args.token_file,
-        state_dir=args.state_dir,
-        read_protected=args.read_protected,
-    )
+    given = {name: getattr(args, name) for name in _SETTING_OPTIONS}
+    return load_settings(args.config, bus_urls=args.bus or None, **given)
 
 
-def build_camera(settings: DaemonSettings) -> Camera:
-    """The board named in the settings, with its sensors, events and saved parameters."""
+def build_service(settings: DaemonSettings) -> CameraService:
+    """The service of the board named in the settings: sensors, events, saved parameters."""
     options: dict[str, Any] = dict(settings.board_options)
     if settings.bus_urls:
         options["bus_urls"] = list(settings.bus_urls)
@@ -104,10 +96,13 @@ def build_camera(settings: DaemonSettings) -> Camera:
         else None
     )
     try:
-        return Camera(board, events=EventHub(settings.event_queue), store=store)
+        return CameraService(board, events=EventHub(settings.event_queue), store=store)
     except BaseException:
         board.close()
         raise
+
+
+build_camera = build_service  # the old name
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -126,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             token = load_or_create_token(settings.token_path)
             log.info("bearer token from %s", settings.token_path)
-        camera = build_camera(settings)
+        service = build_service(settings)
     except (ConfigError, OSError) as e:
         print(f"elphel-camd: {e}", file=sys.stderr)
         return 1
@@ -140,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sock.listen(128)
         host, port = sock.getsockname()[:2]
         app = create_app(
-            camera,
+            service,
             token=token,
             read_protected=settings.read_protected,
             max_body_bytes=settings.max_body_bytes,
@@ -160,7 +155,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     finally:
         sock.close()
-        camera.close()
+        service.close()
     return 0
 
 

@@ -11,6 +11,10 @@ class CameraError(Exception):
     """Base of every error raised by elphel_camd."""
 
 
+class ConfigError(CameraError, ValueError):
+    """The configuration file or environment is unreadable or names unknown settings."""
+
+
 class I2CError(CameraError, OSError):
     """An I2C transfer failed: names the bus, the device address and the register."""
 

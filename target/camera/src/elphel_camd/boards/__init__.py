@@ -1,0 +1,19 @@
+"""Camera boards: the `Board` protocol and `Frame` (base), the I2C board, the registry.
+
+Boards are found by name (`board_factories`): ``i2c`` is built in; other packages add
+theirs through the ``elphel_camd.boards`` entry-point group.
+"""
+
+from elphel_camd.boards.base import Board, Frame, FrameSync
+from elphel_camd.boards.i2c import I2CBoard
+from elphel_camd.boards.registry import ENTRY_POINT_GROUP, BoardFactory, board_factories
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "Board",
+    "BoardFactory",
+    "Frame",
+    "FrameSync",
+    "I2CBoard",
+    "board_factories",
+]

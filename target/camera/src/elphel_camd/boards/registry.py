@@ -1,0 +1,25 @@
+"""Boards by name: the built-in ``i2c`` board and those of the ``elphel_camd.boards`` group.
+
+Other packages add boards through that entry-point group (the simulator registers
+``sim``), so the daemon never imports them. ``elphel-camd --board NAME`` picks one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from importlib.metadata import entry_points
+
+from elphel_camd.boards.base import Board
+from elphel_camd.boards.i2c import I2CBoard
+
+ENTRY_POINT_GROUP = "elphel_camd.boards"
+
+BoardFactory = Callable[..., Board]
+
+
+def board_factories() -> dict[str, BoardFactory]:
+    """Boards by name: the built-in ones and those registered by other packages."""
+    found: dict[str, BoardFactory] = {"i2c": I2CBoard}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(ep.name, ep.load())
+    return found

@@ -1,0 +1,275 @@
+"""What the daemon keeps on disk: the bearer token file and each port's accepted parameters.
+
+Files the daemon writes are never left torn: the token file and parameter snapshots are
+written to a temporary file in the same directory, flushed to disk, then renamed over the
+old one (`write_atomic`, the one atomic-write helper of the daemon); parameter changes are
+appended to a per-port journal whose lines carry a CRC, so a crash or ``kill -9`` at any
+moment leaves the last acknowledged state readable (`ParamStore`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import secrets
+import tempfile
+import threading
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+
+from elphel_camd.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+PARAMS_VERSION = 1
+
+# -- atomic files ----------------------------------------------------------------------------
+
+
+def write_atomic(path: Path, data: bytes, *, mode: int = 0o644, sync: bool = True) -> None:
+    """Replace ``path`` with ``data`` so that readers see the old or the new file only.
+
+    The rename alone makes the replacement atomic for a killed process; ``sync`` also
+    flushes data and directory to the disk first, for a power loss.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, mode)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            if sync:
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    if sync:
+        fsync_path(path.parent)
+
+
+def fsync_path(path: Path) -> None:
+    """Flush a file's or a directory's data and metadata to the disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def last_journal_line(path: Path) -> bytes | None:
+    """The last intact line of a `ParamStore` journal (without its CRC), or None."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    for line in reversed(data.split(b"\n")):
+        text, _, crc = line.rpartition(b"\t")
+        if text and crc == b"%08x" % zlib.crc32(text):
+            return text
+        if line:
+            log.warning("skipping a torn line at the end of %s", path)
+    return None
+
+
+def remove_stale_temporaries(directory: Path) -> None:
+    """Delete temporary files a killed writer left behind."""
+    if directory.is_dir():
+        for stale in directory.glob(".*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
+
+
+def load_or_create_token(path: Path) -> str:
+    """The token in ``path``; on first start a new random one, written there with mode 0600."""
+    try:
+        token = path.read_text().strip()
+    except FileNotFoundError:
+        token = ""
+    except OSError as e:
+        raise ConfigError(f"cannot read token file {path}: {e}") from e
+    if token:
+        if path.stat().st_mode & 0o077:
+            log.warning("token file %s is readable by others; chmod 600 it", path)
+        return token
+    token = secrets.token_urlsafe(24)
+    try:
+        write_atomic(path, (token + "\n").encode(), mode=0o600)
+    except OSError as e:
+        raise ConfigError(f"cannot create token file {path}: {e}") from e
+    log.info("new bearer token written to %s", path)
+    return token
+
+
+# -- per-port parameters ----------------------------------------------------------------------
+
+
+class ParamStore:
+    """Accepted parameters of each port: a snapshot file plus an append-only journal.
+
+    A save appends one line, the port's whole state, to ``port<N>.log`` with a single
+    ``write`` call and returns: from then on a killed daemon restarts with it (the kernel
+    holds the line even if the process dies), and it costs microseconds where replacing a
+    file costs a rename in the file system's journal. Loading takes the last intact line
+    (each carries a CRC-32, so a line torn by a power loss is skipped), or the snapshot
+    ``port<N>.json`` when the journal is empty. A background thread flushes the journals to
+    the disk within `flush_interval_s` (``sync_each=True`` flushes before `save`
+    returns) and, once a journal passes `compact_bytes`, writes its last state as the new
+    snapshot (atomically) and empties the journal.
+
+    Parameters
+    ----------
+    directory
+        Where ``port<N>.json`` and ``port<N>.log`` live.
+    sync_each
+        Flush every line to the disk before `save` returns (for a power loss).
+    """
+
+    flush_interval_s = 0.25
+    compact_bytes = 64 * 1024
+
+    def __init__(self, directory: Path, *, sync_each: bool = False) -> None:
+        self.directory = directory
+        self.sync_each = sync_each
+        directory.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(directory)
+        self._journals: dict[int, int] = {}  # port -> file descriptor (O_APPEND)
+        self._last: dict[int, bytes] = {}  # port -> the last line saved
+        self._locks: dict[int, threading.Lock] = {}
+        self._dirty: set[int] = set()
+        self._wake = threading.Condition()
+        self._closed = False
+        self._flusher: threading.Thread | None = None
+        if not sync_each:
+            self._flusher = threading.Thread(target=self._flush_loop, name="params-fsync")
+            self._flusher.daemon = True
+            self._flusher.start()
+
+    def path(self, port: int) -> Path:
+        """The snapshot file of a port."""
+        return self.directory / f"port{port}.json"
+
+    def journal_path(self, port: int) -> Path:
+        return self.directory / f"port{port}.log"
+
+    def _journal(self, port: int) -> int:
+        fd = self._journals.get(port)
+        if fd is None:
+            flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_CLOEXEC", 0)
+            fd = self._journals[port] = os.open(self.journal_path(port), flags, 0o644)
+            fsync_path(self.directory)  # the new journal's directory entry, once
+        return fd
+
+    def save(self, port: int, sensor: str, params: Mapping[str, int]) -> None:
+        body = {"version": PARAMS_VERSION, "port": port, "sensor": sensor, "params": dict(params)}
+        text = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
+        line = text + b"\t%08x\n" % zlib.crc32(text)
+        lock = self._locks.get(port) or self._locks.setdefault(port, threading.Lock())
+        with lock:
+            fd = self._journal(port)
+            if os.write(fd, line) != len(line):
+                raise OSError(f"short write to {self.journal_path(port)}")
+            self._last[port] = text
+            if self.sync_each:
+                os.fsync(fd)
+        if self.sync_each:
+            if os.fstat(fd).st_size > self.compact_bytes:
+                self._compact(port)
+        else:
+            with self._wake:
+                self._dirty.add(port)
+                self._wake.notify()
+
+    def _compact(self, port: int) -> None:
+        """Write the last state as the snapshot, then empty the journal.
+
+        The snapshot is written (and flushed, milliseconds) without the port's lock, so
+        saves go on meanwhile; the journal is emptied only if none came in between, else
+        the next flush tries again. A kill between the two steps leaves a snapshot equal
+        to the journal's last line.
+        """
+        lock = self._locks[port]
+        with lock:
+            text = self._last[port]
+        write_atomic(self.path(port), text, sync=True)
+        with lock:
+            if self._last[port] is not text:
+                return
+            os.ftruncate(self._journals[port], 0)
+        os.fsync(self._journals[port])
+
+    def _flush(self, ports: set[int]) -> None:
+        # Without the port's lock: an fsync takes milliseconds, a save must not wait for it.
+        for port in ports:
+            fd = self._journals[port]
+            try:
+                os.fsync(fd)
+                if os.fstat(fd).st_size > self.compact_bytes:
+                    self._compact(port)
+            except OSError as e:  # the next save or flush tries again
+                log.error("port %d: cannot flush saved parameters: %s", port, e)
+
+    def _flush_loop(self) -> None:
+        while True:
+            with self._wake:
+                while not self._dirty and not self._closed:
+                    self._wake.wait()
+                dirty, self._dirty = self._dirty, set()
+                closed = self._closed
+            self._flush(dirty)
+            if closed:
+                return
+            # Coalesce: a burst of changes costs one flush per interval, not one per change
+            # (each flush stalls other writes to the file system for milliseconds).
+            with self._wake:
+                self._wake.wait_for(lambda: self._closed, timeout=self.flush_interval_s)
+
+    def close(self) -> None:
+        """Flush what is pending, stop the background thread and close the journals."""
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+        if self._flusher is not None:
+            self._flusher.join(timeout=10)
+        for port, fd in list(self._journals.items()):
+            with self._locks[port]:
+                os.close(fd)
+                del self._journals[port]
+
+    def load(self, port: int, sensor: str) -> dict[str, int] | None:
+        """Saved parameters of a port, or None (no file, other sensor, unreadable file)."""
+        path = self.journal_path(port)
+        try:
+            text = last_journal_line(path)
+            if text is None:
+                path = self.path(port)
+                text = path.read_bytes()
+            body = json.loads(text)
+        except FileNotFoundError:
+            return None
+        except (OSError, json.JSONDecodeError) as e:
+            log.error("port %d: ignoring unreadable saved parameters %s: %s", port, path, e)
+            return None
+        ok = (
+            isinstance(body, dict)
+            and body.get("version") == PARAMS_VERSION
+            and isinstance(body.get("params"), dict)
+            and all(isinstance(v, int) for v in body["params"].values())
+        )
+        if not ok:
+            log.error("port %d: ignoring saved parameters %s of unknown form", port, path)
+            return None
+        if body.get("sensor") != sensor:
+            log.warning(
+                "port %d: saved parameters are for %s, the port has %s; not restored",
+                port,
+                body.get("sensor"),
+                sensor,
+            )
+            return None
+        return dict(body["params"])
