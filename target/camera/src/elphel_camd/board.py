@@ -39,7 +39,7 @@ from elphel_camd.errors import (
 from elphel_camd.events import EventHub
 from elphel_camd.i2c.bus import I2CBus, open_bus
 from elphel_camd.params import COMMON_TRIGGER_PARAMS, PARAMS
-from elphel_camd.sensors import SensorDriver, detect
+from elphel_camd.sensors import SensorDriver, detect, register_file
 from elphel_camd.sensors.registers import Access, Register
 from elphel_camd.sequencer import MAX_AHEAD, PortSequencer
 
@@ -412,7 +412,7 @@ class Camera:
 
     def register(self, port: int, address: int) -> Register:
         """The register table entry at an address (ParameterRangeError if none)."""
-        table = self.sensor(port).table
+        table = register_file(self.sensor(port)).table
         register = table.at(address)
         if register is None:
             known = ", ".join(f"0x{r.address:02x}" for r in table)
@@ -427,7 +427,7 @@ class Camera:
             raise ParameterRangeError(register.name, f"0x{address:x}", "a readable register")
         seq = self.sequencer(port)
         with seq.lock:
-            return register, seq.driver.read(register.name)
+            return register, register_file(seq.driver).read(register.name)
 
     def write_register(self, port: int, address: int, value: int) -> Register:
         """Write a raw register, checked against the table (bypasses the sequencer)."""
@@ -438,7 +438,7 @@ class Camera:
             raise ParameterRangeError(register.name, value, f"{register.minimum}..{register.limit}")
         seq = self.sequencer(port)
         with seq.lock:
-            seq.driver.write(register.name, value)
+            register_file(seq.driver).write(register.name, value)
         self.events.publish(
             "params", {"port": port, "frame": seq.this_frame, "register": register.name}
         )
@@ -457,7 +457,7 @@ class Camera:
                 seq = self.sequencers[port]
                 try:
                     with seq.lock:
-                        driver.read(driver.chip_id_register)
+                        driver.read_chip_id()
                 except I2CError as e:
                     entry.update(ok=False, error="i2c", detail=str(e))
                     first = first or e

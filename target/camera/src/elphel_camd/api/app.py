@@ -54,6 +54,7 @@ from elphel_camd.errors import (
 )
 from elphel_camd.events import EVENT_TYPES
 from elphel_camd.params import PARAMS
+from elphel_camd.sensors import register_file
 from elphel_camd.sensors.registers import Register
 
 API = "/api/v1"
@@ -452,11 +453,11 @@ def create_app(
         f"{API}/ports/{{port}}/registers",
         response_model=list[RegisterEntry],
         dependencies=reads,
-        responses=_errors(401, 404),
+        responses=_errors(401, 404, 422),
     )
     def list_registers(port: Port) -> JSONResponse:
         """The sensor's register table: names, addresses, access, reset values, limits."""
-        table = camera.sensor(port).table
+        table = register_file(camera.sensor(port)).table
         return JSONResponse(
             [
                 {
