@@ -16,10 +16,15 @@ from typing import ClassVar, NoReturn
 
 from elphel_camd.errors import ParameterRangeError
 from elphel_camd.params import (
+    EXPOSURE,
     GAINS,
+    LIMITFPS,
     TRIG_PERIOD_MIN_REPEAT,
     TRIG_SNAPSHOT,
     TRIG_VALUES,
+    TRIGGERMODE,
+    TRIGSEQ,
+    WINDOW,
     check_range,
 )
 from elphel_camd.sensors.base import State
@@ -154,6 +159,24 @@ def trigger_fps1000(s: Mapping[str, int]) -> int:
     if period < TRIG_PERIOD_MIN_REPEAT:
         return 0
     return round(1e11 / (period * (s["TRIG_DECIMATE"] + 1)))
+
+
+def elphel_ahead(*, frame_snapshot: int) -> dict[str, tuple[int, int]]:
+    """Elphel's ahead table of an Aptina sensor: (free-run, snapshot) frames per function.
+
+    The continuous and async SKIP=0 columns of Elphel's tables: trigger mode and trigger
+    sequencer 2 / 1, gains 1 / 1; window, frame-rate limit and exposure 2 in free-run and
+    ``frame_snapshot`` in snapshot mode (1 on the MT9P006, 2 on the MT9F002).
+    """
+    frame = (2, frame_snapshot)
+    return {
+        TRIGGERMODE: (2, 1),
+        WINDOW: frame,
+        GAINS: (1, 1),
+        LIMITFPS: frame,
+        EXPOSURE: frame,
+        TRIGSEQ: (2, 1),
+    }
 
 
 def busy_s(*, rows: int, height: int, row_s: float) -> float:

@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import TypeVar
 
 from elphel_camd.errors import LeptonError
 from elphel_camd.i2c.regio import RegisterIO
@@ -236,6 +237,9 @@ class CCITimeoutError(LeptonError, TimeoutError):
     """The Lepton stayed busy (or did not finish booting) past the timeout."""
 
 
+E = TypeVar("E", bound=LeptonError)
+
+
 class CCI:
     """Issues CCI commands to one Lepton.
 
@@ -269,16 +273,22 @@ class CCI:
     def status(self) -> int:
         return self.io.read_word(REG_STATUS)
 
-    def _timeout(self, what: str, word: int, status: int) -> CCITimeoutError:
-        return CCITimeoutError(
-            f"{self.io.bus_name}: Lepton 0x{self.io.address:02x} {what} "
-            f"(status 0x{status:04x}) after {self.timeout_s} s",
+    def _error(
+        self, kind: type[E], detail: str, *, word: int, register: int, code: int | None
+    ) -> E:
+        """An error naming the bus, the Lepton's address, the command word and the code."""
+        return kind(
+            f"{self.io.bus_name}: Lepton 0x{self.io.address:02x} {detail}",
             bus=self.io.bus_name,
             address=self.io.address,
-            register=REG_STATUS,
+            register=register,
             command=word,
-            code=None,
+            code=code,
         )
+
+    def _timeout(self, what: str, word: int, status: int) -> CCITimeoutError:
+        detail = f"{what} (status 0x{status:04x}) after {self.timeout_s} s"
+        return self._error(CCITimeoutError, detail, word=word, register=REG_STATUS, code=None)
 
     def wait_ready(self, word: int = 0, *, booted: bool = False) -> int:
         """Poll the status register until BUSY clears (and, if asked, boot completed).
@@ -306,15 +316,8 @@ class CCI:
         code = error_code(status)
         if code:
             meaning = ERROR_NAMES.get(code, "unknown error")
-            raise LeptonError(
-                f"{self.io.bus_name}: Lepton 0x{self.io.address:02x} refused "
-                f"{command_name(word)} (0x{word:04x}): error {code} ({meaning})",
-                bus=self.io.bus_name,
-                address=self.io.address,
-                register=REG_COMMAND,
-                command=word,
-                code=code,
-            )
+            detail = f"refused {command_name(word)} (0x{word:04x}): error {code} ({meaning})"
+            raise self._error(LeptonError, detail, word=word, register=REG_COMMAND, code=code)
 
     def _issue(self, word: int) -> None:
         self.io.write(REG_COMMAND, word)

@@ -18,22 +18,13 @@ from typing import ClassVar
 
 from elphel_camd.params import (
     EXPOSURE,
-    GAINS,
     LIMITFPS,
     TRIG_PERIOD_MIN_REPEAT,
     TRIG_SNAPSHOT,
     TRIGGERMODE,
-    TRIGSEQ,
     WINDOW,
 )
-from elphel_camd.sensors.aptina import (
-    AptinaSensor,
-    busy_s,
-    check_keep_fps,
-    check_trigger,
-    sensor_height,
-    unreachable_fps_limit,
-)
+from elphel_camd.sensors import aptina
 from elphel_camd.sensors.base import State
 from elphel_camd.sensors.mt9f002_registers import (
     ARRAY_HEIGHT,
@@ -93,22 +84,15 @@ COARSE_MAX = FRAME_LINES_MAX - 1  # the frame must stay one row longer than the 
 GAIN_MIN = 0x18000  # 1.5x: colamp 1, analog2 48 (Elphel's smallest analog gain)
 GAIN_MAX = 0xFE000  # 15.875x: colamp 3, analog2 127
 
-_ANALOG2 = TABLE.field("green1_gain.analog2")  # every colour gain has this layout
-_ANALOG3 = TABLE.field("green1_gain.analog3")
-_COLAMP = TABLE.field("green1_gain.colamp")
-_DIGITAL = TABLE.field("green1_gain.digital")
-
 # Parameters that are register fields (reference 2.2): flips in read_mode; the trigger
 # mode in slave_mode, whose other bits are Elphel's constant 0x2000 (its reset value).
 RULES = FieldRules(
     TABLE,
-    {
-        WINDOW: (
-            FieldRule("FLIPH", "read_mode.flip_horizontal"),
-            FieldRule("FLIPV", "read_mode.flip_vertical"),
-        ),
-        TRIGGERMODE: (FieldRule("TRIG", "slave_mode.triggered", mask=TRIG_SNAPSHOT),),
-    },
+    [
+        FieldRule(WINDOW, "FLIPH", "read_mode.flip_horizontal"),
+        FieldRule(WINDOW, "FLIPV", "read_mode.flip_vertical"),
+        FieldRule(TRIGGERMODE, "TRIG", "slave_mode.triggered", mask=TRIG_SNAPSHOT),
+    ],
     from_reset=frozenset({"slave_mode"}),
 )
 
@@ -127,6 +111,12 @@ def row_clocks(width: int, line_length: int) -> int:
 def row_time_s(width: int) -> float:
     """Duration of one row at an output width."""
     return row_clocks(width, line_length_pck(width)) / VT_PIX_CLK_HZ
+
+
+_ANALOG2 = TABLE.field("green1_gain.analog2")  # every colour gain has this layout
+_ANALOG3 = TABLE.field("green1_gain.analog3")
+_COLAMP = TABLE.field("green1_gain.colamp")
+_DIGITAL = TABLE.field("green1_gain.digital")
 
 
 def decode_gain(code: int) -> float:
@@ -157,7 +147,7 @@ def frame_lines(state: Mapping[str, int]) -> int:
     """
     width = state["WOI_WIDTH"]
     row_s = row_time_s(width)
-    lines = sensor_height(state) + FRAME_BLANKING_MIN
+    lines = aptina.sensor_height(state) + FRAME_BLANKING_MIN
     period = state["TRIG_PERIOD"]
     if state["TRIG"] & TRIG_SNAPSHOT:
         if period >= TRIG_PERIOD_MIN_REPEAT:
@@ -169,7 +159,7 @@ def frame_lines(state: Mapping[str, int]) -> int:
     return max(lines, state["VEXPOS"] + 1)
 
 
-class MT9F002(AptinaSensor):
+class MT9F002(aptina.AptinaSensor):
     """Driver of the MT9F002 on its 16-bit-address (manufacturer) register map."""
 
     model = MODEL
@@ -186,16 +176,9 @@ class MT9F002(AptinaSensor):
     gain_max = GAIN_MAX
     default_gain = GAIN_MIN
     exposure_rows_max = COARSE_MAX
-    # Elphel's mt9f002 ahead table (continuous SKIP=0, async SKIP=0 columns): window,
-    # exposure and frame length need 2 frames in both modes.
-    ahead: ClassVar[Mapping[str, tuple[int, int]]] = {
-        TRIGGERMODE: (2, 1),
-        WINDOW: (2, 2),
-        GAINS: (1, 1),
-        LIMITFPS: (2, 2),
-        EXPOSURE: (2, 2),
-        TRIGSEQ: (2, 1),
-    }
+    # Elphel's mt9f002 ahead table: window, exposure and frame length need 2 frames in
+    # both modes.
+    ahead: ClassVar[Mapping[str, tuple[int, int]]] = aptina.elphel_ahead(frame_snapshot=2)
     rules = RULES
     init_writes = INIT_WRITES
     init_rewrites = True  # Elphel writes every entry, whatever the chip holds
@@ -204,14 +187,16 @@ class MT9F002(AptinaSensor):
     row_time_s = staticmethod(row_time_s)
 
     def check_timing(self, s: State, *, height: int, rows: int, row_s: float) -> bool:
-        snapshot = check_trigger(s, busy_s=busy_s(rows=rows, height=height, row_s=row_s))
+        snapshot = aptina.check_trigger(
+            s, busy_s=aptina.busy_s(rows=rows, height=height, row_s=row_s)
+        )
         lines = height + FRAME_BLANKING_MIN
         if not snapshot and s["FPSFLAGS"] & 1 and s["FP1000SLIM"]:
             wanted = math.ceil(1000 / s["FP1000SLIM"] / row_s)
             if wanted > FRAME_LINES_MAX:
-                unreachable_fps_limit(s, row_s=row_s, max_rows=FRAME_LINES_MAX)
+                aptina.unreachable_fps_limit(s, row_s=row_s, max_rows=FRAME_LINES_MAX)
             lines = max(lines, wanted)
-        check_keep_fps(s, rows=rows, frame_rows=lines, row_s=row_s)
+        aptina.check_keep_fps(s, rows=rows, frame_rows=lines, row_s=row_s)
         return snapshot
 
     def frame_period_s(self, state: Mapping[str, int]) -> float:
@@ -221,7 +206,7 @@ class MT9F002(AptinaSensor):
         if function == WINDOW:
             left = CLEAR_LEFT + state["WOI_LEFT"]
             top = CLEAR_TOP + state["WOI_TOP"]
-            height = sensor_height(state)
+            height = aptina.sensor_height(state)
             return {
                 "x_addr_start": left,
                 "x_addr_end": left + state["WOI_WIDTH"] - 1,

@@ -35,6 +35,28 @@ GAIN_FIELDS = (
     Field("digital", 15, 12, doc="digital gain x value (Elphel writes 1)"),
 )
 
+# Bit fields of the registers that have them (reference 2.2).
+RESET_REGISTER_FIELDS = (
+    Field("lock_registers", 3, doc="0 allows writing some read-only registers"),
+    Field("mask_bad_frames", 9, doc="1 masks broken frames"),
+)
+
+PIXEL_ORDER_FIELDS = (
+    Field("column", 0, doc="the first pixel is an odd column of the GRBG cell"),
+    Field("row", 1, doc="the first pixel is an odd row of the GRBG cell"),
+)
+
+READ_MODE_FIELDS = (
+    Field("y_odd_inc", 5, 0, doc="1 normal, 3, 7, ... 63 skipping"),
+    Field("x_odd_inc", 8, 6, doc="1 normal, 3 = 1/2, 7 = 1/4"),
+    Field("xy_bin", 10, doc="x and y binning"),
+    Field("x_bin_analog", 11, doc="x analog binning"),
+    Field("flip_horizontal", 14, doc="horizontal flip (FLIPH)"),
+    Field("flip_vertical", 15, doc="vertical flip: start from y_addr_end (FLIPV)"),
+)
+
+SLAVE_MODE_FIELDS = (Field("triggered", 15, doc="1 waits for the trigger (Elphel's 0xA000)"),)
+
 TABLE = RegisterTable(
     MODEL,
     [
@@ -142,10 +164,7 @@ TABLE = RegisterTable(
             0x011C,
             doc="bit 9 masks broken frames, bit 3 guards RO registers; reset value not in "
             "the reference, Elphel writes 0x011C after init",
-            fields=(
-                Field("lock_registers", 3, doc="0 allows writing some read-only registers"),
-                Field("mask_bad_frames", 9, doc="1 masks broken frames"),
-            ),
+            fields=RESET_REGISTER_FIELDS,
         ),
         Register(
             "pixel_order",
@@ -154,10 +173,7 @@ TABLE = RegisterTable(
             Access.RO,
             maximum=3,
             doc="colour of the first pixel: 0 GRBG, 1 RGGB, 2 BGGR, 3 GBRG (follows the flips)",
-            fields=(
-                Field("column", 0, doc="the first pixel is an odd column of the GRBG cell"),
-                Field("row", 1, doc="the first pixel is an odd row of the GRBG cell"),
-            ),
+            fields=PIXEL_ORDER_FIELDS,
         ),
         Register(
             "gpi_status",
@@ -194,14 +210,7 @@ TABLE = RegisterTable(
             0x0041,
             doc="bit 15 vertical flip, bit 14 horizontal flip, bits 8:6 x_odd_inc, "
             "bits 5:0 y_odd_inc",
-            fields=(
-                Field("y_odd_inc", 5, 0, doc="1 normal, 3, 7, ... 63 skipping"),
-                Field("x_odd_inc", 8, 6, doc="1 normal, 3 = 1/2, 7 = 1/4"),
-                Field("xy_bin", 10, doc="x and y binning"),
-                Field("x_bin_analog", 11, doc="x analog binning"),
-                Field("flip_horizontal", 14, doc="horizontal flip (FLIPH)"),
-                Field("flip_vertical", 15, doc="vertical flip: start from y_addr_end (FLIPV)"),
-            ),
+            fields=READ_MODE_FIELDS,
         ),
         Register(
             "green1_gain",
@@ -230,7 +239,7 @@ TABLE = RegisterTable(
             SLAVE_MODE_FREE_RUN,
             doc="0x2000 free-run (no GRR), 0xA000 triggered (TRIG=4); other bits and the "
             "reset value not in the reference",
-            fields=(Field("triggered", 15, doc="1 waits for the trigger (Elphel's 0xA000)"),),
+            fields=SLAVE_MODE_FIELDS,
         ),
         Register(
             "hispi_timing",

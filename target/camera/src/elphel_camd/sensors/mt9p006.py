@@ -12,22 +12,12 @@ from typing import ClassVar
 
 from elphel_camd.params import (
     EXPOSURE,
-    GAINS,
     LIMITFPS,
     TRIG_SNAPSHOT,
     TRIGGERMODE,
-    TRIGSEQ,
     WINDOW,
 )
-from elphel_camd.sensors.aptina import (
-    TRIG_GRR,
-    AptinaSensor,
-    busy_s,
-    check_keep_fps,
-    check_trigger,
-    sensor_height,
-    unreachable_fps_limit,
-)
+from elphel_camd.sensors import aptina
 from elphel_camd.sensors.base import State
 from elphel_camd.sensors.mt9p006_registers import (
     ACTIVE_HEIGHT,
@@ -78,30 +68,27 @@ SHUTTER_MAX = 0xFFFFF
 GAIN_MIN = 0x10000  # 1.0
 GAIN_MAX = 0xFC000  # 15.75, the largest analog code (x2 stage, 63/8)
 
-_ANALOG = TABLE.field("green1_gain.analog")  # every colour gain has this layout
-_X2 = TABLE.field("green1_gain.x2")
-_DIGITAL = TABLE.field("green1_gain.digital")
-
 # Parameters that are register fields (reference 1.4, 1.5): flips in read mode 2, the
 # trigger mode in read mode 1.
 RULES = FieldRules(
     TABLE,
-    {
-        WINDOW: (
-            FieldRule("FLIPH", "read_mode_2.mirror_column"),
-            FieldRule("FLIPV", "read_mode_2.mirror_row"),
-        ),
-        TRIGGERMODE: (
-            FieldRule("TRIG", "read_mode_1.snapshot", mask=TRIG_SNAPSHOT),
-            FieldRule("TRIG", "read_mode_1.global_reset", mask=TRIG_GRR),
-        ),
-    },
+    [
+        FieldRule(WINDOW, "FLIPH", "read_mode_2.mirror_column"),
+        FieldRule(WINDOW, "FLIPV", "read_mode_2.mirror_row"),
+        FieldRule(TRIGGERMODE, "TRIG", "read_mode_1.snapshot", mask=TRIG_SNAPSHOT),
+        FieldRule(TRIGGERMODE, "TRIG", "read_mode_1.global_reset", mask=aptina.TRIG_GRR),
+    ],
 )
 
 
 def row_time_s(width: int, *, horizontal_blank: int = HORIZONTAL_BLANK) -> float:
     """Duration of one row at a window width (Elphel's timing model)."""
     return (width + 2 * horizontal_blank) / SENSOR_CLOCK_HZ
+
+
+_ANALOG = TABLE.field("green1_gain.analog")  # every colour gain has this layout
+_X2 = TABLE.field("green1_gain.x2")
+_DIGITAL = TABLE.field("green1_gain.digital")
 
 
 def decode_gain(code: int) -> float:
@@ -129,11 +116,11 @@ def vertical_blank(state: Mapping[str, int]) -> int:
     limit = state["FP1000SLIM"]
     if state["FPSFLAGS"] & 1 and limit:
         row_s = row_time_s(state["WOI_WIDTH"])
-        blank = max(blank, math.ceil(1000 / limit / row_s) - sensor_height(state))
+        blank = max(blank, math.ceil(1000 / limit / row_s) - aptina.sensor_height(state))
     return blank
 
 
-class MT9P006(AptinaSensor):
+class MT9P006(aptina.AptinaSensor):
     """Driver of the MT9P006 / MT9P031 on its 8-bit-address register map."""
 
     model = MODEL
@@ -151,15 +138,8 @@ class MT9P006(AptinaSensor):
     gain_max = GAIN_MAX
     default_gain = 0x10000
     exposure_rows_max = SHUTTER_MAX
-    # Elphel's mt9x001 ahead table (continuous SKIP=0, async SKIP=0 columns).
-    ahead: ClassVar[Mapping[str, tuple[int, int]]] = {
-        TRIGGERMODE: (2, 1),
-        WINDOW: (2, 1),
-        GAINS: (1, 1),
-        LIMITFPS: (2, 1),
-        EXPOSURE: (2, 1),
-        TRIGSEQ: (2, 1),
-    }
+    # Elphel's mt9x001 ahead table.
+    ahead: ClassVar[Mapping[str, tuple[int, int]]] = aptina.elphel_ahead(frame_snapshot=1)
     rules = RULES
     # No skipping, no binning (Elphel's DCM and BIN 1).
     fixed: ClassVar[Mapping[str, Mapping[str, int]]] = {
@@ -173,12 +153,12 @@ class MT9P006(AptinaSensor):
     def check_timing(self, s: State, *, height: int, rows: int, row_s: float) -> bool:
         blank = vertical_blank(s)
         if blank > VERTICAL_BLANK_MAX:
-            unreachable_fps_limit(s, row_s=row_s, max_rows=height + VERTICAL_BLANK_MAX)
-        check_keep_fps(s, rows=rows, frame_rows=height + blank, row_s=row_s)
-        return check_trigger(s, busy_s=busy_s(rows=rows, height=height, row_s=row_s))
+            aptina.unreachable_fps_limit(s, row_s=row_s, max_rows=height + VERTICAL_BLANK_MAX)
+        aptina.check_keep_fps(s, rows=rows, frame_rows=height + blank, row_s=row_s)
+        return aptina.check_trigger(s, busy_s=aptina.busy_s(rows=rows, height=height, row_s=row_s))
 
     def frame_period_s(self, state: Mapping[str, int]) -> float:
-        rows = max(sensor_height(state) + vertical_blank(state), state["VEXPOS"] + 1)
+        rows = max(aptina.sensor_height(state) + vertical_blank(state), state["VEXPOS"] + 1)
         return rows * row_time_s(state["WOI_WIDTH"])
 
     def computed_registers(self, function: str, state: Mapping[str, int]) -> dict[str, int]:
@@ -186,7 +166,7 @@ class MT9P006(AptinaSensor):
             return {
                 "row_start": CLEAR_TOP + state["WOI_TOP"],
                 "column_start": CLEAR_LEFT + state["WOI_LEFT"],
-                "row_size": sensor_height(state) - 1,
+                "row_size": aptina.sensor_height(state) - 1,
                 "column_size": state["WOI_WIDTH"] - 1,
             }
         if function == EXPOSURE:

@@ -31,6 +31,73 @@ GAIN_FIELDS = (
     Field("digital", 14, 8, doc="digital gain 1 + value/8 (Elphel leaves it 0)"),
 )
 
+# Bit fields of the registers that have them (reference 1.2).
+OUTPUT_CONTROL_FIELDS = (
+    Field("hold", 0, doc="1 = hold integration, gain, blanking, flip updates"),
+    Field("chip_enable", 1, doc="0 stops readout; 0 -> 1 restarts the frame"),
+    Field("pixclk_slew", 9, 7),
+    Field("output_slew", 12, 10),
+)
+
+PIXEL_CLOCK_CONTROL_FIELDS = (
+    Field("divide", 6, 0, doc="divider, powers of two"),
+    Field("shift", 10, 8),
+    Field("invert", 15),
+)
+
+RESTART_FIELDS = (
+    Field("restart", 0, doc="restart the frame; self-clearing"),
+    Field("pause", 1, doc="pause restart"),
+    Field("trigger", 2, doc="software trigger, as the TRIGGER pin"),
+)
+
+RESET_FIELDS = (Field("soft_reset", 0, doc="1 = soft reset asserted, 0 = normal"),)
+
+PLL_CONTROL_FIELDS = (Field("power", 0), Field("use", 1))
+
+PLL_CONFIG_1_FIELDS = (Field("n_minus_1", 5, 0), Field("m", 15, 8))
+
+PLL_CONFIG_2_FIELDS = (Field("p1_minus_1", 4, 0),)
+
+READ_MODE_1_FIELDS = (
+    Field("strobe_end", 1, 0),
+    Field("strobe_start", 3, 2),
+    Field("strobe_enable", 4),
+    Field("strobe_invert", 5),
+    Field("bulb", 6, doc="bulb exposure"),
+    Field("global_reset", 7, doc="global reset release (GRR); 0 = ERS"),
+    Field("snapshot", 8, doc="0 continuous, 1 wait for a trigger"),
+    Field("invert_trigger", 9),
+    Field("continuous_line_valid", 10),
+    Field("xor_line_valid", 11),
+)
+
+READ_MODE_2_FIELDS = (
+    Field("column_sum", 5, doc="sum when binning (0 = average)"),
+    Field("row_blc", 6, doc="row-wise black level correction"),
+    Field("show_dark_rows", 11),
+    Field("show_dark_columns", 12),
+    Field("mirror_column", 14, doc="horizontal flip"),
+    Field("mirror_row", 15, doc="vertical flip"),
+)
+
+ROW_ADDRESS_MODE_FIELDS = (
+    Field("row_skip", 2, 0, doc="skip - 1"),
+    Field("row_bin", 5, 4, doc="bin - 1"),
+)
+
+COLUMN_ADDRESS_MODE_FIELDS = (
+    Field("column_skip", 2, 0, doc="skip - 1"),
+    Field("column_bin", 5, 4, doc="bin - 1"),
+)
+
+BLC_CONTROL_FIELDS = (Field("manual", 0, doc="manual black level correction"),)
+
+TEST_PATTERN_FIELDS = (
+    Field("enable", 0),
+    Field("mode", 6, 3, doc="0 colour field, 1 h-gradient, 2 v-gradient, ..."),
+)
+
 TABLE = RegisterTable(
     MODEL,
     [
@@ -80,12 +147,7 @@ TABLE = RegisterTable(
             0x07,
             0x1F82,
             doc="bit 0 hold updates, bit 1 chip enable",
-            fields=(
-                Field("hold", 0, doc="1 = hold integration, gain, blanking, flip updates"),
-                Field("chip_enable", 1, doc="0 stops readout; 0 -> 1 restarts the frame"),
-                Field("pixclk_slew", 9, 7),
-                Field("output_slew", 12, 10),
-            ),
+            fields=OUTPUT_CONTROL_FIELDS,
         ),
         Register(
             "shutter_width_upper",
@@ -104,22 +166,14 @@ TABLE = RegisterTable(
             0x0A,
             0,
             doc="divide, shift, invert",
-            fields=(
-                Field("divide", 6, 0, doc="divider, powers of two"),
-                Field("shift", 10, 8),
-                Field("invert", 15),
-            ),
+            fields=PIXEL_CLOCK_CONTROL_FIELDS,
         ),
         Register(
             "restart",
             0x0B,
             0,
             doc="bit 0 restart, bit 1 pause, bit 2 software trigger",
-            fields=(
-                Field("restart", 0, doc="restart the frame; self-clearing"),
-                Field("pause", 1, doc="pause restart"),
-                Field("trigger", 2, doc="software trigger, as the TRIGGER pin"),
-            ),
+            fields=RESTART_FIELDS,
         ),
         Register("shutter_delay", 0x0C, 0, maximum=0x1FFF, doc="sub-row integration reduction"),
         Register(
@@ -128,21 +182,21 @@ TABLE = RegisterTable(
             0,
             maximum=1,
             doc="1 = soft reset asserted",
-            fields=(Field("soft_reset", 0, doc="1 = soft reset asserted, 0 = normal"),),
+            fields=RESET_FIELDS,
         ),
         Register(
             "pll_control",
             0x10,
             0x0050,
             doc="bit 0 power PLL, bit 1 use PLL",
-            fields=(Field("power", 0), Field("use", 1)),
+            fields=PLL_CONTROL_FIELDS,
         ),
         Register(
             "pll_config_1",
             0x11,
             0x6404,
             doc="M (15:8), N-1 (5:0)",
-            fields=(Field("n_minus_1", 5, 0), Field("m", 15, 8)),
+            fields=PLL_CONFIG_1_FIELDS,
         ),
         Register(
             "pll_config_2",
@@ -150,39 +204,21 @@ TABLE = RegisterTable(
             0,
             maximum=0x1F,
             doc="P1-1",
-            fields=(Field("p1_minus_1", 4, 0),),
+            fields=PLL_CONFIG_2_FIELDS,
         ),
         Register(
             "read_mode_1",
             0x1E,
             0x4006,
             doc="bit 7 global reset release, bit 8 snapshot, bit 9 invert trigger",
-            fields=(
-                Field("strobe_end", 1, 0),
-                Field("strobe_start", 3, 2),
-                Field("strobe_enable", 4),
-                Field("strobe_invert", 5),
-                Field("bulb", 6, doc="bulb exposure"),
-                Field("global_reset", 7, doc="global reset release (GRR); 0 = ERS"),
-                Field("snapshot", 8, doc="0 continuous, 1 wait for a trigger"),
-                Field("invert_trigger", 9),
-                Field("continuous_line_valid", 10),
-                Field("xor_line_valid", 11),
-            ),
+            fields=READ_MODE_1_FIELDS,
         ),
         Register(
             "read_mode_2",
             0x20,
             0x0040,
             doc="bit 14 column mirror (FLIPH), bit 15 row mirror (FLIPV)",
-            fields=(
-                Field("column_sum", 5, doc="sum when binning (0 = average)"),
-                Field("row_blc", 6, doc="row-wise black level correction"),
-                Field("show_dark_rows", 11),
-                Field("show_dark_columns", 12),
-                Field("mirror_column", 14, doc="horizontal flip"),
-                Field("mirror_row", 15, doc="vertical flip"),
-            ),
+            fields=READ_MODE_2_FIELDS,
         ),
         Register(
             "row_address_mode",
@@ -190,7 +226,7 @@ TABLE = RegisterTable(
             0,
             maximum=0x37,
             doc="row skip (2:0), row bin (5:4)",
-            fields=(Field("row_skip", 2, 0, doc="skip - 1"), Field("row_bin", 5, 4, doc="bin - 1")),
+            fields=ROW_ADDRESS_MODE_FIELDS,
         ),
         Register(
             "column_address_mode",
@@ -198,10 +234,7 @@ TABLE = RegisterTable(
             0,
             maximum=0x37,
             doc="column skip (2:0), column bin (5:4)",
-            fields=(
-                Field("column_skip", 2, 0, doc="skip - 1"),
-                Field("column_bin", 5, 4, doc="bin - 1"),
-            ),
+            fields=COLUMN_ADDRESS_MODE_FIELDS,
         ),
         Register(
             "green1_gain",
@@ -235,7 +268,7 @@ TABLE = RegisterTable(
             0x62,
             0,
             doc="bit 0 manual black level",
-            fields=(Field("manual", 0, doc="manual black level correction"),),
+            fields=BLC_CONTROL_FIELDS,
         ),
         Register("reserved_7f", 0x7F, 0, doc="written 0 at init against blue blooming columns"),
         Register(
@@ -243,10 +276,7 @@ TABLE = RegisterTable(
             0xA0,
             0,
             doc="bit 0 enable, bits 6:3 mode",
-            fields=(
-                Field("enable", 0),
-                Field("mode", 6, 3, doc="0 colour field, 1 h-gradient, 2 v-gradient, ..."),
-            ),
+            fields=TEST_PATTERN_FIELDS,
         ),
     ],
     address_bytes=1,

@@ -244,13 +244,15 @@ class RegisterTable:
 
 @dataclass(frozen=True)
 class FieldRule:
-    """A register field that follows a frame parameter.
+    """A register field that follows a frame parameter, written by one program function.
 
     The field takes the parameter's value, or, with ``mask``, 1 when the parameter has any
     of the mask's bits set and 0 otherwise (``TRIG & 4`` -> the snapshot bit).
 
     Parameters
     ----------
+    function
+        The program function that writes the register (``"window"``).
     parameter
         The frame parameter (``"FLIPH"``).
     field
@@ -259,6 +261,7 @@ class FieldRule:
         Bits of the parameter that set a one-bit field; None to copy the value.
     """
 
+    function: str
     parameter: str
     field: str
     mask: int | None = None
@@ -269,7 +272,7 @@ class FieldRule:
 
 
 class FieldRules:
-    """Parameter -> field rules of one sensor, by program function, checked on creation.
+    """The parameter -> field rules of one sensor, checked on creation.
 
     A register that rules touch is composed from its current value (its shadow, or its
     reset value when there is no shadow yet), so bits no rule owns keep what the chip
@@ -281,7 +284,7 @@ class FieldRules:
     table
         The table the fields belong to; every rule's field must be declared there.
     rules
-        The rules of each program function.
+        The rules, in the order their registers are written.
     from_reset
         Registers composed from their reset value rather than from the shadow.
     """
@@ -289,30 +292,33 @@ class FieldRules:
     def __init__(
         self,
         table: RegisterTable,
-        rules: Mapping[str, Sequence[FieldRule]],
+        rules: Sequence[FieldRule],
         *,
         from_reset: frozenset[str] = frozenset(),
     ) -> None:
         self.table = table
-        self.rules = {function: tuple(list_) for function, list_ in rules.items()}
+        self.rules = tuple(rules)
         self.from_reset = from_reset
-        self._bound: dict[str, BoundField] = {}
-        for function_rules in self.rules.values():
-            for rule in function_rules:
-                self._bound[rule.field] = table.field(rule.field)
+        self._bound = {rule.field: table.field(rule.field) for rule in self.rules}
         for name in from_reset:
             table[name]
 
     def __iter__(self) -> Iterator[FieldRule]:
-        for function_rules in self.rules.values():
-            yield from function_rules
+        return iter(self.rules)
+
+    @property
+    def functions(self) -> frozenset[str]:
+        """The program functions that have rules."""
+        return frozenset(rule.function for rule in self.rules)
 
     def registers(
         self, function: str, state: Mapping[str, int], current: Mapping[str, int]
     ) -> dict[str, int]:
         """Values of the registers a function's rules touch, in the order of the rules."""
         out: dict[str, int] = {}
-        for rule in self.rules.get(function, ()):
+        for rule in self.rules:
+            if rule.function != function:
+                continue
             bound = self._bound[rule.field]
             register = bound.register
             if register.name not in out:
