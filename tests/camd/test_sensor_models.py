@@ -396,6 +396,30 @@ def test_rest_info_lists_all_three_models():
     assert "fixed at 160x120" in refused.json()["detail"]
 
 
+def test_rest_raw_registers_are_refused_on_the_command_protocol_lepton():
+    _, cam = camera()
+    client = TestClient(create_app(cam, token="t"))
+    table = client.get(f"/api/v1/ports/{L}/registers")
+    assert table.status_code == 422
+    assert "LEPTON35 is a command-protocol sensor" in table.json()["detail"]
+    assert client.get(f"/api/v1/ports/{L}/registers/0x0002").status_code == 422
+    auth = {"Authorization": "Bearer t"}
+    written = client.put(f"/api/v1/ports/{L}/registers/0x0004", json={"value": 1}, headers=auth)
+    assert written.status_code == 422
+    # The register-file sensors keep their raw view, fields and all.
+    assert client.get(f"/api/v1/ports/{F}/registers").status_code == 200
+    assert cam.sensor(F).fields_of("read_mode", 0xC041)["flip_vertical"] == 1
+
+
+def test_health_reads_every_sensor_identity_the_lepton_by_its_cci_status():
+    _, cam = camera()
+    report = cam.health()
+    assert report["status"] == "ok"
+    assert [p["ok"] for p in report["ports"]] == [True, True, True, True]
+    assert cam.sensor(L).read_chip_id() == cci.STATUS_READY
+    assert cam.info()["ports"][L]["sensor"]["chip_id"] == cci.STATUS_READY
+
+
 # -- the simulated Lepton's CCI state machine ---------------------------------------------
 
 
