@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from functools import cached_property
 
 
 class Access(StrEnum):
@@ -46,21 +47,22 @@ class Field:
     lsb: int | None = None
     doc: str = ""
 
-    @property
+    # Cached: drivers and chips decode fields on every frame.
+    @cached_property
     def shift(self) -> int:
         """Position of the least significant bit."""
         return self.msb if self.lsb is None else self.lsb
 
-    @property
+    @cached_property
     def width(self) -> int:
         return self.msb - self.shift + 1
 
-    @property
+    @cached_property
     def mask(self) -> int:
         """The field's bits in place."""
         return ((1 << self.width) - 1) << self.shift
 
-    @property
+    @cached_property
     def limit(self) -> int:
         """Largest value the field holds."""
         return (1 << self.width) - 1
@@ -135,15 +137,15 @@ class BoundField:
 
     def get(self, word: int) -> int:
         """The field's value in a register value."""
-        return (word & self.field.mask) >> self.field.shift
+        f = self.field
+        return (word & f.mask) >> f.shift
 
     def put(self, word: int, value: int) -> int:
         """A register value with the field set to ``value`` (the other bits kept)."""
-        if not 0 <= value <= self.field.limit:
-            raise ValueError(
-                f"{self.name} (bits {self.field.bits}) = {value}; allowed 0..{self.field.limit}"
-            )
-        return (word & ~self.field.mask) | value << self.field.shift
+        f = self.field
+        if not 0 <= value <= f.limit:
+            raise ValueError(f"{self.name} (bits {f.bits}) = {value}; allowed 0..{f.limit}")
+        return (word & ~f.mask) | value << f.shift
 
     @property
     def reset(self) -> int:
@@ -299,7 +301,10 @@ class FieldRules:
         self.table = table
         self.rules = tuple(rules)
         self.from_reset = from_reset
-        self._bound = {rule.field: table.field(rule.field) for rule in self.rules}
+        self._by_function: dict[str, list[tuple[FieldRule, BoundField]]] = {}
+        for rule in self.rules:
+            bound = table.field(rule.field)
+            self._by_function.setdefault(rule.function, []).append((rule, bound))
         for name in from_reset:
             table[name]
 
@@ -316,10 +321,7 @@ class FieldRules:
     ) -> dict[str, int]:
         """Values of the registers a function's rules touch, in the order of the rules."""
         out: dict[str, int] = {}
-        for rule in self.rules:
-            if rule.function != function:
-                continue
-            bound = self._bound[rule.field]
+        for rule, bound in self._by_function.get(function, ()):
             register = bound.register
             if register.name not in out:
                 if register.name in self.from_reset:
