@@ -7,7 +7,14 @@ import pytest
 from elphel_camd.errors import I2CError, LeptonError
 from elphel_camd.i2c import RegisterIO
 from elphel_camd.params import EXPOSURE, WINDOW
-from elphel_camd.sensors import Lepton35, cci, detect
+from elphel_camd.sensors import (
+    CommandSensor,
+    Lepton35,
+    RegisterFileSensor,
+    cci,
+    detect,
+    register_file,
+)
 from tests.camd.scripted_bus import ScriptedBus
 
 A = 0x2A  # the Lepton's address
@@ -266,7 +273,13 @@ def test_woi_height_122_turns_telemetry_on_through_program():
     assert d.program(WINDOW, s) == ["SYS_TELEMETRY_ENABLE"]
     assert d.program(WINDOW, s) == []
     assert d.program(EXPOSURE, s) == []
-    assert d.registers(WINDOW, s) == {}
+    # No frame-synchronised registers: the Lepton is a command sensor, not a register file.
+    assert isinstance(d, CommandSensor) and not isinstance(d, RegisterFileSensor)
+    assert not hasattr(d, "registers") and not hasattr(d, "table")
+    # Its raw register view is the CCI interface itself, read as it is (no shadow).
+    raw = register_file(d)
+    assert raw.table is cci.REGISTERS
+    assert [r.name for r in raw.table][:3] == ["power", "status", "command"]
     bus.done()
 
 

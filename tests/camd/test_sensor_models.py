@@ -396,6 +396,36 @@ def test_rest_info_lists_all_three_models():
     assert "fixed at 160x120" in refused.json()["detail"]
 
 
+def test_rest_raw_registers_of_the_lepton_are_its_cci_interface():
+    _, cam = camera()
+    client = TestClient(create_app(cam, token="t"))
+    table = client.get(f"/api/v1/ports/{L}/registers")
+    assert table.status_code == 200
+    names = [r["name"] for r in table.json()]
+    assert names[:4] == ["power", "status", "command", "data_length"]
+    status = next(r for r in table.json() if r["name"] == "status")
+    assert {f["name"] for f in status["fields"]} >= {"busy", "boot_mode", "booted", "error"}
+    read = client.get(f"/api/v1/ports/{L}/registers/0x0002")
+    assert read.status_code == 200
+    assert read.json()["value"] == cci.STATUS_READY
+    assert read.json()["fields"]["busy"] == 0 and read.json()["fields"]["booted"] == 1
+    # The register-file sensors show their fields too, decoded from the value read.
+    assert cam.sensor(F).fields_of("read_mode", 0xC041)["flip_vertical"] == 1
+    mode = client.get(f"/api/v1/ports/{F}/registers/0x3040")
+    assert mode.status_code == 200
+    value = mode.json()["value"]
+    assert mode.json()["fields"] == cam.sensor(F).fields_of("read_mode", value)
+
+
+def test_health_reads_every_sensor_identity_the_lepton_by_its_cci_status():
+    _, cam = camera()
+    report = cam.health()
+    assert report["status"] == "ok"
+    assert [p["ok"] for p in report["ports"]] == [True, True, True, True]
+    assert cam.sensor(L).read_chip_id() == cci.STATUS_READY
+    assert cam.info()["ports"][L]["sensor"]["chip_id"] == cci.STATUS_READY
+
+
 # -- the simulated Lepton's CCI state machine ---------------------------------------------
 
 

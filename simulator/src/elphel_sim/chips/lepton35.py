@@ -1,12 +1,13 @@
 """Simulated FLIR Lepton 3.5: the CCI state machine and a TLinear thermal image.
 
-The register file comes from the daemon's table. Writing the command register runs the
-command (reference 5.1): the status register then reads BUSY for a number of polls
-(``sim_busy_polls``, more for an FFC), and its bits 15:8 carry the result: 0, or a FLIR
-SDK error code for an unknown command or a missing protection bit (-7, undefined
-function), a data length that does not match the attribute (-6, data size) or an enum out
-of range (-3, range). GET results are in the data registers. Boot bits read 1 once booted
-(``sim_reboot`` makes the camera boot again over some polls).
+The register file comes from the daemon's table of the CCI registers. Writing the command
+register runs the command (reference 5.1): the status register then reads BUSY for a
+number of polls (``sim_busy_polls``, more for an FFC), and its error field (bits 15:8)
+carries the result: 0, or a FLIR SDK error code for an unknown command or a missing
+protection bit (-7, undefined function), a data length that does not match the attribute
+(-6, data size) or an enum out of range (-3, range). GET results are in the data
+registers. Boot bits read 1 once booted (``sim_reboot`` makes the camera boot again over
+some polls).
 
 Image: the scene's radiance seen through the Lepton's optics (the port's intrinsics),
 mapped linearly to scene temperature, 283.15 K at radiance 0 to 303.15 K at radiance 1,
@@ -28,10 +29,9 @@ from numpy.typing import NDArray
 from elphel_camd.sensors import cci
 from elphel_camd.sensors import lepton35 as spec
 from elphel_sim.chips.registers import SimRegisterChip
-from elphel_sim.chips.sensor import SensorTiming
+from elphel_sim.chips.sensor import ImageContext, SensorTiming, SimSensor
 from elphel_sim.fpga import FrameRecord
-from elphel_sim.render import Intrinsics, SensorModel, render_radiance
-from elphel_sim.world import World
+from elphel_sim.render import Intrinsics, render_radiance
 
 ERROR_RANGE = -3
 ERROR_DATA_SIZE = -6
@@ -43,6 +43,7 @@ NETD_K = 0.05
 RAW_AT_FPA = 8192
 RAW_PER_K = 30.0
 TELEMETRY_REVISION = 14
+_ERROR = cci.REGISTERS.field("status.error")
 
 # Enum attributes: power-on value (reference 5.2) and the values a SET accepts.
 _ENUMS: dict[str, tuple[int, range]] = {
@@ -66,14 +67,14 @@ def lepton_intrinsics() -> Intrinsics:
     )
 
 
-class SimLepton35(SimRegisterChip):
+class SimLepton35(SimRegisterChip, SimSensor):
     """Lepton 3.5 at I2C address 0x2A: CCI registers, commands, frames at 8.7 fps."""
 
     address = spec.I2C_ADDRESS
     model = spec.MODEL
 
     def __init__(self) -> None:
-        super().__init__(spec.TABLE, step=2)
+        super().__init__(cci.REGISTERS, step=2)
         self.sim_busy_polls = 2
         self.sim_ffc_polls = 6
         self.sim_fpa_temperature_k = 305.15
@@ -100,7 +101,7 @@ class SimLepton35(SimRegisterChip):
         if self._booting:
             return cci.STATUS_BUSY
         busy = cci.STATUS_BUSY if self._busy else 0
-        return cci.STATUS_READY | busy | (self._error & 0xFF) << 8
+        return _ERROR.put(cci.STATUS_READY | busy, self._error & 0xFF)
 
     def on_read(self, length: int) -> bytes:
         status_read = self._pointer <= cci.REG_STATUS < self._pointer + length
@@ -190,21 +191,14 @@ class SimLepton35(SimRegisterChip):
             "UPTIME_MS": self._value("SYS_UPTIME"),
         }
 
-    @staticmethod
-    def form_image(
-        record: FrameRecord,
-        world: World,
-        *,
-        intrinsics: Intrinsics,
-        model: SensorModel,
-        rng: np.random.Generator | None,
-    ) -> NDArray[np.uint16]:
+    def render(self, record: FrameRecord, context: ImageContext) -> NDArray[np.uint16]:
         r: Mapping[str, int] = record.registers
+        intrinsics, rng = context.intrinsics, context.rng
         if (intrinsics.width, intrinsics.height) != (spec.WIDTH, spec.HEIGHT):
             raise ValueError(
                 f"Lepton intrinsics {intrinsics.width}x{intrinsics.height}; allowed: 160x120"
             )
-        rgb = render_radiance(world, intrinsics, record.pose, time_s=record.start_s)
+        rgb = render_radiance(context.world, intrinsics, record.pose, time_s=record.start_s)
         kelvin = SCENE_MIN_K + SCENE_SPAN_K * np.clip(rgb.mean(axis=2), 0.0, None)
         if rng is not None:
             kelvin = kelvin + rng.normal(0.0, NETD_K, kelvin.shape)

@@ -1,7 +1,7 @@
 """Simulated MT9F002: register file, gain aliasing, and when a write reaches the image.
 
-The register file comes from the daemon's table (16-bit addresses, consecutive 16-bit
-registers two addresses apart).
+The register file and its fields come from the daemon's table (16-bit addresses,
+consecutive 16-bit registers two addresses apart).
 
 Timing (reference sections 2.4 and 3.3): a write to the window, the read mode (flips),
 the exposure or the frame/line length made during frame F shapes the image of frame F + 2
@@ -15,30 +15,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import numpy as np
-from numpy.typing import NDArray
-
 from elphel_camd.sensors import mt9f002 as spec
-from elphel_sim.chips.registers import SimLatchedChip
-from elphel_sim.chips.sensor import SensorTiming
-from elphel_sim.fpga import FrameRecord, Readout, form_bayer_image
-from elphel_sim.render import Intrinsics, SensorModel
-from elphel_sim.world import World
+from elphel_sim.chips.aptina import SimAptinaChip
 
-_COLOUR_GAINS = ("green1_gain", "blue_gain", "red_gain", "green2_gain")
-_TWO_FRAMES = (
-    "x_addr_start",
-    "x_addr_end",
-    "y_addr_start",
-    "y_addr_end",
-    "x_output_size",
-    "y_output_size",
-    "read_mode",
-    "coarse_integration_time",
-    "frame_length_lines",
-    "line_length_pck",
-)
-SLAVE_TRIGGERED_BIT = 0x8000  # slave_mode: 0xA000 triggered, 0x2000 free-run
+_FLIPH = spec.TABLE.field("read_mode.flip_horizontal")
+_FLIPV = spec.TABLE.field("read_mode.flip_vertical")
+_ORDER_COLUMN = spec.TABLE.field("pixel_order.column")
+_ORDER_ROW = spec.TABLE.field("pixel_order.row")
 
 
 def row_s_of(registers: Mapping[str, int]) -> float:
@@ -52,20 +35,33 @@ def exposure_rows_of(registers: Mapping[str, int]) -> int:
     return max(0, min(registers["coarse_integration_time"], registers["frame_length_lines"] - 1))
 
 
-class SimMT9F002(SimLatchedChip):
+class SimMT9F002(SimAptinaChip):
     """MT9F002 at I2C address 0x10 with 16-bit register addresses."""
 
     address = spec.I2C_ADDRESS
     model = spec.MODEL
-
-    def __init__(self) -> None:
-        super().__init__(spec.TABLE, step=2, colour_gains=_COLOUR_GAINS)
-        self._latency = {spec.TABLE[name].address: 2 for name in _TWO_FRAMES}
-        self._latency.update({spec.TABLE[name].address: 1 for name in _COLOUR_GAINS})
-        self._slave_mode = spec.TABLE["slave_mode"].address
+    register_table = spec.TABLE
+    address_step = 2
+    bayer = spec.BAYER  # the array's cell at even coordinates is pixel_order 0
+    decode_gain = staticmethod(spec.decode_gain)
+    two_frames = (
+        "x_addr_start",
+        "x_addr_end",
+        "y_addr_start",
+        "y_addr_end",
+        "x_output_size",
+        "y_output_size",
+        "read_mode",
+        "coarse_integration_time",
+        "frame_length_lines",
+        "line_length_pck",
+    )
+    fliph_field = _FLIPH.name
+    flipv_field = _FLIPV.name
+    snapshot_field = "slave_mode.triggered"
 
     def latency(self, address: int) -> int:
-        if address == self._slave_mode:
+        if address == self.table["slave_mode"].address:
             return 1 if self.is_snapshot() else 2
         return self._latency.get(address, 0)
 
@@ -73,58 +69,20 @@ class SimMT9F002(SimLatchedChip):
         super().latch(frame)
         # pixel_order reports the colour of the first pixel read: an odd start or a flip
         # (of an even-sized window) moves it by one column or row.
-        r = self.image_register
-        order = ((r("read_mode") >> 14 ^ r("x_addr_start")) & 1) | (
-            (r("read_mode") >> 15 ^ r("y_addr_start")) & 1
-        ) << 1
-        pixel_order = self.table["pixel_order"].address
-        self.effective[pixel_order] = self.values[pixel_order] = order
-
-    # -- what the FPGA needs -----------------------------------------------------------------
-
-    def timing(self) -> SensorTiming:
-        """Row time, rows per frame and exposure rows from the registers in effect."""
-        regs = self.image_registers()
-        return SensorTiming(
-            row_s=row_s_of(regs),
-            frame_rows=regs["frame_length_lines"],
-            exposure_rows=exposure_rows_of(regs),
-            height=regs["y_output_size"],
-        )
-
-    def is_snapshot(self) -> bool:
-        return bool(self.image_register("slave_mode") & SLAVE_TRIGGERED_BIT)
+        column = (self.image_field(_FLIPH.name) ^ self.image_register("x_addr_start")) & 1
+        row = (self.image_field(_FLIPV.name) ^ self.image_register("y_addr_start")) & 1
+        order = _ORDER_ROW.put(_ORDER_COLUMN.put(0, column), row)
+        address = _ORDER_COLUMN.register.address
+        self.effective[address] = self.values[address] = order
 
     @staticmethod
-    def form_image(
-        record: FrameRecord,
-        world: World,
-        *,
-        intrinsics: Intrinsics,
-        model: SensorModel,
-        rng: np.random.Generator | None,
-    ) -> NDArray[np.uint16]:
-        r: Mapping[str, int] = record.registers
-        read_mode = r["read_mode"]
-        fliph, flipv = (
-            bool(read_mode & spec.READ_MODE_FLIPH),
-            bool(read_mode & spec.READ_MODE_FLIPV),
-        )
-        left, top = r["x_addr_start"], r["y_addr_start"]
-        readout = Readout(
-            left=left,
-            top=top,
-            width=r["x_output_size"],
-            height=r["y_output_size"],
-            exposure_us=exposure_rows_of(r) * row_s_of(r) * 1e6,
-            gains=(
-                spec.decode_gain(r["red_gain"]),
-                spec.decode_gain(r["green1_gain"]),
-                spec.decode_gain(r["green2_gain"]),
-                spec.decode_gain(r["blue_gain"]),
-            ),
-            fliph=fliph,
-            flipv=flipv,
-            bayer=spec.BAYER,  # the array's cell at even coordinates is pixel_order 0
-        )
-        return form_bayer_image(readout, record, world, intrinsics=intrinsics, model=model, rng=rng)
+    def window_of(registers: Mapping[str, int]) -> tuple[int, int, int, int]:
+        r = registers
+        return r["x_addr_start"], r["y_addr_start"], r["x_output_size"], r["y_output_size"]
+
+    row_s_of = staticmethod(row_s_of)
+    exposure_rows_of = staticmethod(exposure_rows_of)
+
+    @staticmethod
+    def frame_rows_of(registers: Mapping[str, int]) -> int:
+        return registers["frame_length_lines"]

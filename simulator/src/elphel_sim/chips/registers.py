@@ -135,6 +135,11 @@ class SimLatchedChip(SimRegisterChip):
         """The value of a register as it shapes the current frame's image."""
         return self.effective[self.table[name].address]
 
+    def image_field(self, name: str) -> int:
+        """A field (``"register.field"``) as it shapes the current frame's image."""
+        bound = self.table.field(name)
+        return bound.get(self.effective[bound.register.address])
+
     def image_registers(self) -> dict[str, int]:
         """Every register as it shapes the current frame (recorded with the frame)."""
         return {r.name: self.effective[r.address] for r in self.table}

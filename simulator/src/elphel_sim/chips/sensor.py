@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,32 +39,52 @@ class SensorTiming:
         return self.row_s * (self.exposure_rows + self.height + 9)
 
 
-class SimSensor(Protocol):
+@dataclass(frozen=True)
+class ImageContext:
+    """What forming a frame's image needs besides its record.
+
+    The world seen, the port's camera intrinsics and sensor model, and the noise
+    generator (None: no noise).
+    """
+
+    world: World
+    intrinsics: Intrinsics
+    model: SensorModel
+    rng: np.random.Generator | None
+
+
+class SimSensor(ABC):
     """A simulated sensor chip on a port: I2C device, frame latch, timing, image formation."""
 
-    address: int
-    model: str
+    address: ClassVar[int]
+    model: ClassVar[str]
 
+    @abstractmethod
     def on_write(self, data: bytes) -> None: ...
+
+    @abstractmethod
     def on_read(self, length: int) -> bytes: ...
+
+    @abstractmethod
     def on_stop(self) -> None: ...
 
+    @abstractmethod
     def latch(self, frame: int) -> None:
         """Frame ``frame`` starts: register writes due by now reach the image."""
-        ...
 
+    @abstractmethod
     def timing(self) -> SensorTiming: ...
 
+    @abstractmethod
     def is_snapshot(self) -> bool:
         """Whether the sensor waits for a trigger to start a frame."""
-        ...
 
+    @abstractmethod
     def image_registers(self) -> dict[str, int]:
         """The register values shaping the current frame (recorded with the frame)."""
-        ...
 
-    @staticmethod
     def form_image(
+        self,
         record: FrameRecord,
         world: World,
         *,
@@ -71,5 +92,9 @@ class SimSensor(Protocol):
         model: SensorModel,
         rng: np.random.Generator | None,
     ) -> NDArray[np.uint16]:
-        """The image of a recorded frame."""
-        ...
+        """The image of a recorded frame (from the record alone, not the chip's state)."""
+        return self.render(record, ImageContext(world, intrinsics, model, rng))
+
+    @abstractmethod
+    def render(self, record: FrameRecord, context: ImageContext) -> NDArray[np.uint16]:
+        """The image of a recorded frame, from its registers."""

@@ -31,7 +31,7 @@ from elphel_camd.errors import (
 from elphel_camd.events import EventHub
 from elphel_camd.frame_metadata import frame_metadata
 from elphel_camd.params import COMMON_TRIGGER_PARAMS, PARAMS
-from elphel_camd.sensors import SensorDriver, detect
+from elphel_camd.sensors import SensorDriver, detect, register_file
 from elphel_camd.sensors.registers import Access, Register
 from elphel_camd.sequencer import MAX_AHEAD, PortSequencer
 from elphel_camd.store import ParamStore
@@ -302,7 +302,7 @@ class CameraService:
 
     def register(self, port: int, address: int) -> Register:
         """The register table entry at an address (ParameterRangeError if none)."""
-        table = self.sensor(port).table
+        table = register_file(self.sensor(port)).table
         register = table.at(address)
         if register is None:
             known = ", ".join(f"0x{r.address:02x}" for r in table)
@@ -318,7 +318,7 @@ class CameraService:
             raise ParameterRangeError(register.name, f"0x{address:x}", "a readable register")
         seq = self.sequencer(port)
         with seq.lock:
-            return register, seq.driver.read(register.name)
+            return register, register_file(seq.driver).read(register.name)
 
     def write_register(self, port: int, address: int, value: int) -> Register:
         """Write a raw register, checked against the table (bypasses the sequencer)."""
@@ -329,7 +329,7 @@ class CameraService:
             raise ParameterRangeError(register.name, value, f"{register.minimum}..{register.limit}")
         seq = self.sequencer(port)
         with seq.lock:
-            seq.driver.write(register.name, value)
+            register_file(seq.driver).write(register.name, value)
         self.events.publish(
             "params", {"port": port, "frame": seq.this_frame, "register": register.name}
         )
@@ -348,7 +348,7 @@ class CameraService:
                 seq = self.sequencers[port]
                 try:
                     with seq.lock:
-                        driver.read(driver.chip_id_register)
+                        driver.read_chip_id()
                 except I2CError as e:
                     entry.update(ok=False, error="i2c", detail=str(e))
                     first = first or e

@@ -135,6 +135,17 @@ class Health(BaseModel):
     detail: str | None = None
 
 
+class RegisterFieldInfo(BaseModel):
+    """A bit field a register declares: bits ``msb..lsb`` (``lsb == msb`` for one bit)."""
+
+    model_config = STRICT
+
+    name: str
+    msb: int
+    lsb: int
+    doc: str
+
+
 class RegisterValue(BaseModel):
     model_config = STRICT
 
@@ -147,6 +158,9 @@ class RegisterValue(BaseModel):
     maximum: int
     unit: str
     doc: str
+    fields: dict[str, int] = Field(
+        default_factory=dict, description="the value decoded into the register's bit fields"
+    )
 
 
 class RegisterWrite(BaseModel):
@@ -169,3 +183,6 @@ class RegisterEntry(BaseModel):
     width: int
     unit: str
     doc: str
+    fields: list[RegisterFieldInfo] = Field(
+        default_factory=list, description="the register's declared bit fields"
+    )

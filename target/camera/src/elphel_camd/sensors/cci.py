@@ -7,7 +7,8 @@ GET, 1 SET, 2 RUN; OEM and RAD commands carry the protection bit 0x4000); wait f
 clear again and read the signed error code in status bits 15:8; a GET then reads the data
 words. Multi-word attributes are sent least-significant word first; enums are 32-bit.
 
-Commands are declared once, as data (`COMMANDS`): name, base id and attribute length.
+The CCI's registers are declared once as a table (`REGISTERS`, with the status bits as
+fields), the commands once as data (`COMMANDS`): name, base id and attribute length.
 """
 
 from __future__ import annotations
@@ -16,25 +17,65 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import TypeVar
 
 from elphel_camd.errors import LeptonError
 from elphel_camd.i2c.regio import RegisterIO
+from elphel_camd.sensors.registers import Access, Field, Register, RegisterTable
 
-# Registers (reference 5.1).
-REG_POWER = 0x0000
-REG_STATUS = 0x0002
-REG_COMMAND = 0x0004
-REG_DATA_LENGTH = 0x0006
-REG_DATA0 = 0x0008
 DATA_WORDS = 16  # DATA0..DATA15; longer attributes would need the block buffers
-REG_DATA_CRC = 0x0028
 
-# Status register bits.
-STATUS_BUSY = 0x0001
-STATUS_BOOT_MODE = 0x0002  # 1 = booted from internal ROM
-STATUS_BOOTED = 0x0004  # 1 = boot complete
-STATUS_RESERVED = 0x00F8  # always 0
+# The CCI's own registers (reference 5.1): the transport of commands, 16-bit addresses.
+REGISTERS = RegisterTable(
+    "LEPTON35 CCI",
+    [
+        Register("power", 0x0000, 0, doc="host power switch while in standby/off"),
+        Register(
+            "status",
+            0x0002,
+            0x0006,  # booted from ROM, boot complete, not busy, no error
+            Access.RO,
+            doc="bit 0 BUSY, bit 1 boot mode, bit 2 booted, bits 15:8 signed error code",
+            fields=(
+                Field("busy", 0, doc="1 while a command runs"),
+                Field("boot_mode", 1, doc="1 = booted from internal ROM"),
+                Field("booted", 2, doc="1 = boot complete"),
+                Field("reserved", 7, 3, doc="always 0"),
+                Field("error", 15, 8, doc="signed error code of the last command (0 = ok)"),
+            ),
+        ),
+        Register("command", 0x0004, 0, doc="module << 8 | command | type (GET/SET/RUN)"),
+        Register(
+            "data_length", 0x0006, 0, unit="words", doc="attribute length of the next command"
+        ),
+        *(
+            Register(
+                f"data{i}",
+                0x0008 + 2 * i,
+                0,
+                doc=f"data word {i} (word {i} of an attribute, least significant first)",
+            )
+            for i in range(DATA_WORDS)
+        ),
+        Register("data_crc", 0x0028, 0, Access.RO, doc="CRC16 of the data (0: none)"),
+    ],
+    address_bytes=2,
+)
+
+REG_POWER = REGISTERS["power"].address
+REG_STATUS = REGISTERS["status"].address
+REG_COMMAND = REGISTERS["command"].address
+REG_DATA_LENGTH = REGISTERS["data_length"].address
+REG_DATA0 = REGISTERS["data0"].address
+REG_DATA_CRC = REGISTERS["data_crc"].address
+
+# Status register bits, from its fields.
+STATUS_BUSY = REGISTERS.field("status.busy").field.mask
+STATUS_BOOT_MODE = REGISTERS.field("status.boot_mode").field.mask
+STATUS_BOOTED = REGISTERS.field("status.booted").field.mask
+STATUS_RESERVED = REGISTERS.field("status.reserved").field.mask
 STATUS_READY = STATUS_BOOT_MODE | STATUS_BOOTED  # booted and not busy
+_ERROR = REGISTERS.field("status.error")
 
 PROTECTION_BIT = 0x4000  # set on OEM and RAD commands
 
@@ -188,12 +229,15 @@ def value_of(words: Sequence[int]) -> int:
 
 def error_code(status: int) -> int:
     """The signed error code in status bits 15:8 (0 = success)."""
-    code = (status >> 8) & 0xFF
+    code = _ERROR.get(status)
     return code - 0x100 if code & 0x80 else code
 
 
 class CCITimeoutError(LeptonError, TimeoutError):
     """The Lepton stayed busy (or did not finish booting) past the timeout."""
+
+
+E = TypeVar("E", bound=LeptonError)
 
 
 class CCI:
@@ -229,16 +273,22 @@ class CCI:
     def status(self) -> int:
         return self.io.read_word(REG_STATUS)
 
-    def _timeout(self, what: str, word: int, status: int) -> CCITimeoutError:
-        return CCITimeoutError(
-            f"{self.io.bus_name}: Lepton 0x{self.io.address:02x} {what} "
-            f"(status 0x{status:04x}) after {self.timeout_s} s",
+    def _error(
+        self, kind: type[E], detail: str, *, word: int, register: int, code: int | None
+    ) -> E:
+        """An error naming the bus, the Lepton's address, the command word and the code."""
+        return kind(
+            f"{self.io.bus_name}: Lepton 0x{self.io.address:02x} {detail}",
             bus=self.io.bus_name,
             address=self.io.address,
-            register=REG_STATUS,
+            register=register,
             command=word,
-            code=None,
+            code=code,
         )
+
+    def _timeout(self, what: str, word: int, status: int) -> CCITimeoutError:
+        detail = f"{what} (status 0x{status:04x}) after {self.timeout_s} s"
+        return self._error(CCITimeoutError, detail, word=word, register=REG_STATUS, code=None)
 
     def wait_ready(self, word: int = 0, *, booted: bool = False) -> int:
         """Poll the status register until BUSY clears (and, if asked, boot completed).
@@ -266,15 +316,8 @@ class CCI:
         code = error_code(status)
         if code:
             meaning = ERROR_NAMES.get(code, "unknown error")
-            raise LeptonError(
-                f"{self.io.bus_name}: Lepton 0x{self.io.address:02x} refused "
-                f"{command_name(word)} (0x{word:04x}): error {code} ({meaning})",
-                bus=self.io.bus_name,
-                address=self.io.address,
-                register=REG_COMMAND,
-                command=word,
-                code=code,
-            )
+            detail = f"refused {command_name(word)} (0x{word:04x}): error {code} ({meaning})"
+            raise self._error(LeptonError, detail, word=word, register=REG_COMMAND, code=code)
 
     def _issue(self, word: int) -> None:
         self.io.write(REG_COMMAND, word)

@@ -1,4 +1,4 @@
-"""FLIR Lepton 3.5 (160 x 120 LWIR, radiometric): CCI register table and driver.
+"""FLIR Lepton 3.5 (160 x 120 LWIR, radiometric): a command-protocol (CCI) driver.
 
 Facts: shared/reference/sensors.md section 5 (CCI registers and commands, power-on
 defaults, Elphel's Lepton behaviour) and 3.5 (the clamps Elphel applies). The Lepton has
@@ -28,8 +28,8 @@ from elphel_camd.params import (
     check_range,
 )
 from elphel_camd.sensors import cci
-from elphel_camd.sensors.base import SensorDriver, State
-from elphel_camd.sensors.registers import Access, Register, RegisterTable
+from elphel_camd.sensors.base import State
+from elphel_camd.sensors.command import CommandSensor
 
 MODEL = "LEPTON35"
 I2C_ADDRESS = 0x2A
@@ -44,39 +44,6 @@ GPIO_MODE_GPIO = 0
 GPIO_MODE_VSYNC = 5
 TELEMETRY_FOOTER = 1
 TLINEAR_RESOLUTIONS_K = {0: 0.1, 1: 0.01}  # RAD TLinear resolution enum -> kelvin per count
-
-TABLE = RegisterTable(
-    MODEL,
-    [
-        Register("power", cci.REG_POWER, 0, doc="host power switch while in standby/off"),
-        Register(
-            "status",
-            cci.REG_STATUS,
-            cci.STATUS_READY,
-            Access.RO,
-            doc="bit 0 BUSY, bit 1 boot mode, bit 2 booted, bits 15:8 signed error code",
-        ),
-        Register("command", cci.REG_COMMAND, 0, doc="module << 8 | command | type (GET/SET/RUN)"),
-        Register(
-            "data_length",
-            cci.REG_DATA_LENGTH,
-            0,
-            unit="words",
-            doc="attribute length of the next command",
-        ),
-        *(
-            Register(
-                f"data{i}",
-                cci.REG_DATA0 + 2 * i,
-                0,
-                doc=f"data word {i} (word {i} of an attribute, least significant first)",
-            )
-            for i in range(cci.DATA_WORDS)
-        ),
-        Register("data_crc", cci.REG_DATA_CRC, 0, Access.RO, doc="CRC16 of the data (0: none)"),
-    ],
-    address_bytes=2,
-)
 
 # Why a parameter cannot be set on the Lepton.
 _UNSUPPORTED = {
@@ -97,7 +64,7 @@ _UNSUPPORTED = {
 _FIXED_WINDOW = "the Lepton window is fixed at 160x120, or 160x122 with telemetry"
 
 
-class Lepton35(SensorDriver):
+class Lepton35(CommandSensor):
     """Driver of the FLIR Lepton 3.5 through its CCI.
 
     Parameters
@@ -109,11 +76,7 @@ class Lepton35(SensorDriver):
     """
 
     model = MODEL
-    table = TABLE
     i2c_address = I2C_ADDRESS
-    chip_id_register = "status"
-    chip_id = cci.STATUS_READY  # booted, not busy
-    chip_id_mask = 0x00FF  # the error code in bits 15:8 is not part of the identity
     sensor_code = SENSOR_CODE
     bayer = None
     bits = BITS
@@ -124,16 +87,15 @@ class Lepton35(SensorDriver):
         {"TRIG_PERIOD", "TRIG_MASTER"}  # the board's common trigger, shared with other ports
     )
 
-    def __init__(self, io: RegisterIO, *, timeout_s: float = 1.0) -> None:
-        super().__init__(io)
-        self.cci = cci.CCI(io, timeout_s=timeout_s)
-        self.settings: dict[str, int] = {}  # CCI attributes as last set (their shadow)
-
     @classmethod
-    def probe(cls, bus: I2CBus, *, bus_name: str) -> SensorDriver | None:
+    def probe(cls, bus: I2CBus, *, bus_name: str) -> Lepton35 | None:
         """A Lepton: status with reserved bits clear, boot completed, answers a ping."""
         io = RegisterIO(
-            bus, cls.i2c_address, reg_bytes=cls.table.address_bytes, bus_name=bus_name, retries=1
+            bus,
+            cls.i2c_address,
+            reg_bytes=cci.REGISTERS.address_bytes,
+            bus_name=bus_name,
+            retries=1,
         )
         try:
             status = io.read_word(cci.REG_STATUS)
@@ -151,28 +113,13 @@ class Lepton35(SensorDriver):
 
     # -- CCI operations --------------------------------------------------------------------
 
-    def _set(self, name: str, value: int) -> bool:
-        """SET an attribute unless the last value set is the same (the shadow rule)."""
-        if self.settings.get(name) == value:
-            return False
-        self.settings.pop(name, None)
-        self.cci.set_value(cci.COMMANDS[name], value)
-        self.settings[name] = value
-        return True
-
-    def _get(self, name: str) -> int:
-        value = self.cci.get_value(cci.COMMANDS[name])
-        if cci.COMMANDS[name].kinds != frozenset({cci.CommandType.GET}):
-            self.settings[name] = value
-        return value
-
     def ping(self) -> None:
         """RUN SYS ping; raises `LeptonError` if the camera answers with an error."""
-        self.cci.run(cci.COMMANDS["SYS_PING"])
+        self.run_command("SYS_PING")
 
     def fpa_temperature_centi_k(self) -> int:
         """Focal-plane-array temperature in 0.01 K, as the camera reports it."""
-        return self._get("SYS_FPA_TEMPERATURE")
+        return self.get_attribute("SYS_FPA_TEMPERATURE")
 
     def fpa_temperature_k(self) -> float:
         """Focal-plane-array temperature in kelvin."""
@@ -180,51 +127,51 @@ class Lepton35(SensorDriver):
 
     def run_ffc(self) -> None:
         """Run a flat-field correction now (the shutter closes for a moment)."""
-        self.cci.run(cci.COMMANDS["SYS_RUN_FFC"])
+        self.run_command("SYS_RUN_FFC")
 
     def radiometry(self) -> bool:
-        return bool(self._get("RAD_ENABLE"))
+        return bool(self.get_attribute("RAD_ENABLE"))
 
     def set_radiometry(self, enable: bool) -> None:
-        self._set("RAD_ENABLE", int(enable))
+        self.set_attribute("RAD_ENABLE", int(enable))
 
     def tlinear(self) -> bool:
-        return bool(self._get("RAD_TLINEAR_ENABLE"))
+        return bool(self.get_attribute("RAD_TLINEAR_ENABLE"))
 
     def set_tlinear(self, enable: bool) -> None:
         """TLinear on: pixels are scene temperatures (at `tlinear_resolution_k`)."""
-        self._set("RAD_TLINEAR_ENABLE", int(enable))
+        self.set_attribute("RAD_TLINEAR_ENABLE", int(enable))
 
     def tlinear_resolution_k(self) -> float:
-        return TLINEAR_RESOLUTIONS_K[self._get("RAD_TLINEAR_RESOLUTION")]
+        return TLINEAR_RESOLUTIONS_K[self.get_attribute("RAD_TLINEAR_RESOLUTION")]
 
     def set_tlinear_resolution_k(self, kelvin: float) -> None:
         """TLinear pixel unit: 0.01 K or 0.1 K."""
         for code, k in TLINEAR_RESOLUTIONS_K.items():
             if abs(kelvin - k) < 1e-9:
-                self._set("RAD_TLINEAR_RESOLUTION", code)
+                self.set_attribute("RAD_TLINEAR_RESOLUTION", code)
                 return
         raise ParameterRangeError("tlinear_resolution_k", kelvin, "0.01 or 0.1")
 
     def gpio_mode(self) -> int:
         """OEM GPIO mode: 0 GPIO ... 5 VSYNC on GPIO3."""
-        return self._get("OEM_GPIO_MODE")
+        return self.get_attribute("OEM_GPIO_MODE")
 
     def set_vsync(self, enable: bool) -> None:
         """Frame pulse on GPIO3 (OEM GPIO mode 5), or plain GPIO (mode 0)."""
-        self._set("OEM_GPIO_MODE", GPIO_MODE_VSYNC if enable else GPIO_MODE_GPIO)
+        self.set_attribute("OEM_GPIO_MODE", GPIO_MODE_VSYNC if enable else GPIO_MODE_GPIO)
 
     def telemetry(self) -> bool:
-        return bool(self._get("SYS_TELEMETRY_ENABLE"))
+        return bool(self.get_attribute("SYS_TELEMETRY_ENABLE"))
 
-    # -- SensorDriver ----------------------------------------------------------------------
+    # -- parameter model -------------------------------------------------------------------
 
     def init(self) -> None:
         """Elphel's init list: VSYNC on GPIO3, telemetry off, telemetry location footer."""
         self.cci.wait_ready(booted=True)
-        self._set("OEM_GPIO_MODE", GPIO_MODE_VSYNC)
-        self._set("SYS_TELEMETRY_ENABLE", 0)
-        self._set("SYS_TELEMETRY_LOCATION", TELEMETRY_FOOTER)
+        self.set_attribute("OEM_GPIO_MODE", GPIO_MODE_VSYNC)
+        self.set_attribute("SYS_TELEMETRY_ENABLE", 0)
+        self.set_attribute("SYS_TELEMETRY_LOCATION", TELEMETRY_FOOTER)
 
     def identity(self) -> dict[str, Any]:
         out = super().identity()
@@ -285,15 +232,15 @@ class Lepton35(SensorDriver):
     def frame_period_s(self, state: Mapping[str, int]) -> float:
         return 1000 / FP1000S
 
-    def registers(self, function: str, state: Mapping[str, int]) -> dict[str, int]:
-        """No frame-synchronised registers: the Lepton's settings are CCI commands."""
-        return {}
-
     def program(self, function: str, state: Mapping[str, int]) -> list[str]:
-        """Issue the CCI commands of a function; return the attributes set."""
+        """Issue the CCI commands of a function; return the attributes set.
+
+        The Lepton has no frame-synchronised registers: only the window (telemetry rows)
+        sets anything.
+        """
         if function == WINDOW:
             telemetry = int(state["WOI_HEIGHT"] == HEIGHT_TELEMETRY)
-            if self._set("SYS_TELEMETRY_ENABLE", telemetry):
+            if self.set_attribute("SYS_TELEMETRY_ENABLE", telemetry):
                 return ["SYS_TELEMETRY_ENABLE"]
         elif function not in (EXPOSURE, GAINS, LIMITFPS, TRIGGERMODE, TRIGSEQ):
             raise ValueError(f"unknown program function {function!r}; allowed: {FUNCTIONS}")

@@ -11,7 +11,8 @@ from elphel_camd.api.deps import READS, WRITES, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.api.models import RegisterEntry, RegisterValue, RegisterWrite
 from elphel_camd.errors import ParameterRangeError
-from elphel_camd.sensors.registers import Register
+from elphel_camd.sensors import register_file
+from elphel_camd.sensors.registers import BoundField, Register
 
 router = APIRouter()
 
@@ -42,7 +43,17 @@ def register_body(port: int, register: Register, value: int) -> dict[str, Any]:
         "maximum": register.limit,
         "unit": register.unit,
         "doc": register.doc,
+        "fields": {b.field.name: b.get(value) for b in bound_fields(register)},
     }
+
+
+def bound_fields(register: Register) -> list[BoundField]:
+    return [BoundField(register, f) for f in register.fields]
+
+
+def field_info(bound: BoundField) -> dict[str, Any]:
+    f = bound.field
+    return {"name": f.name, "msb": f.msb, "lsb": f.shift, "doc": f.doc}
 
 
 @router.get(
@@ -53,7 +64,7 @@ def register_body(port: int, register: Register, value: int) -> dict[str, Any]:
 )
 def list_registers(service: Service, port: PortPath) -> JSONResponse:
     """The sensor's register table: names, addresses, access, reset values, limits."""
-    table = service.sensor(port).table
+    table = register_file(service.sensor(port)).table
     return JSONResponse(
         [
             {
@@ -66,6 +77,7 @@ def list_registers(service: Service, port: PortPath) -> JSONResponse:
                 "width": r.width,
                 "unit": r.unit,
                 "doc": r.doc,
+                "fields": [field_info(b) for b in bound_fields(r)],
             }
             for r in table
         ]
