@@ -12,6 +12,7 @@ from elphel_host.camera.client import (
     CameraEvent,
     CameraHTTPError,
     CameraUnauthorizedError,
+    CapturedBurst,
     CapturedFrame,
     PhotoFinish,
 )
@@ -23,6 +24,7 @@ __all__ = [
     "CameraEvent",
     "CameraHTTPError",
     "CameraUnauthorizedError",
+    "CapturedBurst",
     "CapturedFrame",
     "PhotoFinish",
 ]
