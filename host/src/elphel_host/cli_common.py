@@ -84,19 +84,23 @@ def _alias_note(aliases: tuple[str, ...]) -> str:
     return f"; {', '.join(aliases)} is the older spelling" if aliases else ""
 
 
+def _add_url_option(parser: Any, flag: str, aliases: tuple[str, ...], env: str, what: str) -> None:
+    parser.add_argument(
+        flag,
+        *aliases,
+        dest=flag.removeprefix("--"),
+        default=os.environ.get(env),
+        metavar="URL",
+        help=f"{what} (env {env}{_alias_note(aliases)})",
+    )
+
+
 def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
     """``--camera URL`` and ``--token T``, defaulting to ELPHEL_CAMERA_URL / _TOKEN.
 
     ``aliases`` are older spellings of ``--camera`` kept for scripts (``--url``).
     """
-    parser.add_argument(
-        "--camera",
-        *aliases,
-        dest="camera",
-        default=os.environ.get(CAMERA_URL_ENV),
-        metavar="URL",
-        help=f"camera URL (env {CAMERA_URL_ENV}{_alias_note(aliases)})",
-    )
+    _add_url_option(parser, "--camera", aliases, CAMERA_URL_ENV, "camera URL")
     parser.add_argument(
         "--token",
         default=os.environ.get(CAMERA_TOKEN_ENV),
@@ -106,14 +110,7 @@ def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
 
 def add_stage_option(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
     """``--stage URL`` (a pyserial URL), defaulting to ELPHEL_STAGE_URL."""
-    parser.add_argument(
-        "--stage",
-        *aliases,
-        dest="stage",
-        default=os.environ.get(STAGE_URL_ENV),
-        metavar="URL",
-        help=f"pyserial URL of the stage (env {STAGE_URL_ENV}{_alias_note(aliases)})",
-    )
+    _add_url_option(parser, "--stage", aliases, STAGE_URL_ENV, "pyserial URL of the stage")
 
 
 def add_stage_model_option(parser: Any, *, help: str = "stage calibration file") -> None:

@@ -207,9 +207,7 @@ class BurstRunner:
                 f"{root / MANIFEST}: holds a burst of another plan or start position; "
                 "choose a new --out or remove it"
             )
-        present = [
-            e for e in manifest.frames if e.index is not None and (root / e.file).exists()
-        ]
+        present = [e for e in manifest.frames if e.index is not None and (root / e.file).exists()]
         return replace(manifest, frames=tuple(present))
 
     def run(self) -> CaptureResult:

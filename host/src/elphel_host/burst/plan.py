@@ -36,7 +36,6 @@ from elphel_host.mfsr.scale import MAX_SCALE, check_scale
 MIN_PLAN_SCALE = 2
 
 
-
 def _number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 

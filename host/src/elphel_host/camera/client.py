@@ -16,33 +16,16 @@ from typing import Any
 import httpx
 
 from elphel_host.camera.events import CameraEvent, SSEParser
+from elphel_host.camera.frames import Burst as Burst  # re-exported: the older name
 from elphel_host.camera.frames import (
-    Burst,
     CapturedBurst,
     CapturedFrame,
-    PhotoFinish,
-    read_burst,
     read_tiff_metadata,
     read_tiff_pages,
 )
+from elphel_host.camera.frames import read_burst as read_burst  # re-exported: the older name
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraAuthError, CameraClientError
-
-__all__ = [
-    "Applied",
-    "Burst",
-    "CameraClient",
-    "CameraEvent",
-    "CameraHTTPError",
-    "CameraUnauthorizedError",
-    "CapturedBurst",
-    "CapturedFrame",
-    "PhotoFinish",
-    "SSEParser",
-    "read_burst",
-    "read_tiff_metadata",
-    "read_tiff_pages",
-]
 
 API = "/api/v1"
 _NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
@@ -327,4 +310,3 @@ class CameraClient(Closing):
                         yield event
         except httpx.HTTPError as e:
             raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
-

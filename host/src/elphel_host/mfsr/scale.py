@@ -23,9 +23,7 @@ def allowed_scales(*, minimum: int = MIN_SCALE, maximum: int | None = MAX_SCALE)
     return f"an integer {minimum}..{maximum}" if maximum is not None else f"an integer >= {minimum}"
 
 
-def check_scale(
-    scale: Any, *, minimum: int = MIN_SCALE, maximum: int | None = MAX_SCALE
-) -> int:
+def check_scale(scale: Any, *, minimum: int = MIN_SCALE, maximum: int | None = MAX_SCALE) -> int:
     """``scale`` as an int if it is an integer in ``minimum..maximum`` (no upper bound: None).
 
     Raises
