@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import signal
 import threading
 import time
 
@@ -44,6 +45,8 @@ class Engine:
 
     def stop(self) -> None:
         self.stopped += 1
+        if self.gate is not None:  # as on the rig: a stop ends the move in progress
+            self.gate.set()
 
 
 def test_a_captured_manifest_round_trips_key_for_key(tmp_path):
@@ -178,3 +181,20 @@ def test_progress_line_updates_in_place_on_a_terminal_only():
 def test_partial_names_keep_the_suffix_when_asked(tmp_path):
     assert partial_path(tmp_path / "a.tif").name == ".a.tif.part"
     assert partial_path(tmp_path / "a.tif", keep_suffix=True).name == ".a.part.tif"
+
+
+def test_ctrl_c_in_wait_stops_the_hardware_before_it_goes_on(tmp_path):
+    gate = threading.Event()
+    engine = Engine(gate=gate)
+    status = BurstRunner(engine, POSITIONS, tmp_path, start_mm=0.0).start()
+    timer = threading.Timer(0.2, signal.raise_signal, args=(signal.SIGINT,))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            status.wait(10)
+        assert engine.stopped == 1  # stopped while the move was still in progress
+    finally:
+        gate.set()
+        timer.cancel()
+    result = status.wait(10)
+    assert result.cancelled and engine.stopped == 1

@@ -1,7 +1,7 @@
 """Fuse a burst: registration, validation, then one of the methods, mono or Bayer.
 
-Output grid (DESIGN 4.3): the first frame's grid up-sampled by ``scale`` with pixel centres
-where ``cv2.resize`` puts them (LR pixel i has its centre at HR coordinate
+Output grid (the burst format's contract): the first frame's grid up-sampled by ``scale``
+with pixel centres where ``cv2.resize`` puts them (LR pixel i has its centre at HR coordinate
 ``scale * i + (scale - 1) / 2``), in the input's units. Bayer bursts give an RGB image:
 each colour plane is reconstructed on that full grid from its own samples (both green
 sites together), with the pixel aperture of the full-resolution pixel.
