@@ -39,7 +39,7 @@ import uvicorn
 from fastapi import FastAPI, Response
 from pydantic import BaseModel
 
-from elphel_host.camera.client import _SSEParser
+from elphel_host.camera.events import SSEParser as _SSEParser
 
 TOKEN = "bench-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -11,8 +11,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 CAMERA_URL_ENV = "ELPHEL_CAMERA_URL"
 CAMERA_TOKEN_ENV = "ELPHEL_CAMERA_TOKEN"
@@ -28,8 +30,69 @@ def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
         print(human)
 
 
+def fail(message: str) -> int:
+    """Print the one-line error of a failed command on stderr; its exit code, 1."""
+    print(f"elphel: {message}", file=sys.stderr)
+    return 1
+
+
+def add_json_option(parser: Any) -> None:
+    """``--json``: print exactly one JSON object on stdout."""
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+class ProgressLine:
+    """Progress of a long command on stderr: one updating line on a terminal, else a line each.
+
+    stdout stays for the result (one JSON object with --json), so progress never mixes
+    with it.
+    """
+
+    def __init__(self, stream: TextIO | None = None) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._open = False
+
+    def update(self, text: str) -> None:
+        """Show ``text`` as the current state (replacing the previous one on a terminal)."""
+        if self.tty:
+            self.stream.write(f"\r{text}\x1b[K")
+            self._open = True
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def end(self) -> None:
+        """Finish the updating line (a no-op when not on a terminal)."""
+        if self._open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._open = False
+
+    def say(self, prefix: str) -> Callable[[str], None]:
+        """A callback printing ``prefix + message`` as a line of its own."""
+
+        def print_line(message: str) -> None:
+            self.end()
+            self.stream.write(f"{prefix}{message}\n")
+            self.stream.flush()
+
+        return print_line
+
+
 def _alias_note(aliases: tuple[str, ...]) -> str:
     return f"; {', '.join(aliases)} is the older spelling" if aliases else ""
+
+
+def _add_url_option(parser: Any, flag: str, aliases: tuple[str, ...], env: str, what: str) -> None:
+    parser.add_argument(
+        flag,
+        *aliases,
+        dest=flag.removeprefix("--"),
+        default=os.environ.get(env),
+        metavar="URL",
+        help=f"{what} (env {env}{_alias_note(aliases)})",
+    )
 
 
 def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
@@ -37,14 +100,7 @@ def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
 
     ``aliases`` are older spellings of ``--camera`` kept for scripts (``--url``).
     """
-    parser.add_argument(
-        "--camera",
-        *aliases,
-        dest="camera",
-        default=os.environ.get(CAMERA_URL_ENV),
-        metavar="URL",
-        help=f"camera URL (env {CAMERA_URL_ENV}{_alias_note(aliases)})",
-    )
+    _add_url_option(parser, "--camera", aliases, CAMERA_URL_ENV, "camera URL")
     parser.add_argument(
         "--token",
         default=os.environ.get(CAMERA_TOKEN_ENV),
@@ -54,14 +110,12 @@ def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
 
 def add_stage_option(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
     """``--stage URL`` (a pyserial URL), defaulting to ELPHEL_STAGE_URL."""
-    parser.add_argument(
-        "--stage",
-        *aliases,
-        dest="stage",
-        default=os.environ.get(STAGE_URL_ENV),
-        metavar="URL",
-        help=f"pyserial URL of the stage (env {STAGE_URL_ENV}{_alias_note(aliases)})",
-    )
+    _add_url_option(parser, "--stage", aliases, STAGE_URL_ENV, "pyserial URL of the stage")
+
+
+def add_stage_model_option(parser: Any, *, help: str = "stage calibration file") -> None:
+    """``--model PATH``: the stage calibration (``elphel stage calibrate`` writes it)."""
+    parser.add_argument("--model", type=Path, default=DEFAULT_STAGE_MODEL, help=help)
 
 
 def add_sensor_port_option(parser: Any, *, default: int | None = 0, help: str = "") -> None:

@@ -27,6 +27,19 @@ class InputFormatError(ElphelError, ValueError):
     """A file or directory given as input does not have the documented format."""
 
 
+class ScaleError(ElphelError, ValueError):
+    """An up-sampling factor outside what the operation allows."""
+
+    def __init__(self, value: object, allowed: str) -> None:
+        super().__init__(f"scale={value!r}; allowed: {allowed}")
+        self.value = value
+        self.allowed = allowed
+
+
+class CaptureTimeout(ElphelError, TimeoutError):  # noqa: N818 - like StageTimeout
+    """A burst capture did not finish within the time a caller waited for it."""
+
+
 class FusionError(ElphelError, RuntimeError):
     """Fusing a burst failed (a frame could not be loaded, the reconstruction raised, ...)."""
 

@@ -13,9 +13,20 @@ from collections.abc import Iterator
 from pathlib import Path
 
 
-def partial_path(path: Path) -> Path:
-    """The temporary name a file is written under before it is renamed into place."""
+def partial_path(path: Path, *, keep_suffix: bool = False) -> Path:
+    """The temporary name a file is written under before it is renamed into place.
+
+    ``keep_suffix`` keeps the file's suffix last (``.fused.part.tif``), for writers that
+    choose the format by it (tifffile, PIL).
+    """
+    if keep_suffix:
+        return path.with_name(f".{path.stem}.part{path.suffix}")
     return path.with_name(f".{path.name}.part")
+
+
+def _sync(path: Path) -> None:
+    with open(path, "rb+") as f:
+        os.fsync(f.fileno())
 
 
 def write_atomic(path: str | Path, data: bytes, *, sync: bool = False) -> Path:
@@ -32,15 +43,21 @@ def write_atomic(path: str | Path, data: bytes, *, sync: bool = False) -> Path:
 
 
 @contextlib.contextmanager
-def replacing(path: str | Path) -> Iterator[Path]:
+def replacing(
+    path: str | Path, *, sync: bool = False, keep_suffix: bool = False
+) -> Iterator[Path]:
     """Yield a temporary name to write ``path``'s content to; rename it into place on success.
 
     On an exception the temporary file is removed and ``path`` is left as it was.
+    ``sync``: the file is on disk before the rename makes it visible; ``keep_suffix`` as
+    for :func:`partial_path`.
     """
     path = Path(path)
-    tmp = partial_path(path)
+    tmp = partial_path(path, keep_suffix=keep_suffix)
     try:
         yield tmp
+        if sync and tmp.is_file():
+            _sync(tmp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from elphel_host.camera import Burst, CameraClient, CameraHTTPError, CameraUnauthorizedError
-from elphel_host.camera.client import _SSEParser
+from elphel_host.camera.events import SSEParser
 from elphel_host.errors import CameraClientError
 
 
@@ -69,7 +69,7 @@ def test_missing_token_is_an_auth_error():
 
 
 def test_sse_parser_reads_events_ids_and_skips_comments():
-    parser = _SSEParser()
+    parser = SSEParser()
     lines = [
         "retry: 2000",
         "",

@@ -1,1 +1,4 @@
-"""Sub-pixel bursts: planning (plan.py) and burst directories (io.py, DESIGN 4.3)."""
+"""Sub-pixel bursts: the plan (plan.py), the burst format (io.py), the capture (capture.py).
+
+``cli.py`` is ``elphel burst plan|capture``; nothing here imports it.
+"""

@@ -1,35 +1,43 @@
 """Capture a planned burst: move the stage, let it settle, take a frame, record — resumable.
 
-An engine knows the hardware (closed-loop stage moves, the camera's next frame); the runner
-owns the order, the progress, where frames go and what happens on failure. Each frame is
-written to its file first (temporary name, then rename) and then entered in the manifest
-(rewritten atomically), so a crash or Ctrl-C at any moment leaves a valid burst directory
-holding every frame captured so far exactly once; running the same command again captures
-only the frames still missing. Ctrl-C stops the stage before it is re-raised.
+An engine knows the hardware (closed-loop stage moves, the camera's next frame, stopping);
+the runner (:class:`BurstRunner`) owns the order, the progress, cancelling, resuming, where
+frames go and what happens on failure. Each frame is written to its file first (temporary
+name, then rename) and then entered in the manifest (rewritten atomically through
+:mod:`elphel_host.burst.io`), so a crash or Ctrl-C at any moment leaves a valid burst
+directory holding every frame captured so far exactly once; running the same capture again
+takes only the frames still missing. On any error, and on Ctrl-C, the hardware is stopped
+before the error goes on.
 
-With ``--fuse`` the frames also go, as they are stored, to a fusion running in the
-background (:mod:`elphel_host.mfsr.stream`); the fused image is written, atomically, once
-the last frame is in. A fusion failure leaves the burst as it is and exits 1.
+:meth:`BurstRunner.start` runs a capture in the background and returns its handle
+(:class:`CaptureStatus`: ``progress``, ``done``, ``cancel()``, ``wait(timeout)``, callbacks);
+:meth:`BurstRunner.run`, or :func:`capture_burst`, blocks instead.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import sys
+import threading
 import time
-from collections.abc import Callable, Mapping
-from contextlib import ExitStack
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
-from elphel_host.burst.io import MANIFEST, VERSION
+from elphel_host.burst.io import (
+    MANIFEST,
+    VERSION,
+    FrameEntry,
+    Manifest,
+    read_manifest,
+    write_manifest,
+)
 from elphel_host.camera.client import CameraClient
-from elphel_host.cli_common import add_camera_options, add_sensor_port_option
-from elphel_host.errors import InputFormatError
-from elphel_host.stage.positioning import MoveResult, Positioner, StageModel
+from elphel_host.errors import CaptureTimeout, InputFormatError
+from elphel_host.fileio import write_atomic
+from elphel_host.stage.positioning import MoveResult, Positioner
+
+ProgressCallback = Callable[[int, int, str], None]
+FrameCallback = Callable[[Path, Manifest, int], None]
 
 
 class Engine(Protocol):
@@ -44,13 +52,13 @@ class Engine(Protocol):
         ...
 
     def stop(self) -> None:
-        """Stop the hardware at once (called on errors and Ctrl-C)."""
+        """Stop the hardware at once (called on errors, cancel and Ctrl-C)."""
         ...
 
 
 @dataclass
 class RigEngine:
-    """The real rig: a stage `Positioner` and a camera daemon port."""
+    """The real rig: a stage `Positioner` and a camera daemon's sensor port."""
 
     positioner: Positioner
     camera: CameraClient
@@ -71,46 +79,52 @@ class RigEngine:
 
 @dataclass
 class CaptureResult:
+    """What a capture did: frames captured now, frames found already there, wall time."""
+
     directory: Path
     captured: list[int] = field(default_factory=list)
     skipped: list[int] = field(default_factory=list)
     seconds: float = 0.0
+    cancelled: bool = False
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+@dataclass(frozen=True)
+class CaptureProgress:
+    """A snapshot of a running capture.
+
+    Attributes
+    ----------
+    done, total
+        Frames in the burst directory, frames of the plan.
+    index
+        The frame being taken (or the last one stored); None before the first.
+    target_mm
+        The commanded stage position of that frame.
+    caliper_mm
+        Where the caliper found the carriage after the last move.
+    state
+        ``starting``, ``moving``, ``acquiring``, ``stored``, ``finished``, ``cancelled``
+        or ``failed``.
+    """
+
+    done: int = 0
+    total: int = 0
+    index: int | None = None
+    target_mm: float | None = None
+    caliper_mm: float | None = None
+    state: str = "starting"
 
 
-def load_progress(out: Path) -> dict[str, Any] | None:
+def load_progress(out: str | Path) -> Manifest | None:
     """The manifest of a partly captured burst, or None if there is none yet."""
-    path = out / MANIFEST
-    if not path.exists():
-        return None
     try:
-        manifest = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputFormatError(f"{path}: not valid JSON ({e}); move it away to start over") from e
-    if manifest.get("version") != VERSION or not isinstance(manifest.get("frames"), list):
-        raise InputFormatError(f"{path}: not a version-{VERSION} burst manifest")
-    return manifest
+        return read_manifest(out)
+    except InputFormatError as e:
+        raise InputFormatError(f"{e}; move it away to start over") from e
 
 
-def capture_burst(
-    engine: Engine,
-    positions_mm: list[float],
-    out: str | Path,
-    *,
-    start_mm: float,
-    top: Mapping[str, Any] | None = None,
-    progress: Callable[[int, int, str], None] | None = None,
-    on_frame: Callable[[Path, Mapping[str, Any], int], None] | None = None,
-) -> CaptureResult:
-    """Capture one frame at each stage position into a burst directory.
+class BurstRunner:
+    """One capture of one frame at each stage position into a burst directory.
 
     Parameters
     ----------
@@ -123,244 +137,231 @@ def capture_burst(
     start_mm
         Absolute stage position of the plan's origin (kept in the manifest for resuming).
     top
-        Extra top-level manifest fields (``optics``, ``stage``, ``bayer``...).
+        Extra top-level manifest fields (``optics``, ``stage``, ``bayer``, ``plan``...).
     progress
-        Called as ``progress(done, total, message)`` after each step.
+        Called as ``progress(done, total, message)`` after each frame is stored.
     on_frame
         Called as ``on_frame(directory, manifest, index)`` for every frame of the burst
         once its file and manifest entry are on disk: first for the frames already present
         (resuming, in index order), then for each new one. It must return at once and not
-        raise (the hardware waits); ``manifest`` changes after it returns.
+        raise (the hardware waits).
     """
-    root = Path(out)
-    (root / "frames").mkdir(parents=True, exist_ok=True)
-    manifest = load_progress(root)
-    plan_key = {"start_mm": start_mm, "positions_mm": list(positions_mm)}
-    if manifest is None:
-        manifest = {"version": VERSION, "frames": [], **dict(top or {}), "capture": plan_key}
-    elif manifest.get("capture") != plan_key:
-        raise InputFormatError(
-            f"{root / MANIFEST}: holds a burst of another plan or start position; "
-            "choose a new --out or remove it"
-        )
-    done = {int(e["index"]) for e in manifest["frames"] if (root / e["file"]).exists()}
-    manifest["frames"] = [e for e in manifest["frames"] if int(e["index"]) in done]
-    result = CaptureResult(root, skipped=sorted(done))
-    t0 = time.monotonic()
-    total = len(positions_mm)
-    if on_frame is not None:
-        for i in sorted(done):
-            on_frame(root, manifest, i)
-    try:
-        for i, rel in enumerate(positions_mm):
-            if i in done:
-                continue
-            target = start_mm + rel
-            moved = engine.move(target)
-            tiff, meta = engine.acquire()
-            name = f"frames/{i:04d}.tif"
-            _atomic_write(root / name, tiff)
-            entry = {
-                "file": name,
-                "index": i,
-                "stage_mm": round(target, 6),
-                "caliper_mm": moved.caliper_mm,
-                "frame": meta.get("frame"),
-                "timestamp_ns": meta.get("timestamp_ns"),
-            }
-            manifest["frames"].append(entry)
-            manifest["frames"].sort(key=lambda e: e["index"])
-            if "bayer" not in manifest:
-                manifest["bayer"] = meta.get("bayer")
-            _atomic_write(
-                root / MANIFEST, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode()
-            )
-            result.captured.append(i)
-            if on_frame is not None:
-                on_frame(root, manifest, i)
-            if progress is not None:
-                progress(len(manifest["frames"]), total, f"frame {i} at {moved.caliper_mm:.3f} mm")
-    except BaseException:
-        engine.stop()
-        raise
-    finally:
-        result.seconds = time.monotonic() - t0
-    return result
 
+    def __init__(
+        self,
+        engine: Engine,
+        positions_mm: Sequence[float],
+        out: str | Path,
+        *,
+        start_mm: float,
+        top: Mapping[str, Any] | None = None,
+        progress: ProgressCallback | None = None,
+        on_frame: FrameCallback | None = None,
+    ) -> None:
+        self.engine = engine
+        self.positions_mm = list(positions_mm)
+        self.directory = Path(out)
+        self.start_mm = start_mm
+        self.top = dict(top or {})
+        self._progress_cb = progress
+        self._on_frame = on_frame
+        self._cancel = threading.Event()
+        self._lock = threading.Lock()
+        self._stopped = False
+        self._progress = CaptureProgress(total=len(self.positions_mm))
 
-# -- CLI ----------------------------------------------------------------------------------------
+    @property
+    def progress(self) -> CaptureProgress:
+        with self._lock:
+            return self._progress
 
+    def _report(self, **changes: Any) -> None:
+        with self._lock:
+            self._progress = replace(self._progress, **changes)
 
-def add_capture_parser(sub: Any) -> None:
-    """Add ``elphel burst capture`` to the burst subparsers."""
-    from elphel_host.stage.cli import DEFAULT_MODEL
+    def cancel(self) -> None:
+        """Stop after the frame in hand (or before the next move); the hardware is stopped."""
+        self._cancel.set()
 
-    cp = sub.add_parser(
-        "capture",
-        help="move, settle, capture and record every frame of a plan (resumable)",
-        description="Capture a planned burst into a burst directory (DESIGN 4.3). Each frame "
-        "is saved as it arrives; running the same command again completes a partial burst. "
-        "With --fuse the frames are also registered for fusion while the stage moves, and "
-        "the fused image (what 'elphel mfsr OUT --scale S --method M --out FUSED' gives) is "
-        "written moments after the last frame; a fusion failure keeps the frames and exits 1.",
-    )
-    add_camera_options(cp)
-    cp.add_argument(
-        "--stage", default=os.environ.get("ELPHEL_STAGE_URL"), help="stage pyserial URL"
-    )
-    cp.add_argument("--plan", type=Path, required=True, help="plan JSON (elphel burst plan --out)")
-    cp.add_argument("--out", type=Path, required=True, help="burst directory to write")
-    add_sensor_port_option(cp, help="sensor port of the camera (default 0)")
-    cp.add_argument("--start-mm", type=float, help="plan origin on the stage (default: here)")
-    cp.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="stage calibration file")
-    cp.add_argument("--settle-s", type=float, default=0.05, help="wait after each move")
-    cp.add_argument("--focal-length-mm", type=float, help="record optics in the manifest")
-    cp.add_argument("--pixel-pitch-um", type=float)
-    cp.add_argument("--distance-mm", type=float)
-    cp.add_argument("--json", action="store_true", help="print one JSON object")
-    fz = cp.add_argument_group("fusion while capturing (elphel mfsr on the finished burst)")
-    fz.add_argument(
-        "--fuse",
-        action="store_true",
-        help="register each frame as it arrives and write the fused image at the end",
-    )
-    fz.add_argument(
-        "--scale", type=int, metavar="S", help="up-sampling factor 1..8 (default: the plan's)"
-    )
-    fz.add_argument(
-        "--method",
-        choices=("robust", "baseline"),
-        help="as elphel mfsr --method (default robust)",
-    )
-    fz.add_argument(
-        "--fused-out",
-        type=Path,
-        metavar="FUSED.tif",
-        help="fused TIFF, 16-bit DN, with a PNG preview next to it (default OUT/fused.tif)",
-    )
-    cp.set_defaults(func=run_capture, parser=cp)
+    def stop_hardware(self) -> None:
+        """Stop the engine once (errors, cancel and Ctrl-C may all ask)."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
+        self.engine.stop()
 
-
-def _fuse_options(
-    args: argparse.Namespace, plan: Mapping[str, Any]
-) -> tuple[int, str, Path] | None:
-    """(scale, method, fused TIFF) for --fuse, or None; wrong combinations are usage errors."""
-    parser: argparse.ArgumentParser = args.parser
-    if not args.fuse:
-        extra = [
-            option
-            for option, value in (
-                ("--scale", args.scale),
-                ("--method", args.method),
-                ("--fused-out", args.fused_out),
-            )
-            if value is not None
-        ]
-        if extra:
-            parser.error(f"{', '.join(extra)}: allowed only with --fuse")
-        return None
-    scale = args.scale if args.scale is not None else plan.get("scale")
-    if isinstance(scale, bool) or not isinstance(scale, int) or not 1 <= scale <= 8:
-        source = "--scale" if args.scale is not None else f"the plan {args.plan}"
-        parser.error(f"--fuse: scale={scale!r} from {source}; allowed: an integer 1..8")
-    out = args.fused_out if args.fused_out is not None else args.out / "fused.tif"
-    return scale, args.method or "robust", out
-
-
-def run_capture(args: argparse.Namespace) -> int:
-    from elphel_host.cli_common import emit
-    from elphel_host.stage.client import StageClient
-
-    if not args.camera or not args.stage:
-        args.parser.error("give --camera and --stage (or ELPHEL_CAMERA_URL / ELPHEL_STAGE_URL)")
-    try:
-        plan = json.loads(args.plan.read_text())
-        positions = [float(p) for p in plan["positions_mm"]]
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
-        raise InputFormatError(f"{args.plan}: not a burst plan ({e})") from e
-    fuse = _fuse_options(args, plan)
-    if fuse is not None:  # an output that cannot be written fails before the rig moves
-        fuse[2].parent.mkdir(parents=True, exist_ok=True)
-    top: dict[str, Any] = {"plan": {k: plan[k] for k in ("scale", "tilt_deg") if k in plan}}
-    optics = {
-        "focal_length_mm": args.focal_length_mm,
-        "pixel_pitch_um": args.pixel_pitch_um,
-        "object_distance_mm": args.distance_mm,
-    }
-    if all(v is not None for v in optics.values()):
-        top["optics"] = optics
-    with ExitStack() as stack:
-        stream = None
-        if fuse is not None:
-            # imported here: plain captures do not load OpenCV and SciPy
-            from elphel_host.mfsr.stream import FusionStream
-
-            stream = stack.enter_context(
-                FusionStream(frames=len(positions), scale=fuse[0], method=fuse[1])
-            )
-        with StageClient(args.stage) as stage, CameraClient(args.camera, args.token) as camera:
-            positioner = Positioner(stage, StageModel.load(args.model))
-            progress_so_far = load_progress(args.out)
-            if progress_so_far is not None:
-                start_mm = float(progress_so_far["capture"]["start_mm"])
-            elif args.start_mm is not None:
-                start_mm = args.start_mm
-            else:
-                start_mm = round(positioner.read_mm(), 2)
-            top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
-            if "tilt_deg" in plan:
-                top["stage"]["axis_angle_deg"] = float(plan["tilt_deg"])
-            engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
-
-            def progress(done: int, total: int, message: str) -> None:
-                fusion = "" if stream is None else f"; fusion: {stream.status()}"
-                print(f"burst: {done}/{total} {message}{fusion}", file=sys.stderr, flush=True)
-
-            result = capture_burst(
-                engine,
-                positions,
-                args.out,
-                start_mm=start_mm,
-                top=top,
-                progress=progress,
-                on_frame=None if stream is None else stream.frame_stored,
-            )
-        summary: dict[str, Any] = {
-            "out": str(result.directory),
-            "captured": result.captured,
-            "already_present": result.skipped,
-            "frames": len(positions),
-            "start_mm": start_mm,
-            "seconds": round(result.seconds, 2),
-        }
-        human = [
-            f"{result.directory}: {len(result.captured)} frames captured, "
-            f"{len(result.skipped)} already there, in {result.seconds:.1f} s"
-        ]
-        error = None
-        if stream is not None and fuse is not None:
-            from elphel_host.errors import FusionError
-            from elphel_host.mfsr.stream import finish_and_write
-
-            def say(message: str) -> None:
-                print(f"fusion: {message}", file=sys.stderr, flush=True)
-
+    def _start(self) -> Manifest:
+        root = self.directory
+        (root / "frames").mkdir(parents=True, exist_ok=True)
+        plan_key = {"start_mm": self.start_mm, "positions_mm": list(self.positions_mm)}
+        manifest = load_progress(root)
+        if manifest is None:
+            top = {"version": VERSION, "frames": [], **self.top, "capture": plan_key}
             try:
-                fused = finish_and_write(stream, fuse[2], burst=result.directory, progress=say)
-            except FusionError as e:
-                error = str(e)
-                fused = {"error": error}
-                human.append(error)
-            else:
-                excluded = "; ".join(f"{e['index']}: {e['reason']}" for e in fused["excluded"])
-                human.append(
-                    f"{fused['out']}: {fused['method']} x{fuse[0]}, {fused['used']}/"
-                    f"{fused['frames']} frames, written {fused['after_capture_s']:.2f} s "
-                    "after the last frame" + (f"; excluded {excluded}" if excluded else "")
+                return Manifest.from_json(top)
+            except ValueError as e:
+                raise InputFormatError(f"manifest fields given for {root}: {e}") from e
+        if manifest.extra.get("capture") != plan_key:
+            raise InputFormatError(
+                f"{root / MANIFEST}: holds a burst of another plan or start position; "
+                "choose a new --out or remove it"
+            )
+        present = [e for e in manifest.frames if e.index is not None and (root / e.file).exists()]
+        return replace(manifest, frames=tuple(present))
+
+    def run(self) -> CaptureResult:
+        """Capture the frames still missing, in the calling thread."""
+        root = self.directory
+        resumed = (root / MANIFEST).exists()
+        manifest = self._start()
+        bayer_known = resumed or "bayer" in self.top
+        done = sorted(e.index for e in manifest.frames if e.index is not None)
+        result = CaptureResult(root, skipped=list(done))
+        total = len(self.positions_mm)
+        self._report(done=len(done))
+        t0 = time.monotonic()
+        if self._on_frame is not None:
+            for i in done:
+                self._on_frame(root, manifest, i)
+        try:
+            for i, rel in enumerate(self.positions_mm):
+                if i in done:
+                    continue
+                if self._cancel.is_set():
+                    break
+                target = self.start_mm + rel
+                self._report(index=i, target_mm=target, state="moving")
+                moved = self.engine.move(target)
+                self._report(caliper_mm=moved.caliper_mm, state="acquiring")
+                if self._cancel.is_set():
+                    break
+                tiff, meta = self.engine.acquire()
+                name = f"frames/{i:04d}.tif"
+                write_atomic(root / name, tiff, sync=True)
+                entry = FrameEntry(
+                    file=name,
+                    index=i,
+                    stage_mm=round(target, 6),
+                    caliper_mm=moved.caliper_mm,
+                    frame=meta.get("frame"),
+                    timestamp_ns=meta.get("timestamp_ns"),
                 )
-            summary["fusion"] = fused
-    emit(args, summary, "\n".join(human))
-    if error is not None:
-        print(f"elphel: {error}", file=sys.stderr)
-        return 1
-    return 0
+                manifest = manifest.with_frame(entry)
+                if not bayer_known:
+                    manifest, bayer_known = replace(manifest, bayer=meta.get("bayer")), True
+                write_manifest(root, manifest, sync=True)
+                result.captured.append(i)
+                self._report(done=len(manifest.frames), state="stored")
+                if self._on_frame is not None:
+                    self._on_frame(root, manifest, i)
+                if self._progress_cb is not None:
+                    message = f"frame {i} at {moved.caliper_mm:.3f} mm"
+                    self._progress_cb(len(manifest.frames), total, message)
+        except BaseException:
+            self._report(state="failed")
+            self.stop_hardware()
+            raise
+        finally:
+            result.seconds = time.monotonic() - t0
+        if self._cancel.is_set() and len(manifest.frames) < total:
+            self.stop_hardware()
+            result.cancelled = True
+            self._report(state="cancelled")
+        else:
+            self._report(state="finished")
+        return result
+
+    def start(self) -> CaptureStatus:
+        """Run the capture in a background thread; its handle."""
+        return CaptureStatus(self)
+
+
+class CaptureStatus:
+    """Handle of a capture running in the background (:meth:`BurstRunner.start`).
+
+    ``progress`` is a :class:`CaptureProgress` snapshot; ``done`` says whether it ended;
+    ``cancel()`` stops it after the frame in hand (frames stored so far stay: run it again
+    to complete); ``wait(timeout)`` returns the :class:`CaptureResult` or raises the
+    capture's error; callbacks run once it has ended. Ctrl-C inside ``wait`` stops the
+    hardware before the KeyboardInterrupt goes on.
+    """
+
+    def __init__(self, runner: BurstRunner) -> None:
+        self.runner = runner
+        self._finished = threading.Event()
+        self._lock = threading.Lock()
+        self._callbacks: list[Callable[[CaptureStatus], None]] = []
+        self.result: CaptureResult | None = None
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="burst-capture", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self.result = self.runner.run()
+        except BaseException as e:  # handed to wait(), which raises it in the caller
+            self.error = e
+        with self._lock:
+            self._finished.set()
+            callbacks, self._callbacks = self._callbacks, []
+        for fn in callbacks:
+            fn(self)
+
+    @property
+    def progress(self) -> CaptureProgress:
+        return self.runner.progress
+
+    @property
+    def done(self) -> bool:
+        return self._finished.is_set()
+
+    def cancel(self) -> None:
+        """Ask the capture to stop after the frame in hand; :meth:`wait` returns its result."""
+        self.runner.cancel()
+
+    def add_callback(self, fn: Callable[[CaptureStatus], None]) -> None:
+        """Call ``fn(self)`` once the capture has ended (at once if it already has)."""
+        with self._lock:
+            if not self._finished.is_set():
+                self._callbacks.append(fn)
+                return
+        fn(self)
+
+    def wait(self, timeout: float | None = None) -> CaptureResult:
+        """Block until the capture ends; its result, or its error raised here.
+
+        Raises
+        ------
+        CaptureTimeout
+            When it has not ended within ``timeout`` seconds (it goes on running).
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        try:
+            while not self._finished.wait(0.05):
+                if deadline is not None and time.monotonic() > deadline:
+                    p = self.progress
+                    raise CaptureTimeout(
+                        f"burst capture into {self.runner.directory} not finished within "
+                        f"{timeout} s ({p.done}/{p.total} frames, {p.state})"
+                    )
+        except KeyboardInterrupt:
+            self.runner.cancel()
+            self.runner.stop_hardware()
+            self._thread.join(timeout=5.0)  # let the frame in hand be stored or dropped
+            raise
+        if self.error is not None:
+            raise self.error
+        assert self.result is not None
+        return self.result
+
+
+def capture_burst(
+    engine: Engine, positions_mm: Sequence[float], out: str | Path, **options: Any
+) -> CaptureResult:
+    """Capture one frame at each stage position, blocking.
+
+    ``options`` (``start_mm`` required, ``top``, ``progress``, ``on_frame``) are those of
+    :class:`BurstRunner`; ``BurstRunner(...).start()`` runs the same in the background.
+    """
+    return BurstRunner(engine, positions_mm, out, **options).run()

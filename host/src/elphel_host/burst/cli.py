@@ -1,15 +1,34 @@
-"""``elphel burst plan|capture``: plan a sub-pixel burst and capture it (burst/capture.py)."""
+"""``elphel burst plan|capture``: plan a sub-pixel burst and capture it.
+
+The planning is :mod:`elphel_host.burst.plan`, the capture runner
+:mod:`elphel_host.burst.capture`, the files :mod:`elphel_host.burst.io`; this module
+parses the options, builds the rig from them and renders progress and results.
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from elphel_host.burst.capture import add_capture_parser
-from elphel_host.burst.plan import plan_burst
-from elphel_host.cli_common import emit
+from elphel_host.burst.capture import BurstRunner, CaptureResult, RigEngine, load_progress
+from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, write_plan
+from elphel_host.camera.client import CameraClient
+from elphel_host.cli_common import (
+    ProgressLine,
+    add_camera_options,
+    add_json_option,
+    add_sensor_port_option,
+    add_stage_model_option,
+    add_stage_option,
+    emit,
+    fail,
+)
+from elphel_host.errors import FusionError, ScaleError
+from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
+from elphel_host.stage.client import StageClient
+from elphel_host.stage.positioning import Positioner, StageModel
 
 
 def register(subparsers: Any) -> None:
@@ -20,6 +39,11 @@ def register(subparsers: Any) -> None:
         description="Sub-pixel bursts for multi-frame super-resolution.",
     )
     sub = p.add_subparsers(dest="burst_action", required=True, metavar="ACTION")
+    _add_plan_parser(sub)
+    _add_capture_parser(sub)
+
+
+def _add_plan_parser(sub: Any) -> None:
     pl = sub.add_parser(
         "plan",
         help="stage positions giving the sub-pixel phases a scale needs",
@@ -47,9 +71,8 @@ def register(subparsers: Any) -> None:
         "(tan theta = 1/(2S))",
     )
     pl.add_argument("--out", metavar="plan.json", help="save the plan as JSON")
-    pl.add_argument("--json", action="store_true", help="print one JSON object")
+    add_json_option(pl)
     pl.set_defaults(func=run_plan)
-    add_capture_parser(sub)
 
 
 def run_plan(args: argparse.Namespace) -> int:
@@ -64,7 +87,7 @@ def run_plan(args: argparse.Namespace) -> int:
     )
     result = plan.to_json()
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+        write_plan(args.out, plan)
         result["out"] = str(args.out)
     lines = [
         f"x{plan.scale} {'Bayer ' if plan.bayer else ''}burst, {plan.frames} frames, "
@@ -79,3 +102,181 @@ def run_plan(args: argparse.Namespace) -> int:
         lines.append(f"saved {args.out}")
     emit(args, result, "\n".join(lines))
     return 0
+
+
+# -- capture -------------------------------------------------------------------------------
+
+
+def _add_capture_parser(sub: Any) -> None:
+    cp = sub.add_parser(
+        "capture",
+        help="move, settle, capture and record every frame of a plan (resumable)",
+        description="Capture a planned burst into a burst directory. Each frame "
+        "is saved as it arrives; running the same command again completes a partial burst. "
+        "With --fuse the frames are also registered for fusion while the stage moves, and "
+        "the fused image (what 'elphel mfsr OUT --scale S --method M --out FUSED' gives) is "
+        "written moments after the last frame; a fusion failure keeps the frames and exits 1.",
+    )
+    add_camera_options(cp)
+    add_stage_option(cp)
+    cp.add_argument("--plan", type=Path, required=True, help="plan JSON (elphel burst plan --out)")
+    cp.add_argument("--out", type=Path, required=True, help="burst directory to write")
+    add_sensor_port_option(cp, help="sensor port of the camera (default 0)")
+    cp.add_argument("--start-mm", type=float, help="plan origin on the stage (default: here)")
+    add_stage_model_option(cp)
+    cp.add_argument("--settle-s", type=float, default=0.05, help="wait after each move")
+    cp.add_argument("--focal-length-mm", type=float, help="record optics in the manifest")
+    cp.add_argument("--pixel-pitch-um", type=float)
+    cp.add_argument("--distance-mm", type=float)
+    add_json_option(cp)
+    fz = cp.add_argument_group("fusion while capturing (elphel mfsr on the finished burst)")
+    fz.add_argument(
+        "--fuse",
+        action="store_true",
+        help="register each frame as it arrives and write the fused image at the end",
+    )
+    fz.add_argument(
+        "--scale",
+        type=int,
+        metavar="S",
+        help=f"up-sampling factor {MIN_SCALE}..{MAX_SCALE} (default: the plan's)",
+    )
+    fz.add_argument(
+        "--method",
+        choices=("robust", "baseline"),
+        help="as elphel mfsr --method (default robust)",
+    )
+    fz.add_argument(
+        "--fused-out",
+        type=Path,
+        metavar="FUSED.tif",
+        help="fused TIFF, 16-bit DN, with a PNG preview next to it (default OUT/fused.tif)",
+    )
+    cp.set_defaults(func=run_capture, parser=cp)
+
+
+def _fuse_options(args: argparse.Namespace, plan: BurstPlan) -> tuple[int, str, Path] | None:
+    """(scale, method, fused TIFF) for --fuse, or None; wrong combinations are usage errors."""
+    parser: argparse.ArgumentParser = args.parser
+    if not args.fuse:
+        extra = [
+            option
+            for option, value in (
+                ("--scale", args.scale),
+                ("--method", args.method),
+                ("--fused-out", args.fused_out),
+            )
+            if value is not None
+        ]
+        if extra:
+            parser.error(f"{', '.join(extra)}: allowed only with --fuse")
+        return None
+    scale = args.scale if args.scale is not None else plan.scale
+    try:
+        scale = check_scale(scale)
+    except ScaleError as e:
+        source = "--scale" if args.scale is not None else f"the plan {args.plan}"
+        parser.error(f"--fuse: scale={e.value!r} from {source}; allowed: {e.allowed}")
+    out = args.fused_out if args.fused_out is not None else args.out / "fused.tif"
+    return scale, args.method or "robust", out
+
+
+def _manifest_top(args: argparse.Namespace, plan: BurstPlan) -> dict[str, Any]:
+    """The manifest's top-level fields known before the stage is read."""
+    recorded = {"scale": plan.scale, "tilt_deg": plan.tilt_deg}
+    top: dict[str, Any] = {"plan": {k: v for k, v in recorded.items() if v is not None}}
+    optics = {
+        "focal_length_mm": args.focal_length_mm,
+        "pixel_pitch_um": args.pixel_pitch_um,
+        "object_distance_mm": args.distance_mm,
+    }
+    if all(v is not None for v in optics.values()):
+        top["optics"] = optics
+    return top
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    if not args.camera or not args.stage:
+        args.parser.error("give --camera and --stage (or ELPHEL_CAMERA_URL / ELPHEL_STAGE_URL)")
+    plan = read_plan(args.plan)
+    fuse = _fuse_options(args, plan)
+    if fuse is not None:  # an output that cannot be written fails before the rig moves
+        fuse[2].parent.mkdir(parents=True, exist_ok=True)
+    top = _manifest_top(args, plan)
+    line = ProgressLine()
+    with ExitStack() as stack:
+        stream = None
+        if fuse is not None:
+            # imported here: plain captures do not load OpenCV and SciPy
+            from elphel_host.mfsr.stream import FusionStream
+
+            stream = stack.enter_context(
+                FusionStream(frames=len(plan.positions_mm), scale=fuse[0], method=fuse[1])
+            )
+        with StageClient(args.stage) as stage, CameraClient(args.camera, args.token) as camera:
+            positioner = Positioner(stage, StageModel.load(args.model))
+            so_far = load_progress(args.out)
+            if so_far is not None:
+                start_mm = float(so_far.extra["capture"]["start_mm"])
+            elif args.start_mm is not None:
+                start_mm = args.start_mm
+            else:
+                start_mm = round(positioner.read_mm(), 2)
+            top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
+            if plan.tilt_deg is not None:
+                top["stage"]["axis_angle_deg"] = plan.tilt_deg
+            engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
+
+            def progress(done: int, total: int, message: str) -> None:
+                fusion = "" if stream is None else f"; fusion: {stream.status()}"
+                line.update(f"burst: {done}/{total} {message}{fusion}")
+
+            runner = BurstRunner(
+                engine,
+                plan.positions_mm,
+                args.out,
+                start_mm=start_mm,
+                top=top,
+                progress=progress,
+                on_frame=None if stream is None else stream.frame_stored,
+            )
+            result = runner.start().wait()
+            line.end()
+        summary = _capture_summary(result, len(plan.positions_mm), start_mm)
+        human = [
+            f"{result.directory}: {len(result.captured)} frames captured, "
+            f"{len(result.skipped)} already there, in {result.seconds:.1f} s"
+        ]
+        error = None
+        if stream is not None and fuse is not None:
+            from elphel_host.mfsr.stream import finish_and_write
+
+            try:
+                fused = finish_and_write(
+                    stream, fuse[2], burst=result.directory, progress=line.say("fusion: ")
+                )
+            except FusionError as e:
+                error = str(e)
+                fused = {"error": error}
+                human.append(error)
+            else:
+                excluded = "; ".join(f"{e['index']}: {e['reason']}" for e in fused["excluded"])
+                human.append(
+                    f"{fused['out']}: {fused['method']} x{fuse[0]}, {fused['used']}/"
+                    f"{fused['frames']} frames, written {fused['after_capture_s']:.2f} s "
+                    "after the last frame" + (f"; excluded {excluded}" if excluded else "")
+                )
+            summary["fusion"] = fused
+    emit(args, summary, "\n".join(human))
+    return 0 if error is None else fail(error)
+
+
+def _capture_summary(result: CaptureResult, frames: int, start_mm: float) -> dict[str, Any]:
+    return {
+        "out": str(result.directory),
+        "captured": result.captured,
+        "already_present": result.skipped,
+        "frames": frames,
+        "start_mm": start_mm,
+        "seconds": round(result.seconds, 2),
+    }

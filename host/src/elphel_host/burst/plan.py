@@ -1,5 +1,8 @@
 """Burst planning: stage positions that give the sub-pixel phases a scale needs.
 
+:func:`plan_burst` computes a :class:`BurstPlan`; :func:`write_plan` / :func:`read_plan`
+are the plan file (``elphel burst plan --out plan.json``, ``elphel burst capture --plan``).
+
 Geometry: a camera moved sideways by ``d`` mm shifts the image of an object plane at
 distance Z by ``d * f / (Z - f) / pitch`` px (thin lens; object-space pixel pitch
 ``pitch * (Z - f) / f``). A single linear axis only moves the image along one direction:
@@ -18,31 +21,86 @@ mono plan with the same frames (docs/mfsr.md).
 
 from __future__ import annotations
 
+import json
 import math
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
+
+from elphel_host.errors import InputFormatError
+from elphel_host.fileio import write_atomic
+from elphel_host.mfsr.scale import MAX_SCALE, check_scale
+
+# a x1 "burst" has no sub-pixel phases to plan
+MIN_PLAN_SCALE = 2
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 @dataclass(frozen=True)
 class BurstPlan:
-    """A planned burst (JSON-ready through :meth:`to_json`)."""
+    """A planned burst (:func:`~elphel_host.burst.plan.plan_burst`) or a plan file read back.
 
-    scale: int
-    frames: int
-    bayer: bool
-    period_px: int
-    px_per_mm: float
-    tilt_deg: float
+    ``positions_mm`` is all a capture needs; a hand-written plan may give only that (and
+    ``scale``, ``tilt_deg``); the other fields are None (or empty) then.
+    """
+
     positions_mm: list[float]
-    steps: list[int] | None
-    shifts_px: list[list[float]]
-    phases: list[list[float]]
-    travel_mm: float
-    depth_tolerance_mm: float
-    notes: list[str]
+    scale: int | None = None
+    tilt_deg: float | None = None
+    frames: int | None = None
+    bayer: bool | None = None
+    period_px: int | None = None
+    px_per_mm: float | None = None
+    steps: list[int] | None = None
+    shifts_px: list[list[float]] = field(default_factory=list)
+    phases: list[list[float]] = field(default_factory=list)
+    travel_mm: float | None = None
+    depth_tolerance_mm: float | None = None
+    notes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {"version": 1, **asdict(self)}
+
+    @classmethod
+    def from_json(cls, obj: Any) -> BurstPlan:
+        """A plan from its JSON object; ValueError names the field and what is allowed."""
+        if not isinstance(obj, Mapping):
+            raise ValueError(f"top level={type(obj).__name__!r}; allowed: an object")
+        positions = obj.get("positions_mm")
+        if not isinstance(positions, list) or not all(_number(p) for p in positions):
+            raise ValueError(f"positions_mm={positions!r}; allowed: a list of numbers (mm)")
+        scale = obj.get("scale")
+        if scale is not None and (not isinstance(scale, int) or isinstance(scale, bool)):
+            raise ValueError(f"scale={scale!r}; allowed: an integer")
+        tilt = obj.get("tilt_deg")
+        if tilt is not None and not _number(tilt):
+            raise ValueError(f"tilt_deg={tilt!r}; allowed: a number (degrees)")
+        known = {k: obj[k] for k in cls.__dataclass_fields__ if k in obj and obj[k] is not None}
+        known.update(
+            positions_mm=[float(p) for p in positions],
+            scale=None if scale is None else int(scale),
+            tilt_deg=None if tilt is None else float(tilt),
+        )
+        return cls(**known)
+
+
+def read_plan(path: str | Path) -> BurstPlan:
+    """A plan file (``elphel burst plan --out``); InputFormatError names what is wrong."""
+    path = Path(path)
+    try:
+        return BurstPlan.from_json(json.loads(path.read_text()))
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, ValueError) as e:
+        raise InputFormatError(f"{path}: not a burst plan ({e})") from e
+
+
+def write_plan(path: str | Path, plan: BurstPlan) -> Path:
+    """Write a plan file atomically."""
+    text = json.dumps(plan.to_json(), indent=1, sort_keys=True) + "\n"
+    return write_atomic(path, text.encode())
 
 
 def plan_burst(
@@ -60,7 +118,7 @@ def plan_burst(
     Parameters
     ----------
     scale
-        Up-sampling factor S (2..8).
+        Up-sampling factor S (2..8: :data:`MIN_PLAN_SCALE` .. ``MAX_SCALE``).
     focal_length_mm, pixel_pitch_um, distance_mm
         Lens focal length, sensor pixel pitch, distance of the object plane from the lens.
     mm_per_step
@@ -79,8 +137,7 @@ def plan_burst(
         recommended tilt, their phases modulo the period (1 px, 2 px for Bayer), the
         depth tolerance and notes.
     """
-    if not isinstance(scale, int) or not 2 <= scale <= 8:
-        raise ValueError(f"scale={scale!r}; allowed: an integer 2..8")
+    scale = check_scale(scale, minimum=MIN_PLAN_SCALE, maximum=MAX_SCALE)
     for name, v in (
         ("focal_length_mm", focal_length_mm),
         ("pixel_pitch_um", pixel_pitch_um),

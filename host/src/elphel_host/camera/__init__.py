@@ -7,14 +7,12 @@ from typing import Any
 
 from elphel_host.camera.client import (
     Applied,
-    Burst,
     CameraClient,
-    CameraEvent,
     CameraHTTPError,
     CameraUnauthorizedError,
-    CapturedFrame,
-    PhotoFinish,
 )
+from elphel_host.camera.events import CameraEvent
+from elphel_host.camera.frames import Burst, CapturedBurst, CapturedFrame, PhotoFinish
 
 __all__ = [
     "Applied",
@@ -23,6 +21,7 @@ __all__ = [
     "CameraEvent",
     "CameraHTTPError",
     "CameraUnauthorizedError",
+    "CapturedBurst",
     "CapturedFrame",
     "PhotoFinish",
 ]

@@ -9,13 +9,18 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.client import CameraClient, CameraEvent
-from elphel_host.cli_common import add_camera_options, add_sensor_port_option, emit
+from elphel_host.cli_common import (
+    add_camera_options,
+    add_json_option,
+    add_sensor_port_option,
+    emit,
+)
 
 
 def register(sub: Any) -> None:
     common = argparse.ArgumentParser(add_help=False)
     add_camera_options(common, aliases=("--url",))
-    common.add_argument("--json", action="store_true", help="print one JSON object")
+    add_json_option(common)
     ported = argparse.ArgumentParser(add_help=False)
     add_sensor_port_option(ported)
 

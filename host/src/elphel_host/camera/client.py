@@ -1,22 +1,30 @@
-"""Typed REST client of elphel-camd (shared/DESIGN.md section 4.2, docs/rest-api.md)."""
+"""Typed REST client of elphel-camd (docs/rest-api.md).
+
+What it decodes lives next to it: frames and multi-page bursts in
+:mod:`elphel_host.camera.frames`, the event stream in :mod:`elphel_host.camera.events`.
+"""
 
 from __future__ import annotations
 
 import contextlib
-import io
-import itertools
 import json
 import socket
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
-from types import TracebackType
+from dataclasses import dataclass
 from typing import Any
 
 import httpx
-import numpy as np
-import tifffile
-from numpy.typing import NDArray
 
+from elphel_host.camera.events import CameraEvent, SSEParser
+from elphel_host.camera.frames import Burst as Burst  # re-exported: the older name
+from elphel_host.camera.frames import (
+    CapturedBurst,
+    CapturedFrame,
+    read_tiff_metadata,
+    read_tiff_pages,
+)
+from elphel_host.camera.frames import read_burst as read_burst  # re-exported: the older name
+from elphel_host.closing import Closing
 from elphel_host.errors import CameraAuthError, CameraClientError
 
 API = "/api/v1"
@@ -52,79 +60,6 @@ class CameraUnauthorizedError(CameraHTTPError, CameraAuthError):
 
 
 @dataclass(frozen=True)
-class CapturedFrame:
-    """A frame as the daemon sent it: the TIFF bytes, the image and its metadata."""
-
-    tiff: bytes
-    image: NDArray[np.uint16]
-    metadata: dict[str, Any]
-
-    @property
-    def frame(self) -> int:
-        return int(self.metadata["frame"])
-
-
-@dataclass(frozen=True)
-class Burst:
-    """Consecutive frames in one multi-page TIFF: images (N, H, W) and per-frame metadata."""
-
-    tiff: bytes
-    images: NDArray[np.uint16]
-    metadata: list[dict[str, Any]]
-
-    @property
-    def frames(self) -> list[int]:
-        return [int(m["frame"]) for m in self.metadata]
-
-    def photofinish(self) -> PhotoFinish:
-        """Join consecutive photo-finish composites into one image, with each row's time.
-
-        Raises `CameraClientError` if the frames are not photo-finish composites of one
-        shape, or if a strip is missing between two of them.
-        """
-        if not self.metadata or any("pf_strip_period_ns" not in m for m in self.metadata):
-            raise CameraClientError("not photo-finish composites: set PF_HEIGHT first")
-        first = self.metadata[0]
-        height, period = int(first["PF_HEIGHT"]), int(first["pf_strip_period_ns"])
-        strips = int(first["pf_strips"])
-        for a, b in itertools.pairwise(self.metadata):
-            if (b["PF_HEIGHT"], b["pf_strips"], b["pf_strip_period_ns"]) != (
-                height,
-                strips,
-                period,
-            ):
-                raise CameraClientError(
-                    f"frames {a['frame']} and {b['frame']}: photo-finish settings changed"
-                )
-            gap = int(b["timestamp_ns"]) - int(a["timestamp_ns"]) - strips * period
-            if abs(gap) > period // 2:
-                raise CameraClientError(
-                    f"frames {a['frame']} and {b['frame']} are not contiguous: "
-                    f"{gap / period:+.1f} strips between them"
-                )
-        starts = np.array([int(m["timestamp_ns"]) for m in self.metadata], dtype=np.int64)
-        strip = np.arange(strips * height, dtype=np.int64) // height
-        row_times = starts[:, None] + strip[None, :] * period
-        image = self.images.reshape(-1, self.images.shape[-1])
-        return PhotoFinish(image, row_times.reshape(-1), height, period, self.frames)
-
-
-@dataclass(frozen=True)
-class PhotoFinish:
-    """Photo-finish composites joined: one row per scan-line time.
-
-    ``row_times_ns[r]`` is when row ``r`` was read (the start of its strip, on the
-    camera's clock); rows run forward in time.
-    """
-
-    image: NDArray[np.uint16]
-    row_times_ns: NDArray[np.int64]
-    strip_height: int
-    strip_period_ns: int
-    frames: list[int]
-
-
-@dataclass(frozen=True)
 class Applied:
     """Answer to a parameter change: the frame at which it is in effect, and the params."""
 
@@ -132,72 +67,7 @@ class Applied:
     params: dict[str, int]
 
 
-@dataclass(frozen=True)
-class CameraEvent:
-    """One server-sent event: ``frame``, ``params``, ``error`` or ``dropped``."""
-
-    type: str
-    data: dict[str, Any]
-    id: int | None = None
-
-
-@dataclass
-class _SSEParser:
-    """Incremental parser of an event stream's lines."""
-
-    event: str = "message"
-    data: list[str] = field(default_factory=list)
-    id: int | None = None
-
-    def feed(self, line: str) -> CameraEvent | None:
-        if line == "":
-            if not self.data:
-                self.event = "message"
-                return None
-            out = CameraEvent(self.event, json.loads("\n".join(self.data)), self.id)
-            self.event, self.data, self.id = "message", [], None
-            return out
-        if line.startswith(":"):
-            return None
-        name, _, value = line.partition(":")
-        value = value.removeprefix(" ")
-        if name == "event":
-            self.event = value
-        elif name == "data":
-            self.data.append(value)
-        elif name == "id" and value.isdigit():
-            self.id = int(value)
-        return None
-
-
-def read_tiff_metadata(data: bytes | str) -> tuple[NDArray[Any], dict[str, Any]]:
-    """Image and JSON metadata (ImageDescription) of a TIFF written by the daemon."""
-    source: Any = io.BytesIO(data) if isinstance(data, bytes) else data
-    with tifffile.TiffFile(source) as tif:
-        image = tif.asarray()
-        description = tif.pages.first.description
-    try:
-        metadata = json.loads(description) if description else {}
-    except json.JSONDecodeError as e:
-        raise CameraClientError(f"TIFF ImageDescription is not JSON metadata: {e}") from e
-    metadata.pop("shape", None)
-    return image, metadata
-
-
-def read_burst(data: bytes) -> tuple[NDArray[Any], list[dict[str, Any]]]:
-    """Images (N, H, W) and each page's JSON metadata of a multi-page TIFF from the daemon."""
-    with tifffile.TiffFile(io.BytesIO(data)) as tif:
-        pages = [tif.pages[i] for i in range(len(tif.pages))]
-        metadata = []
-        for page in pages:
-            meta = json.loads(page.description)  # type: ignore[union-attr]
-            meta.pop("shape", None)
-            metadata.append(meta)
-        images = np.stack([page.asarray() for page in pages])
-    return images, metadata
-
-
-class CameraClient:
+class CameraClient(Closing):
     """Talks to one camera daemon.
 
     Parameters
@@ -239,17 +109,6 @@ class CameraClient:
         self._http = httpx.Client(
             base_url=self.url + API, headers=headers, timeout=timeout_s, transport=transport
         )
-
-    def __enter__(self) -> CameraClient:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         self._http.close()
@@ -391,18 +250,18 @@ class CameraClient:
         image, metadata = read_tiff_metadata(response.content)
         return CapturedFrame(tiff=response.content, image=image, metadata=metadata)
 
-    def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> Burst:
+    def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
         """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF."""
         query: dict[str, Any] = {"count": count}
         if frame is not None:
             query["frame"] = frame
         response = self._request("POST", f"/ports/{port}/capture", params=query)
-        images, metadata = read_burst(response.content)
+        images, metadata = read_tiff_pages(response.content)
         if len(metadata) != count:
             raise CameraClientError(
                 f"burst ended after {len(metadata)} of {count} frames (see the daemon log)"
             )
-        return Burst(tiff=response.content, images=images, metadata=metadata)
+        return CapturedBurst(tiff=response.content, images=images, metadata=metadata)
 
     # -- raw registers ---------------------------------------------------------------------
 
@@ -444,11 +303,10 @@ class CameraClient:
                 if response.status_code >= 400:
                     response.read()
                     raise self._error("GET", "/events", response)
-                parser = _SSEParser()
+                parser = SSEParser()
                 for line in response.iter_lines():
                     event = parser.feed(line)
                     if event is not None:
                         yield event
         except httpx.HTTPError as e:
             raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
-

@@ -8,6 +8,7 @@
 * :mod:`~elphel_host.mfsr.stream` - the same fusion fed frame by frame while a burst is
   captured (``elphel burst capture --fuse``).
 * :mod:`~elphel_host.mfsr.output` - the fused TIFF and its preview, written atomically.
-* :mod:`~elphel_host.mfsr.parallel` - independent frames, aliases and row bands on every core.
+* :mod:`~elphel_host.mfsr.frames` - frame checks, central windows, alignment, padding, noise.
+* :mod:`~elphel_host.mfsr.scale` - the up-sampling factor's allowed range and its check.
 * :mod:`~elphel_host.mfsr.metrics` - PSNR, SSIM; :mod:`~elphel_host.mfsr.synth` - test bursts.
 """

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_host.mfsr.registration import phase_correlation_shift
+from elphel_host.mfsr.scale import check_scale
 
 F32 = NDArray[np.float32]
 
@@ -44,8 +45,7 @@ def fuse_baseline(frames: Sequence[F32], *, scale: int) -> tuple[F32, dict[str, 
     """
     if not frames:
         raise ValueError("frames is empty; allowed: at least one frame")
-    if not isinstance(scale, int | np.integer) or scale < 1:
-        raise ValueError(f"scale={scale!r}; allowed: an integer >= 1")
+    scale = check_scale(scale, maximum=None)
     h, w = frames[0].shape
     size = (w * scale, h * scale)
     ref = np.asarray(

@@ -23,12 +23,13 @@ import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.burst.io import read_burst
-from elphel_host.cli_common import emit
+from elphel_host.cli_common import add_json_option, emit
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.output import fused_meta, write_image
 from elphel_host.mfsr.robust import RobustConfig
+from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import save_preview
 
 
@@ -37,7 +38,7 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "mfsr",
         help="multi-frame super-resolution of burst directories (or: mfsr compare ...)",
-        description="Fuse sub-pixel bursts (DESIGN 4.3) into one image on the first frame's "
+        description="Fuse sub-pixel bursts (burst directories) into one image on the first frame's "
         "grid up-sampled by --scale. 'elphel mfsr compare BURST_DIR ...' compares bicubic, "
         "baseline and robust instead.",
     )
@@ -47,7 +48,9 @@ def register(subparsers: Any) -> None:
         metavar="BURST_DIR",
         help="burst directories (or 'compare' followed by one burst directory)",
     )
-    p.add_argument("--scale", type=int, required=True, metavar="S", help="integer factor 1..8")
+    p.add_argument(
+        "--scale", type=int, required=True, metavar="S", help=f"integer {MIN_SCALE}..{MAX_SCALE}"
+    )
     p.add_argument(
         "--method",
         choices=("robust", "baseline"),
@@ -80,7 +83,7 @@ def register(subparsers: Any) -> None:
         metavar="URL",
         help="several bursts: Dask scheduler address (default: a local cluster)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_json_option(p)
     p.set_defaults(func=run)
 
 

@@ -1,7 +1,7 @@
 """Fuse a burst: registration, validation, then one of the methods, mono or Bayer.
 
-Output grid (DESIGN 4.3): the first frame's grid up-sampled by ``scale`` with pixel centres
-where ``cv2.resize`` puts them (LR pixel i has its centre at HR coordinate
+Output grid (the burst format's contract): the first frame's grid up-sampled by ``scale``
+with pixel centres where ``cv2.resize`` puts them (LR pixel i has its centre at HR coordinate
 ``scale * i + (scale - 1) / 2``), in the input's units. Bayer bursts give an RGB image:
 each colour plane is reconstructed on that full grid from its own samples (both green
 sites together), with the pixel aperture of the full-resolution pixel.
@@ -19,10 +19,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.burst.io import BAYER_PATTERNS, Burst
+from elphel_host.burst.io import Burst, check_bayer
 from elphel_host.mfsr.baseline import fuse_baseline
+from elphel_host.mfsr.frames import check_frames
 from elphel_host.mfsr.registration import FrameRegistration, register_frames
 from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig, reconstruct
+from elphel_host.mfsr.scale import check_scale
 
 F32 = NDArray[np.float32]
 
@@ -125,17 +127,10 @@ def fuse_frames(
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r}; allowed: {', '.join(METHODS)}")
-    if not isinstance(scale, int | np.integer) or not 1 <= scale <= 8:
-        raise ValueError(f"scale={scale!r}; allowed: an integer 1..8")
-    if bayer is not None and bayer not in BAYER_PATTERNS:
-        raise ValueError(f"bayer={bayer!r}; allowed: None or one of {', '.join(BAYER_PATTERNS)}")
+    scale = check_scale(scale)
+    check_bayer(bayer)
     fl = [np.asarray(f, dtype=np.float32) for f in frames]
-    if not fl:
-        raise ValueError("frames is empty; allowed: at least one frame")
-    shape = fl[0].shape
-    for i, f in enumerate(fl):
-        if f.ndim != 2 or f.shape != shape:
-            raise ValueError(f"frames[{i}].shape={f.shape}; allowed: {shape} (all alike, 2-D)")
+    shape = check_frames(fl)
     if bayer is not None and (shape[0] % 2 or shape[1] % 2):
         raise ValueError(f"frame shape {shape}; allowed: even height and width for Bayer")
     t0 = time.perf_counter()

@@ -6,9 +6,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+Image = NDArray[np.floating]
+
 
 def _check(
-    reference: NDArray[np.floating], image: NDArray[np.floating], data_range: float
+    reference: Image, image: Image, data_range: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     if reference.shape != image.shape:
         raise ValueError(f"image.shape={image.shape}; allowed: {reference.shape} (the reference's)")
@@ -19,13 +21,7 @@ def _check(
     return np.asarray(reference, np.float64), np.asarray(image, np.float64)
 
 
-def psnr(
-    reference: NDArray[np.floating],
-    image: NDArray[np.floating],
-    *,
-    data_range: float,
-    border: int = 0,
-) -> float:
+def psnr(reference: Image, image: Image, *, data_range: float, border: int = 0) -> float:
     """Peak signal-to-noise ratio in dB, ignoring ``border`` pixels on every side."""
     a, b = _check(reference, image, data_range)
     if border:
@@ -34,13 +30,7 @@ def psnr(
     return float("inf") if mse == 0 else float(10.0 * np.log10(data_range**2 / mse))
 
 
-def ssim(
-    reference: NDArray[np.floating],
-    image: NDArray[np.floating],
-    *,
-    data_range: float,
-    border: int = 0,
-) -> float:
+def ssim(reference: Image, image: Image, *, data_range: float, border: int = 0) -> float:
     """Mean structural similarity (Gaussian 11x11 window, sigma 1.5, K1 0.01, K2 0.03)."""
     a, b = _check(reference, image, data_range)
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2

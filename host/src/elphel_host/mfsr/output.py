@@ -7,7 +7,6 @@ the previous one, or absent, or complete.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +14,8 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
+from elphel_host.fileio import replacing
 from elphel_host.preview import save_preview
-
-
-def _part(path: Path) -> Path:
-    # keep the suffix: tifffile and PIL choose the format by it
-    return path.with_name(f".{path.stem}.part{path.suffix}")
 
 
 def write_image(
@@ -56,19 +51,14 @@ def write_image(
         clipped = int(np.count_nonzero((r < 0) | (r > 65535)))
         data = np.clip(r, 0, 65535).astype(np.uint16)
     png = path.with_suffix(".png")
-    tmp_tif, tmp_png = _part(path), _part(png)
-    try:
+    # the preview is renamed first (the inner block): whoever sees the TIFF finds its
+    # preview next to it; the suffixes stay last, as tifffile and PIL choose formats by them
+    with (
+        replacing(path, sync=True, keep_suffix=True) as tmp_tif,
+        replacing(png, sync=True, keep_suffix=True) as tmp_png,
+    ):
         tifffile.imwrite(tmp_tif, data, photometric="rgb" if rgb else "minisblack", metadata=meta)
         save_preview(image, tmp_png)
-        for tmp in (tmp_tif, tmp_png):  # on disk before the rename makes them visible
-            with open(tmp, "rb+") as f:
-                os.fsync(f.fileno())
-        # the preview first: whoever sees the TIFF finds its preview next to it
-        os.replace(tmp_png, png)
-        os.replace(tmp_tif, path)
-    finally:
-        tmp_tif.unlink(missing_ok=True)
-        tmp_png.unlink(missing_ok=True)
     return {"out": str(path), "preview": str(png), "clipped_pixels": clipped}
 
 

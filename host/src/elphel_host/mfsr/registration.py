@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_host.mfsr.frames import check_frames
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
@@ -125,12 +126,7 @@ def register_frames(
     list of FrameRegistration
         One per frame; the first is the reference (shift (0, 0)).
     """
-    if not frames:
-        raise ValueError("frames is empty; allowed: at least one frame")
-    shape = frames[0].shape
-    for i, f in enumerate(frames):
-        if f.ndim != 2 or f.shape != shape:
-            raise ValueError(f"frames[{i}].shape={f.shape}; allowed: {shape} (all alike, 2-D)")
+    shape = check_frames(frames)
     if prior is not None and len(prior) != len(frames):
         raise ValueError(f"len(prior)={len(prior)}; allowed: {len(frames)} (one per frame)")
     sy, sx = _window(shape, window)

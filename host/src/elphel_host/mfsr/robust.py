@@ -22,7 +22,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-import cv2
 import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
@@ -33,12 +32,17 @@ from elphel_host.mfsr.forward import (
     ModelSpectra,
     refine_and_pseudo,
 )
+from elphel_host.mfsr.frames import (
+    aligned,
+    central_window,
+    check_frames,
+    estimate_noise,
+    padded,
+)
+from elphel_host.mfsr.scale import check_scale
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
-
-_LAPLACE_NOISE = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
-
 
 @dataclass(frozen=True)
 class RobustConfig:
@@ -99,15 +103,6 @@ class RobustConfig:
 DEFAULT_CONFIG = RobustConfig()
 
 
-def estimate_noise(image: F32) -> float:
-    """Noise standard deviation of one frame (median of a Laplacian, robust to edges)."""
-    if image.ndim != 2 or min(image.shape) < 3:
-        raise ValueError(f"image.shape={image.shape}; allowed: 2-D, at least 3x3")
-    f = cv2.filter2D(np.asarray(image, np.float32), -1, _LAPLACE_NOISE)[1:-1, 1:-1]
-    step = max(1, int(np.sqrt(f.size / 250_000)))
-    return float(np.median(np.abs(f[::step, ::step])) / 0.6745 / 6.0)
-
-
 # The noise fit: a central window has samples enough for a spread estimate, and a prior
 # 16^2 times weaker than the reconstruction's only keeps the frequencies that no frame
 # observes bounded (it smooths nothing the data determine).
@@ -158,10 +153,8 @@ def fit_noise(
     )
     if fit_scale is None:
         return None
-    h, w = frames[0].shape
-    wy, wx = min(h, _FIT_WINDOW), min(w, _FIT_WINDOW)
-    y0, x0 = (h - wy) // 2, (w - wx) // 2
-    crop = [np.ascontiguousarray(f[y0 : y0 + wy, x0 : x0 + wx]) for f in frames]
+    crop = central_window(frames, _FIT_WINDOW)
+    wy, wx = crop[0].shape
     _, info = reconstruct(
         crop,
         shifts,
@@ -178,32 +171,6 @@ def fit_noise(
         ),
     )
     return float(info["noise_sigma"])
-
-
-def _aligned(frame: F32, reference: F32, n: tuple[int, int]) -> tuple[F32, NDArray[np.bool_]]:
-    """Frame moved by the integer shift n onto the reference grid, with its validity mask."""
-    h, w = frame.shape
-    ny, nx = n
-    if ny == 0 and nx == 0:
-        return frame, np.ones(frame.shape, dtype=bool)
-    # uncovered pixels start as the reference's (a fraction of a pixel off): they only
-    # matter for the first solve; the robust passes replace them by the prediction
-    out = np.array(reference, dtype=np.float32, copy=True)
-    valid = np.zeros((h, w), dtype=bool)
-    # out(q) = frame(q - n) where 0 <= q - n < size
-    qy0, qy1 = max(0, ny), min(h, h + ny)
-    qx0, qx1 = max(0, nx), min(w, w + nx)
-    if qy1 > qy0 and qx1 > qx0:
-        out[qy0:qy1, qx0:qx1] = frame[qy0 - ny : qy1 - ny, qx0 - nx : qx1 - nx]
-        valid[qy0:qy1, qx0:qx1] = True
-    return out, valid
-
-
-def _padded(a: NDArray[Any], pad: tuple[int, int, int, int], *, mode: str) -> NDArray[Any]:
-    top, bottom, left, right = pad
-    if mode == "reflect":
-        return np.asarray(cv2.copyMakeBorder(a, top, bottom, left, right, cv2.BORDER_REFLECT_101))
-    return np.pad(a, ((top, bottom), (left, right)), constant_values=False)
 
 
 def reconstruct(
@@ -238,16 +205,10 @@ def reconstruct(
         The HR image (float32, input units) and a dict with the noise estimate, the
         regularisation weight and the refined shifts.
     """
-    if not frames:
-        raise ValueError("frames is empty; allowed: at least one frame")
     if len(shifts) != len(frames):
         raise ValueError(f"len(shifts)={len(shifts)}; allowed: {len(frames)} (one per frame)")
-    if not isinstance(scale, int | np.integer) or scale < 1:
-        raise ValueError(f"scale={scale!r}; allowed: an integer >= 1")
-    h, w = frames[0].shape
-    for i, f in enumerate(frames):
-        if f.ndim != 2 or f.shape != (h, w):
-            raise ValueError(f"frames[{i}].shape={f.shape}; allowed: {(h, w)} (all alike, 2-D)")
+    scale = check_scale(scale, maximum=None)
+    h, w = check_frames(frames)
     if min(h, w) < 4:
         raise ValueError(f"frame size {h}x{w}; allowed: at least 4x4")
     ref = np.asarray(frames[0], dtype=np.float32)
@@ -277,9 +238,7 @@ def reconstruct(
     if refine_here and config.passes > 0 and max(h, w) > config.refine_window:
         # shifts are refined on a central window (same model, exact, 1/10 of the work);
         # the full-size passes then only clip outliers
-        wy, wx = min(h, config.refine_window), min(w, config.refine_window)
-        y0, x0 = (h - wy) // 2, (w - wx) // 2
-        crop = [np.ascontiguousarray(f[y0 : y0 + wy, x0 : x0 + wx]) for f in frames]
+        crop = central_window(frames, config.refine_window)
         _, cinfo = reconstruct(
             crop,
             shifts,
@@ -316,22 +275,22 @@ def reconstruct(
 
     # The robust passes need every padded frame again: kept (memory grows by the input
     # size, N LR frames, not by N x the output size).
-    padded: dict[int, tuple[F32, NDArray[np.bool_]]] = {}
+    kept: dict[int, tuple[F32, NDArray[np.bool_]]] = {}
 
     def frame_k(k: int) -> tuple[F32, NDArray[np.bool_]]:
-        if k in padded:
-            return padded[k]
-        f, v = _aligned(
+        if k in kept:
+            return kept[k]
+        f, v = aligned(
             np.asarray(frames[k], np.float32),
             ref,
             (int(n_int[k, 0]), int(n_int[k, 1])),
         )
         out = (
-            np.asarray(_padded(f, pads, mode="reflect"), np.float32),
-            np.asarray(_padded(v, pads, mode="zero"), bool),
+            np.asarray(padded(f, pads, mode="reflect"), np.float32),
+            np.asarray(padded(v, pads, mode="zero"), bool),
         )
         if config.passes:
-            padded[k] = out
+            kept[k] = out
         return out
 
     ks = list(range(len(frames)))

@@ -9,8 +9,9 @@ reconstruction remains (:meth:`FusionStream.finish`).
 The result is the one ``elphel mfsr BURST_DIR`` computes on the finished directory, bit for
 bit: each frame is registered exactly as :func:`~elphel_host.mfsr.registration.register_frames`
 registers it within the whole burst (against frame 0, with the stage/optics prior of
-:meth:`~elphel_host.burst.io.Burst.stage_prior_px`), frames are validated as
-:func:`~elphel_host.burst.io.read_burst` validates them, and the reconstruction is
+:meth:`~elphel_host.burst.io.Manifest.stage_prior_px`), frames are read and checked by
+:func:`~elphel_host.burst.io.read_frame` as :func:`~elphel_host.burst.io.read_burst` reads
+them, and the reconstruction is
 :func:`~elphel_host.mfsr.fuse.fuse_registered`, as in ``fuse_frames``.
 
 Nothing is written to the burst directory here. A failure (a frame that cannot be read, an
@@ -24,40 +25,40 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
-import tifffile
 from numpy.typing import NDArray
 
-from elphel_host.burst.io import BAYER_PATTERNS, Burst, FrameInfo
+from elphel_host.burst.io import FrameEntry, Manifest, read_frame
+from elphel_host.closing import Closing
 from elphel_host.errors import FusionError, InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, bayer_luma, fuse_registered, register_lumas
 from elphel_host.mfsr.output import fused_meta, write_image
 from elphel_host.mfsr.registration import FrameRegistration
 from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig
+from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
 
 F32 = NDArray[np.float32]
 
 STREAM_METHODS = ("robust", "baseline")
 
-_NO_FRAMES = np.zeros((0, 0, 0), dtype=np.uint16)
-
 
 @dataclass(frozen=True)
 class _Job:
-    """What the worker needs about one stored frame (copied out of the live manifest)."""
+    """What the worker needs about one stored frame: its entry in the manifest as stored."""
 
     index: int
     path: Path
-    info: FrameInfo
-    bayer: str | None
-    optics: dict[str, float]
-    stage: dict[str, float]
+    entry: FrameEntry
+    manifest: Manifest
+
+    @property
+    def bayer(self) -> str | None:
+        return self.manifest.bayer
 
 
 @dataclass
@@ -69,21 +70,7 @@ class _Prepared:
     prior_used: bool = False
 
 
-def _numbers(obj: Any) -> dict[str, float]:
-    if not isinstance(obj, Mapping):
-        return {}
-    return {
-        str(k): float(v)
-        for k, v in obj.items()
-        if isinstance(v, int | float) and not isinstance(v, bool)
-    }
-
-
-def _optional_float(v: Any) -> float | None:
-    return None if v is None else float(v)
-
-
-class FusionStream:
+class FusionStream(Closing):
     """Prepare frames for fusion as they are captured; reconstruct when all are in.
 
     Parameters
@@ -91,7 +78,7 @@ class FusionStream:
     frames
         Number of frames the burst will hold (the plan's); frame 0 is the reference.
     scale
-        Integer up-sampling factor, 1..8.
+        Integer up-sampling factor, 1..8 (:mod:`elphel_host.mfsr.scale`).
     method
         ``robust`` or ``baseline`` (as ``elphel mfsr --method``).
     config
@@ -121,12 +108,10 @@ class FusionStream:
     ) -> None:
         if method not in STREAM_METHODS:
             raise ValueError(f"method={method!r}; allowed: {', '.join(STREAM_METHODS)}")
-        if isinstance(scale, bool) or not isinstance(scale, int) or not 1 <= scale <= 8:
-            raise ValueError(f"scale={scale!r}; allowed: an integer 1..8")
         if frames < 1:
             raise ValueError(f"frames={frames}; allowed: >= 1")
         self.frames = frames
-        self.scale = scale
+        self.scale = check_scale(scale, minimum=MIN_SCALE, maximum=MAX_SCALE)
         self.method = method
         self.config = config
         self.use_prior = use_prior
@@ -143,26 +128,14 @@ class FusionStream:
         self._thread.start()
 
     # -- the capture's side ---------------------------------------------------------------
-    def frame_stored(self, directory: Path, manifest: Mapping[str, Any], index: int) -> None:
+    def frame_stored(self, directory: Path, manifest: Manifest, index: int) -> None:
         """Queue frame ``index`` of the burst in ``directory``; returns at once, never raises.
 
-        ``manifest`` is the burst's manifest as just written; what is needed is copied, so
-        the caller may change it afterwards.
+        ``manifest`` is the burst's manifest as just written (frozen: it is kept as it is).
         """
         try:
-            entry = next(e for e in manifest["frames"] if int(e["index"]) == index)
-            job = _Job(
-                index=index,
-                path=Path(directory) / str(entry["file"]),
-                info=FrameInfo(
-                    file=str(entry["file"]),
-                    stage_mm=_optional_float(entry.get("stage_mm")),
-                    caliper_mm=_optional_float(entry.get("caliper_mm")),
-                ),
-                bayer=manifest.get("bayer"),
-                optics=_numbers(manifest.get("optics")),
-                stage=_numbers(manifest.get("stage")),
-            )
+            entry = manifest.entry(index)
+            job = _Job(index, Path(directory) / entry.file, entry, manifest)
         except Exception as e:  # a hook must not break the capture: keep it for finish()
             self._fail(e, f"frame {index}")
             return
@@ -221,39 +194,15 @@ class FusionStream:
             self.busy_seconds += time.perf_counter() - t0
 
     def _load(self, job: _Job) -> F32:
-        # the checks read_burst makes, so that a frame elphel mfsr would refuse fails here
-        try:
-            img = tifffile.imread(job.path)
-        except Exception as e:  # tifffile raises many kinds on a damaged file
-            raise InputFormatError(f"{job.path}: not a readable TIFF ({e})") from e
-        if img.dtype != np.uint16:
-            raise InputFormatError(f"{job.path}: dtype={str(img.dtype)!r}; allowed: uint16")
-        if img.ndim != 2:
-            raise InputFormatError(
-                f"{job.path}: shape={img.shape!r}; allowed: a 2-D (single-channel) image"
-            )
+        # read and checked as read_burst does, so that a frame elphel mfsr would refuse fails
         with self._lock:
             first = next(iter(self._prepared.values()), None)
-        if first is not None and img.shape != first.image.shape:
-            raise InputFormatError(
-                f"{job.path}: shape={img.shape!r}; allowed: {first.image.shape} "
-                f"(the shape of {first.job.path.name})"
-            )
         if first is not None and job.bayer != first.job.bayer:
             raise InputFormatError(
                 f"{job.path}: bayer={job.bayer!r}; allowed: {first.job.bayer!r} (the burst's)"
             )
-        if job.bayer is not None and job.bayer not in BAYER_PATTERNS:
-            raise InputFormatError(
-                f"{job.path}: bayer={job.bayer!r}; allowed: null or one of "
-                f"{', '.join(BAYER_PATTERNS)}"
-            )
-        if job.bayer is not None and (img.shape[0] % 2 or img.shape[1] % 2):
-            raise InputFormatError(
-                f"{job.path}: shape={img.shape!r}; allowed: even height and width for a Bayer "
-                "mosaic"
-            )
-        return np.asarray(img, dtype=np.float32)
+        like = None if first is None else (first.image.shape, first.job.path.name)
+        return np.asarray(read_frame(job.path, bayer=job.bayer, like=like), dtype=np.float32)
 
     def _prepare(self, job: _Job) -> None:
         image = self._load(job)
@@ -279,13 +228,7 @@ class FusionStream:
         luma = p.luma if p.luma is not None else self._luma(p)
         prior = None
         if use_prior:
-            pair = Burst(
-                frames=_NO_FRAMES,
-                infos=(ref.job.info, p.job.info),
-                bayer=p.job.bayer,
-                optics=p.job.optics,
-                stage=p.job.stage,
-            )
+            pair = replace(p.job.manifest, frames=(ref.job.entry, p.job.entry))
             prior = pair.stage_prior_px()
         r = register_lumas(
             [ref.luma, luma],
@@ -323,7 +266,7 @@ class FusionStream:
         t0 = time.perf_counter()
         try:
             items = [self._prepared[i] for i in range(self.frames)]
-            # Burst.stage_prior_px gives no prior at all when any frame lacks a position:
+            # Manifest.stage_prior_px gives no prior at all when any frame lacks a position:
             # frames registered with one are then registered again without
             if self.use_prior and not all(p.prior_used for p in items[1:]):
                 for p in items[1:]:
@@ -353,17 +296,6 @@ class FusionStream:
         # a frame being registered finishes within a fraction of a second; the thread
         # is a daemon, so an interpreter exiting on Ctrl-C does not wait for it
         self._thread.join(timeout=5.0)
-
-    def __enter__(self) -> FusionStream:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def finish_and_write(

@@ -1,32 +1,38 @@
 """`elphel stage ...`: status, move, home, zero, stop, calibrate, backlash, list.
 
 The stage URL is any pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, a pty path),
-from --url or the environment variable ELPHEL_STAGE_URL. Calibration results persist
+from --stage (--url is the older spelling, kept) or the environment variable
+ELPHEL_STAGE_URL. Calibration results persist
 in a small JSON file (--model) so later closed-loop moves can use them.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from elphel_host.cli_common import emit
+from elphel_host.cli_common import (
+    DEFAULT_STAGE_MODEL,
+    STAGE_URL_ENV,
+    add_json_option,
+    add_stage_model_option,
+    add_stage_option,
+    emit,
+)
 from elphel_host.errors import StageConnectionError
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.discovery import find_stage_boards
 from elphel_host.stage.positioning import Positioner, StageModel
 
-ENV_URL = "ELPHEL_STAGE_URL"
-DEFAULT_MODEL = Path.home() / ".config" / "elphel" / "stage-model.json"
+DEFAULT_MODEL = DEFAULT_STAGE_MODEL  # the older name, kept for scripts
 
 
 def _url(args: argparse.Namespace) -> str:
-    url: str | None = args.url or os.environ.get(ENV_URL)
+    url: str | None = args.stage
     if not url:
-        raise StageConnectionError(f"no stage URL: pass --url or set {ENV_URL}")
+        raise StageConnectionError(f"no stage URL: pass --stage (or --url) or set {STAGE_URL_ENV}")
     return url
 
 
@@ -166,8 +172,8 @@ def register(subparsers: Any) -> None:
     def add(name: str, func: Any, help_text: str) -> argparse.ArgumentParser:
         sp = sub.add_parser(name, help=help_text, description=help_text)
         if name != "list":
-            sp.add_argument("--url", help=f"pyserial URL of the stage (default ${ENV_URL})")
-        sp.add_argument("--json", action="store_true", help="print one JSON object")
+            add_stage_option(sp, aliases=("--url",))
+        add_json_option(sp)
         sp.set_defaults(func=func)
         return sp
 
@@ -182,7 +188,7 @@ def register(subparsers: Any) -> None:
         default=0.005,
         help="extra tolerance beyond half a caliper LSB (default 0.005)",
     )
-    mv.add_argument("--model", default=str(DEFAULT_MODEL), help="calibration file")
+    add_stage_model_option(mv, help="calibration file")
     hm = add("home", _home, "home onto the min limit switch")
     hm.add_argument("--timeout", type=float, default=120.0, help="seconds (default 120)")
     zr = add("zero", _zero, "make the current position step 0 (or zero the caliper)")
@@ -192,9 +198,9 @@ def register(subparsers: Any) -> None:
     cb.add_argument("--span-mm", type=float, default=80.0, help="move length (default 80)")
     cb.add_argument("--start-mm", type=float, default=10.0, help="start position (default 10)")
     cb.add_argument("--repeats", type=int, default=3, help="runs (default 3)")
-    cb.add_argument("--model", default=str(DEFAULT_MODEL), help="where to save the calibration")
+    add_stage_model_option(cb, help="where to save the calibration")
     bl = add("backlash", _backlash, "measure backlash with the caliper")
     bl.add_argument("--at-mm", type=float, default=None, help="where (default: here)")
     bl.add_argument("--repeats", type=int, default=4, help="repeats (default 4)")
-    bl.add_argument("--model", default=str(DEFAULT_MODEL), help="calibration file")
+    add_stage_model_option(bl, help="calibration file")
     add("list", _list, "find stage boards (USB-UART bridges) and their serial ports")
