@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from elphel_host.tp import bayer, clt, correlation
-from elphel_host.tp.geometry import QuadGeometry, place
+from elphel_host.tp.clt import reference
+from elphel_host.tp.geometry import QuadGeometry, TilePlacement, place
 
 N = 8
 _m = np.arange(N)[:, None]
@@ -143,8 +144,8 @@ def test_lattice_spectra_equal_clt_of_colour_plane(pattern: str | None) -> None:
         plane = np.zeros_like(img)
         sl = (slice(lat.row, None, lat.step), slice(lat.col, None, lat.step))
         plane[sl] = img[sl] * lat.scale
-        z = correlation.lattice_spectra(
-            bayer.sublattice(img, lat, pad=20), lat, lx, sx, ly, sy, pad=20
+        z = reference.lattice_spectra(
+            bayer.sublattice(img, lat, pad=20), lat, TilePlacement(lx, sx, ly, sy), pad=20
         )
         tiles = np.stack(
             [plane[y : y + 16, x : x + 16] for x, y in zip(lx, ly, strict=True)]
