@@ -40,8 +40,8 @@ def register(subparsers: Any) -> None:
         usage=USAGE,
         help="disparity space image (DSI) of a quad directory; `tp capture` takes one",
         description="Tile processor: per-tile sub-pixel disparity and strength of a quad image set "
-        "(DESIGN 4.4 in, 4.5 out). `elphel tp capture` takes the quad set from a camera: one "
-        "trigger, four sensor ports, the same timestamp.",
+        "(a quad directory in, a DSI TIFF out). `elphel tp capture` takes the quad set from a "
+        "camera: one trigger, four sensor ports, the same timestamp.",
     )
     p.add_argument(
         "quad_dir",
