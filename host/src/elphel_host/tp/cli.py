@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tifffile
 
 from elphel_host.camera.client import CameraClient
 from elphel_host.cli_common import add_camera_options, emit
@@ -24,7 +23,7 @@ from elphel_host.tp.io import read_quad_dir
 from elphel_host.tp.layout import read_layout
 from elphel_host.tp.pipeline import correlation_tiles
 from elphel_host.tp.processor import disparity_map
-from elphel_host.tp.texture import rendered_images, rgba_texture
+from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
@@ -211,7 +210,7 @@ def run_tp(args: argparse.Namespace) -> int:
     if args.texture:
         rendered = rendered_images(qs.quad, dsi["disparity"])
         rgba = rgba_texture(rendered, bayer=qs.quad.bayer)
-        tifffile.imwrite(args.texture, rgba, photometric="rgb", extrasamples=["unassalpha"])
+        write_texture(args.texture, rgba)
         result["texture"] = str(args.texture)
     human = (
         f"{result['dsi']}: {result['tiles_x']}x{result['tiles_y']} tiles, {len(dsi)} layers, "

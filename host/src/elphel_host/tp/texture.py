@@ -15,7 +15,10 @@ image; the reference transforms the sparse colour planes instead and interpolate
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import tifffile
 from numpy.typing import NDArray
 from scipy import ndimage
 
@@ -141,3 +144,8 @@ def rgba_texture(
     rgb = np.stack([avg[0], avg[2], avg[1]]) if bayer is not None else np.repeat(avg, 3, axis=0)
     out: F32 = np.concatenate([rgb, alpha[None]]).transpose(1, 2, 0).astype(np.float32)
     return out
+
+
+def write_texture(path: str | Path, rgba: F32) -> None:
+    """Write an RGBA texture from :func:`rgba_texture` as a float32 TIFF (unassociated alpha)."""
+    tifffile.imwrite(path, rgba, photometric="rgb", extrasamples=["unassalpha"])
