@@ -208,9 +208,9 @@ def _checked_target(quad: QuadImages, target: NDArray[np.floating]) -> NDArray[n
 def _in_chunks(fn: Callable[[NDArray[np.intp]], None], n: int, config: TpConfig) -> None:
     """``fn(tile indices)`` over chunks of ``config.chunk_tiles`` on ``config.threads``."""
     size = config.chunk_tiles
-    chunks = [np.arange(s, min(s + size, n)) for s in range(0, n, size)]
+    bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
     with single_threaded_blas():
-        parallel_map(fn, chunks, threads=config.threads)
+        parallel_map(lambda b: fn(np.arange(b[0], b[1])), bounds, threads=config.threads)
 
 
 def measure(
