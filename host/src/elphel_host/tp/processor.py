@@ -60,11 +60,8 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
     ty, tx = quad.tiles
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
     prep = prepare(quad, config, reach)
-    lags = prep.profiles.lags
-    # First pass: the integer maximum is taken on the correlation summed over the 3x3
-    # neighbouring tiles (surfaces are mostly smooth in depth), so a weak far peak of a
-    # near object is not lost to a noise peak; the refinement then measures every tile
-    # on its own data.
+    # First pass: at each scan target, keep per tile the target whose neighbourhood
+    # correlates best; the refinement then measures every tile on its own data.
     target = np.zeros((ty, tx))
     scanned = np.zeros((ty, tx))
     score = np.full((ty, tx), -np.inf)
@@ -73,24 +70,7 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
         tgt = np.full((ty, tx), float(s))
         m = measure(quad, tgt, config=config, prep=prep, full=config.refine_passes == 0)
         first = m
-        smooth = _box3(np.where(np.isfinite(m["levelled"]), m["levelled"], 0.0))
-        smooth = np.where(np.isfinite(m["levelled"]), smooth, -np.inf)
-        i = np.argmax(smooth, axis=-1)
-        peak = np.take_along_axis(smooth, i[..., None], -1)[..., 0]
-        lo = np.take_along_axis(smooth, np.clip(i - 1, 0, lags.size - 1)[..., None], -1)[..., 0]
-        hi = np.take_along_axis(smooth, np.clip(i + 1, 0, lags.size - 1)[..., None], -1)[..., 0]
-        curv = lo + hi - 2 * peak
-        with np.errstate(invalid="ignore", divide="ignore"):
-            frac = np.where(
-                np.isfinite(curv) & (curv < 0),
-                0.5 * (lo - hi) / np.where(curv < 0, curv, -1.0),
-                0.0,
-            )
-        residual = lags[i] + np.clip(frac, -0.5, 0.5)
-        # where the tile's own maximum agrees with the neighbourhood, its own sub-pixel
-        # estimate is the better one
-        agree = np.abs(m["residual"] - residual) <= 1.0
-        residual = np.where(agree, m["residual"], residual)
+        residual, peak = _neighbourhood_peak(m, prep.profiles.lags)
         estimate = tgt + residual / config.disparity_scale
         better = peak > score
         target = np.where(better, estimate, target)
@@ -120,6 +100,36 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
         "target_disparity": target,
     }
     return {name: np.asarray(out[name], dtype=np.float32) for name in DSI_LAYERS}
+
+
+def _neighbourhood_peak(
+    measured: dict[str, F32], lags: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """First-pass residual and peak value per tile, from the 3x3 neighbourhood's correlation.
+
+    The integer maximum is taken on the levelled correlation summed over the 3x3
+    neighbouring tiles (surfaces are mostly smooth in depth), so a weak far peak of a near
+    object is not lost to a noise peak; a parabola through it and its neighbours gives the
+    fraction. Where the tile's own maximum agrees with the neighbourhood (within 1 px),
+    its own sub-pixel estimate is the better one.
+    """
+    levelled = measured["levelled"]
+    smooth = _box3(np.where(np.isfinite(levelled), levelled, 0.0))
+    smooth = np.where(np.isfinite(levelled), smooth, -np.inf)
+    i = np.argmax(smooth, axis=-1)
+    peak = np.take_along_axis(smooth, i[..., None], -1)[..., 0]
+    lo = np.take_along_axis(smooth, np.clip(i - 1, 0, lags.size - 1)[..., None], -1)[..., 0]
+    hi = np.take_along_axis(smooth, np.clip(i + 1, 0, lags.size - 1)[..., None], -1)[..., 0]
+    curv = lo + hi - 2 * peak
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(
+            np.isfinite(curv) & (curv < 0),
+            0.5 * (lo - hi) / np.where(curv < 0, curv, -1.0),
+            0.0,
+        )
+    residual = lags[i] + np.clip(frac, -0.5, 0.5)
+    agree = np.abs(measured["residual"] - residual) <= 1.0
+    return np.where(agree, measured["residual"], residual), peak
 
 
 def _box3(a: NDArray[np.floating]) -> NDArray[np.float64]:
