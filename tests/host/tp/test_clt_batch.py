@@ -1,4 +1,4 @@
-"""The production CLT path (clt.batch) equals the reference lattice transform and the definition.
+"""The CLT's three forms agree: production (clt.batch), reference (clt.reference), definition.
 
 `camera_spectra` returns, per colour, the sum of that colour's lattice spectra times the
 square root of the colour weight, on the kept frequencies. Built here from
@@ -112,3 +112,25 @@ def test_fast_path_equals_the_definition_on_colour_planes(pattern: str | None) -
     for c in range(ncol):
         ref = compact(want[c], tr.fset, tr.colour_sizes[c])
         assert np.abs(got[c] - ref).max() <= TOL_DEFINITION
+
+
+@pytest.mark.parametrize("pattern", [None, "GRBG", "RGGB"])
+def test_lattice_spectra_equal_clt_of_colour_plane(pattern: str | None) -> None:
+    rng = np.random.default_rng(5)
+    img = rng.random((64, 64)).astype(np.float32)
+    lx = np.array([13, 14, 20])
+    ly = np.array([9, 10, 22])
+    sx = np.array([0.3, -0.4, 0.1])
+    sy = np.array([-0.2, 0.5, 0.0])
+    for lat in bayer.lattices(pattern):
+        plane = np.zeros_like(img)
+        sl = (slice(lat.row, None, lat.step), slice(lat.col, None, lat.step))
+        plane[sl] = img[sl] * lat.scale
+        z = reference.lattice_spectra(
+            bayer.sublattice(img, lat, pad=20), lat, TilePlacement(lx, sx, ly, sy), pad=20
+        )
+        tiles = np.stack(
+            [plane[y : y + 16, x : x + 16] for x, y in zip(lx, ly, strict=True)]
+        ).astype(np.float64)
+        ref = fast_layout(clt.clt_tiles(tiles, shift_x=sx, shift_y=sy))
+        assert np.allclose(z, ref, atol=2e-5)
