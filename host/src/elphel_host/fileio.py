@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -65,3 +66,33 @@ def replacing(
                 shutil.rmtree(tmp)
             else:
                 tmp.unlink()
+
+
+@contextlib.contextmanager
+def replacing_directory(path: str | Path) -> Iterator[Path]:
+    """Yield a new empty directory beside ``path``; on success it replaces ``path`` by a rename.
+
+    Whatever stands at ``path`` (a directory, a file, a link) is set aside first and removed
+    once the new directory is in place, or put back if the rename fails. On an exception
+    the temporary directory is removed and ``path`` is left as it was. Whether replacing is
+    allowed is the caller's decision: check it inside the block (as late as possible).
+    """
+    target = Path(path)
+    parent = target.absolute().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
+    aside: Path | None = None
+    try:
+        yield tmp
+        if target.exists() or target.is_symlink():
+            aside = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
+            os.rename(target, aside / "old")
+        os.rename(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if aside is not None and (aside / "old").exists() and not target.exists():
+            os.rename(aside / "old", target)  # put the old one back
+        raise
+    finally:
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)

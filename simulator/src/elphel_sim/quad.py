@@ -16,15 +16,14 @@ it), and a texture-less rectangle; their borders are depth edges.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import tifffile
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from elphel_host.tp import io as quad_format
 from elphel_sim.render import Intrinsics, SensorModel, expose, mosaic, render_radiance
 from elphel_sim.world import FloatArray, Plane, Pose, Scene, Texture, World
 
@@ -436,32 +435,23 @@ def write_quad_dir(
     kernels: tuple[NDArray[np.float32], int] | None = None,
 ) -> Path:
     """Write a quad directory (DESIGN 4.4): quad.json + cam0..3.tif (+ kernels.npy, step)."""
-    root = Path(path)
-    root.mkdir(parents=True, exist_ok=True)
     if images.shape[0] != 4:
         raise ValueError(f"images must have shape (4, H, W), got {images.shape}")
-    cams = []
-    for i in range(4):
-        name = f"cam{i}.tif"
-        tifffile.imwrite(root / name, images[i])
-        cams.append({"file": name, "position": list(rig.positions[i])})
-    manifest: dict[str, object] = {
-        "version": 1,
-        "cameras": cams,
-        "bayer": rig.bayer,
-        "full_scale_dn": (1 << model.bits) - 1,
-        "optics": {
+    manifest = quad_format.QuadManifest(
+        cameras=quad_format.quad_cameras(rig.positions),
+        bayer=rig.bayer,
+        full_scale_dn=(1 << model.bits) - 1,
+        optics={
             "focal_length_mm": rig.focal_length_mm,
             "pixel_pitch_um": rig.pixel_pitch_um,
             "baseline_mm": rig.baseline_mm,
         },
-    }
-    if kernels is not None:
-        np.save(root / "kernels.npy", kernels[0])
-        manifest["kernels"] = {"file": "kernels.npy", "step": int(kernels[1])}
-    manifest.update(extra or {})
-    (root / "quad.json").write_text(json.dumps(manifest, indent=2))
-    return root
+        kernels=None if kernels is None else quad_format.KernelFile("kernels.npy", int(kernels[1])),
+        extra=dict(extra or {}),
+    )
+    return quad_format.write_quad_dir(
+        path, manifest, list(images), kernels=None if kernels is None else kernels[0]
+    )
 
 
 def simulate_quad_dir(

@@ -7,7 +7,8 @@ import pytest
 
 from elphel_host.cli import main
 from elphel_host.errors import InputFormatError
-from elphel_host.tp.capture import _sync_changes, read_layout, trigger_ticks
+from elphel_host.tp.layout import read_layout
+from elphel_host.tp.trigger import trigger_changes, trigger_ticks
 
 
 def test_a_quad_json_or_the_simulators_quad_answer_is_a_geometry_file(tmp_path: Path) -> None:
@@ -60,7 +61,7 @@ def test_the_common_trigger_is_staged_apart_from_the_ports() -> None:
     free = {"TRIG": 0, "TRIG_MASTER": 0, "TRIG_PERIOD": 0, "TRIG_DELAY": 0, "TRIG_DECIMATE": 0}
     before = {p: dict(free) for p in range(4)}
     before[3].update(TRIG=20, TRIG_DELAY=500, TRIG_MASTER=1)
-    common, ports = _sync_changes(before, master=0, period=50_000_000)
+    common, ports = trigger_changes(before, master=0, period=50_000_000)
     assert common == {0: {"TRIG_PERIOD": 50_000_000}}
     assert ports == {
         0: {"TRIG": 4},

@@ -1,11 +1,11 @@
-"""CLT-domain correlation: the fast complex path against the reference formulas, sign, sub-pixel."""
+"""CLT-domain correlation: the complex products against the reference formulas, sign, sub-pixel."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from elphel_host.tp import bayer, clt, correlation
+from elphel_host.tp import clt, correlation
 from elphel_host.tp.geometry import QuadGeometry, place
 
 N = 8
@@ -129,28 +129,6 @@ def test_peak_at_plus_shift_of_second_image() -> None:
     corr = correlation.correlation_2d(correlation.normalise(p, 0.0), lpf_sigma=0.8)[0, 0]
     dy, dx = np.unravel_index(np.argmax(corr), corr.shape)
     assert (dx - 7, dy - 7) == (2, -1)
-
-
-@pytest.mark.parametrize("pattern", [None, "GRBG", "RGGB"])
-def test_lattice_spectra_equal_clt_of_colour_plane(pattern: str | None) -> None:
-    rng = np.random.default_rng(5)
-    img = rng.random((64, 64)).astype(np.float32)
-    lx = np.array([13, 14, 20])
-    ly = np.array([9, 10, 22])
-    sx = np.array([0.3, -0.4, 0.1])
-    sy = np.array([-0.2, 0.5, 0.0])
-    for lat in bayer.lattices(pattern):
-        plane = np.zeros_like(img)
-        sl = (slice(lat.row, None, lat.step), slice(lat.col, None, lat.step))
-        plane[sl] = img[sl] * lat.scale
-        z = correlation.lattice_spectra(
-            bayer.sublattice(img, lat, pad=20), lat, lx, sx, ly, sy, pad=20
-        )
-        tiles = np.stack(
-            [plane[y : y + 16, x : x + 16] for x, y in zip(lx, ly, strict=True)]
-        ).astype(np.float64)
-        ref = fast_layout(clt.clt_tiles(tiles, shift_x=sx, shift_y=sy))
-        assert np.allclose(z, ref, atol=2e-5)
 
 
 def test_subpixel_gaussian_fit_is_exact_for_gaussian_peak() -> None:

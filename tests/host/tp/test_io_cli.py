@@ -1,4 +1,4 @@
-"""Quad directory reading, DSI and ML_DATA files, and the `elphel tp` command."""
+"""Quad directory reading and the `elphel tp` command."""
 
 from __future__ import annotations
 
@@ -11,8 +11,7 @@ import tifffile
 
 from elphel_host.cli import main
 from elphel_host.errors import InputFormatError
-from elphel_host.tp import io, processor
-from elphel_host.tp.geometry import QuadGeometry
+from elphel_host.tp import dsi, io, processor
 from elphel_sim import quad as simquad
 
 
@@ -21,39 +20,6 @@ def quad_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rig = simquad.QuadRig(width=192, height=128)
     root, _ = simquad.simulate_quad_dir(tmp_path_factory.mktemp("q"), rig, seed=5)
     return root
-
-
-def test_dsi_round_trip(tmp_path: Path) -> None:
-    layers = {
-        "disparity": np.arange(12, dtype=np.float32).reshape(3, 4),
-        "strength": np.ones((3, 4)),
-    }
-    path = tmp_path / "dsi.tif"
-    io.write_dsi(path, layers, image_size=(32, 24), geometry=QuadGeometry(), bayer="GRBG")
-    back, props = io.read_dsi(path)
-    assert list(back) == ["disparity", "strength"]
-    assert np.array_equal(back["disparity"], layers["disparity"])
-    assert props["tileSize"] == "16" and props["tileStride"] == "8" and props["bayer"] == "GRBG"
-    assert json.loads(props["cameraPositions"])[1] == [0.5, -0.5]
-    with tifffile.TiffFile(path) as tif:
-        assert tif.is_imagej and tif.pages[0].dtype == np.float32
-
-
-def test_ml_data_round_trip(tmp_path: Path) -> None:
-    rng = np.random.default_rng(0)
-    corr = rng.random((3, 5, 6, 15, 15)).astype(np.float32)
-    target = rng.random((3, 5)).astype(np.float32)
-    truth = rng.random((3, 5)).astype(np.float32)
-    path = tmp_path / io.ml_data_name("1526905735_662795", fat_zero=0.05)
-    assert path.name == "1526905735_662795-ML_DATA-32B-O-FZ0.05-OFFS0.tiff"
-    io.write_ml_data(path, corr, target, ground_truth=truth, combine_offset=-1)
-    tiles, other, props = io.read_ml_data(path)
-    assert tiles.shape == (3, 5, 9, 9, 4)
-    assert np.allclose(tiles[..., 0], corr[:, :, 4, 3:12, 3:12])  # diagm-pair
-    assert np.allclose(tiles[..., 2], 0.5 * (corr[:, :, 0, 3:12, 3:12] + corr[:, :, 1, 3:12, 3:12]))
-    assert np.allclose(other[..., 0], target) and np.allclose(other[..., 1], truth)
-    assert np.isnan(other[..., 2]).all()
-    assert props["VERSION"] == "1.1"
 
 
 def test_read_quad_dir(quad_dir: Path) -> None:
@@ -107,10 +73,10 @@ def test_cli_json(quad_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     assert result["tiles_x"] == 24 and result["tiles_y"] == 16
-    layers, _ = io.read_dsi(out)
+    layers, _ = dsi.read_dsi(out)
     for name in ("disparity", "strength", "disparity_hor", "disparity_vert"):
         assert layers[name].shape == (16, 24)
-    tiles, other, _ = io.read_ml_data(ml)
+    tiles, other, _ = dsi.read_ml_data(ml)
     assert tiles.shape == (16, 24, 9, 9, 4)
     assert np.allclose(other[..., 0], layers["target_disparity"])
     rgba = tifffile.imread(tex)

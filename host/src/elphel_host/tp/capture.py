@@ -4,29 +4,24 @@
 take a quad camera from capture to DSI. The capture:
 
 1. reads the daemon's info and requires a sensor on each of the four ports of the layout;
-2. puts the four ports in snapshot mode on one common trigger (``TRIG`` 4, the same
-   ``TRIG_MASTER``, no delay or decimation, ``TRIG_PERIOD`` on the master) inside
-   `CameraClient.staged`, so the previous settings come back afterwards, even after an error
-   (the trigger last, once no port waits for it any more);
+2. puts the four ports in snapshot mode on one common trigger, staged so the previous
+   settings come back afterwards (:mod:`elphel_host.tp.trigger`);
 3. waits until the change is in effect on every port, matches the ports' frame numbers
    by their timestamps (each frame of a trigger carries the trigger's time), picks a
    frame a few triggers ahead and waits until every port has taken it;
 4. fetches that frame of every port from the daemon's ring buffer, checks that all four
    carry the same ``timestamp_ns``, the same size and the same Bayer pattern;
-5. writes ``cam0..3.tif`` (the daemon's TIFFs, metadata included) and ``quad.json`` into
-   a temporary directory next to the target and renames it into place, so a failure
-   never leaves half a quad directory.
+5. writes ``cam0..3.tif`` (the daemon's TIFFs, metadata included) and ``quad.json``
+   (:class:`~elphel_host.tp.io.QuadManifest`) into a temporary directory next to the
+   target and renames it into place, so a failure never leaves half a quad directory.
+
+Which port is which camera, and where it sits, is the :mod:`~elphel_host.tp.layout`.
 """
 
 from __future__ import annotations
 
-import contextlib
-import json
-import os
-import shutil
-import tempfile
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -34,86 +29,21 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.client import CameraClient, CameraHTTPError, CapturedFrame
-from elphel_host.errors import InputFormatError, QuadCaptureError, QuadCaptureTimeout
-from elphel_host.tp.geometry import IDEAL_POSITIONS, QuadGeometry
+from elphel_host.errors import QuadCaptureError, QuadCaptureTimeout
+from elphel_host.fileio import replacing_directory
+from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
+from elphel_host.tp.layout import QuadLayout
+from elphel_host.tp.trigger import (
+    TICKS_PER_MS,
+    TRIG_SNAPSHOT,
+    choose_trigger,
+    on_common_trigger,
+)
 
-TRIG_SNAPSHOT = 4  # TRIG bit: the sensor waits for a trigger
-TRIG_PERIOD_MIN_REPEAT = 256  # TRIG_PERIOD below this stops the trigger or fires once
-TICKS_PER_MS = 100_000  # TRIG_PERIOD counts 10 ns
-# Slow enough that the daemon's ring buffer (64 frames) holds the set for half a minute
-# while four full frames are fetched, even from a simulator rendering them.
-DEFAULT_TRIGGER_PERIOD_MS = 500.0
 AHEAD_FRAMES = 2  # the set is taken this many triggers after every port is synchronised
 
 # Metadata keys that are not frame parameters (kept per camera in quad.json anyway).
 _FRAME_KEYS = ("frame", "timestamp_ns", "port", "sensor", "bayer")
-
-
-@dataclass(frozen=True)
-class QuadLayout:
-    """Which sensor port is camera i of the quad, and where camera i sits.
-
-    Parameters
-    ----------
-    ports
-        Sensor port of cameras 0..3.
-    positions
-        CameraClient centres in units of the square's side, +x right, +y down (DESIGN 4.4).
-    optics
-        Optional optics record copied into quad.json (``focal_length_mm``, ...).
-    """
-
-    ports: tuple[int, ...] = (0, 1, 2, 3)
-    positions: tuple[tuple[float, float], ...] = IDEAL_POSITIONS
-    optics: Mapping[str, Any] | None = None
-
-    def __post_init__(self) -> None:
-        if len(self.ports) != 4 or len(set(self.ports)) != 4:
-            raise InputFormatError(f"ports={list(self.ports)}; allowed: four different ports")
-        QuadGeometry(positions=self.positions)  # checks the positions
-
-
-def read_layout(path: str | Path) -> QuadLayout:
-    """A ``--geometry`` file: ``{"cameras": [{"position": [x, y], "port": P}, ...]}``.
-
-    Four cameras in quad order; ``port`` defaults to the camera's index; an ``optics``
-    object is copied into quad.json. A quad.json works as a geometry file, and so does
-    the simulator's ``GET {sim_url}/quad``.
-
-    Raises
-    ------
-    InputFormatError
-        When the file is not JSON or does not have this form.
-    """
-    file = Path(path)
-    try:
-        doc = json.loads(file.read_text())
-    except json.JSONDecodeError as e:
-        raise InputFormatError(f"{file}: not valid JSON ({e})") from e
-    cams = doc.get("cameras") if isinstance(doc, dict) else None
-    if not isinstance(cams, list) or len(cams) != 4:
-        raise InputFormatError(f"{file}: 'cameras' must list 4 cameras, got {cams!r}")
-    ports: list[int] = []
-    positions: list[tuple[float, float]] = []
-    for i, cam in enumerate(cams):
-        pos = cam.get("position") if isinstance(cam, dict) else None
-        if not (
-            isinstance(pos, list)
-            and len(pos) == 2
-            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in pos)
-        ):
-            raise InputFormatError(
-                f"{file}: cameras[{i}].position={pos!r}; allowed: [x, y] numbers"
-            )
-        port = cam.get("port", i)
-        if not isinstance(port, int) or isinstance(port, bool) or port < 0:
-            raise InputFormatError(f"{file}: cameras[{i}].port={port!r}; allowed: a port number")
-        ports.append(port)
-        positions.append((float(pos[0]), float(pos[1])))
-    optics = doc.get("optics")
-    if optics is not None and not isinstance(optics, dict):
-        raise InputFormatError(f"{file}: optics={optics!r}; allowed: an object")
-    return QuadLayout(ports=tuple(ports), positions=tuple(positions), optics=optics)
 
 
 @dataclass(frozen=True)
@@ -126,17 +56,7 @@ class QuadCapture:
     width: int
     height: int
     bayer: str | None
-    manifest: dict[str, Any]
-
-
-def trigger_ticks(period_ms: float) -> int:
-    """``TRIG_PERIOD`` (10 ns ticks) of a repeating trigger period in milliseconds."""
-    ticks = round(period_ms * TICKS_PER_MS)
-    if not ticks >= TRIG_PERIOD_MIN_REPEAT:
-        raise ValueError(
-            f"trigger period {period_ms} ms; allowed: >= {TRIG_PERIOD_MIN_REPEAT / TICKS_PER_MS} ms"
-        )
-    return ticks
+    manifest: QuadManifest
 
 
 def capture_quad(
@@ -161,7 +81,8 @@ def capture_quad(
         Ports and positions of cameras 0..3; default ports 0..3 on Elphel's square.
     trigger_period_ms
         Period of the common trigger while capturing. None keeps the master's repeating
-        period if it has one, else `DEFAULT_TRIGGER_PERIOD_MS`.
+        period if it has one, else
+        `~elphel_host.tp.trigger.DEFAULT_TRIGGER_PERIOD_MS`.
     force
         Replace an existing non-empty ``out``.
     timeout_s
@@ -184,7 +105,7 @@ def capture_quad(
     """
     layout = QuadLayout() if layout is None else layout
     target = Path(out)
-    _check_target(target, force=force)
+    check_target(target, force=force)
     info = camera.info()
     sensors = _quad_sensors(camera, info, layout)
     if "trigger" not in info.get("capabilities", ["trigger"]):
@@ -198,17 +119,10 @@ def capture_quad(
                 f"port {p} is in photo-finish mode (PF_HEIGHT={params['PF_HEIGHT']}); "
                 "allowed for a quad set: PF_HEIGHT=0"
             )
-    # The master: a port that names itself master (so TRIG_MASTER stays as it is).
-    master = next((q for q in layout.ports if before[q]["TRIG_MASTER"] == q), layout.ports[0])
-    if trigger_period_ms is not None:
-        period = trigger_ticks(trigger_period_ms)
-    elif before[master]["TRIG_PERIOD"] >= TRIG_PERIOD_MIN_REPEAT:
-        period = before[master]["TRIG_PERIOD"]
-    else:
-        period = trigger_ticks(DEFAULT_TRIGGER_PERIOD_MS)
+    master, period = choose_trigger(before, layout.ports, trigger_period_ms)
     deadline = time.monotonic() + timeout_s
     try:
-        with _on_common_trigger(camera, before, master=master, period=period) as applied:
+        with on_common_trigger(camera, before, master=master, period=period) as applied:
             # one frame past the change, so every port's latest frame is a triggered one
             _wait_for(camera, {p: f + 1 for p, f in applied.items()}, deadline, period)
             frames = _pick_frames(camera, layout.ports, period)
@@ -226,7 +140,9 @@ def capture_quad(
     manifest = _manifest(
         camera, info, layout, captured, master=master, period=period, bits=bits, bayer=bayer
     )
-    _write_atomically(target, captured, layout, manifest, force=force)
+    with replacing_directory(target) as tmp:
+        write_quad_dir(tmp, manifest, [captured[port].tiff for port in layout.ports])
+        check_target(target, force=force)  # again: it may have appeared meanwhile
     return QuadCapture(
         path=target,
         frames={p: captured[p].frame for p in layout.ports},
@@ -238,7 +154,14 @@ def capture_quad(
     )
 
 
-def _check_target(target: Path, *, force: bool) -> None:
+def check_target(target: Path, *, force: bool) -> None:
+    """Refuse to replace an existing non-empty directory (or a file) unless ``force``.
+
+    Raises
+    ------
+    FileExistsError
+        ``target`` is a file or a non-empty directory and ``force`` is not set.
+    """
     if force or not (target.exists() or target.is_symlink()):
         return
     if not target.is_dir():
@@ -263,81 +186,6 @@ def _quad_sensors(
             f"none on {', '.join(map(str, missing))}"
         )
     return {p: sensors[p] for p in layout.ports}
-
-
-def _sync_changes(
-    before: Mapping[int, Mapping[str, int]], *, master: int, period: int
-) -> tuple[dict[int, dict[str, int]], dict[int, dict[str, int]]]:
-    """What differs from snapshot mode on the master's trigger.
-
-    Returns the master's common trigger (``TRIG_PERIOD``, and ``TRIG_MASTER`` if it must
-    name itself) and, per port, the trigger mode, master, delay and decimation.
-    """
-    now = before[master]
-    trigger = {"TRIG_MASTER": master, "TRIG_PERIOD": period}
-    common = {k: v for k, v in trigger.items() if now.get(k) != v}
-    ports: dict[int, dict[str, int]] = {}
-    for p, now in before.items():
-        want = {
-            "TRIG": now["TRIG"] if now["TRIG"] & TRIG_SNAPSHOT else TRIG_SNAPSHOT,
-            "TRIG_MASTER": master,
-            "TRIG_DELAY": 0,
-            "TRIG_DECIMATE": 0,
-        }
-        diff = {k: v for k, v in want.items() if now.get(k) != v and k not in common}
-        if diff:
-            ports[p] = diff
-    return ({master: common} if common else {}), ports
-
-
-@contextlib.contextmanager
-def _on_common_trigger(
-    camera: CameraClient, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
-) -> Iterator[dict[int, int]]:
-    """Every port in snapshot mode on the master's trigger; the old settings back after.
-
-    The trigger starts before any port waits for it, and on the way back it is restored
-    only once every port runs as before: a port still in snapshot mode when the trigger
-    stops would wait forever, and its own restore with it. Yields, per port changed, the
-    frame from which the change is in effect.
-    """
-    common, ports = _sync_changes(before, master=master, period=period)
-    with camera.staged(common) as started:
-        try:
-            with camera.staged(ports) as applied:
-                yield {p: a.frame for p, a in {**started, **applied}.items()}
-        except BaseException as e:
-            late = _wait_restored(camera, before, ports, period)
-            if late:
-                e.add_note(late)
-            raise
-        late = _wait_restored(camera, before, ports, period)
-        if late:
-            raise QuadCaptureTimeout(late)
-
-
-def _wait_restored(
-    camera: CameraClient,
-    before: Mapping[int, Mapping[str, int]],
-    changed: Mapping[int, Mapping[str, int]],
-    period: int,
-) -> str:
-    """Wait until the ports' previous settings are in effect again; say which are not."""
-    deadline = time.monotonic() + 10.0 + 4 * period / 1e8  # a restore needs frames
-    pending = {p: {k: before[p][k] for k in keys} for p, keys in changed.items()}
-    while pending:
-        for p in list(pending):
-            now = camera.params(p)
-            if all(now.get(k) == v for k, v in pending[p].items()):
-                del pending[p]
-        if not pending or time.monotonic() > deadline:
-            break
-        time.sleep(min(0.05, period / 4e8))
-    if not pending:
-        return ""
-    return "previous trigger settings not back in effect on port(s) " + ", ".join(
-        f"{p} ({', '.join(f'{k}={v}' for k, v in want.items())})" for p, want in pending.items()
-    )
 
 
 def _wait_for(
@@ -440,14 +288,12 @@ def _manifest(
     period: int,
     bits: int,
     bayer: str | None,
-) -> dict[str, Any]:
-    cameras = []
-    for i, (port, position) in enumerate(zip(layout.ports, layout.positions, strict=True)):
+) -> QuadManifest:
+    per_camera = []
+    for port in layout.ports:
         meta = captured[port].metadata
-        cameras.append(
+        per_camera.append(
             {
-                "file": f"cam{i}.tif",
-                "position": list(position),
                 "port": port,
                 "sensor": meta.get("sensor"),
                 "frame": captured[port].frame,
@@ -456,15 +302,7 @@ def _manifest(
             }
         )
     first = captured[layout.ports[0]]
-    manifest: dict[str, Any] = {
-        "version": 1,
-        "cameras": cameras,
-        "bayer": bayer,
-        "full_scale_dn": (1 << bits) - 1,
-    }
-    if layout.optics is not None:
-        manifest["optics"] = dict(layout.optics)
-    manifest["capture"] = {
+    capture = {
         "camera_url": camera.url,
         "board": info.get("board"),
         "daemon": f"{info.get('daemon')} {info.get('version')}",
@@ -473,36 +311,10 @@ def _manifest(
         "trigger": {"master": master, "period_10ns": period, "mode": "snapshot"},
         "written_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
-    return manifest
-
-
-def _write_atomically(
-    target: Path,
-    captured: Mapping[int, CapturedFrame],
-    layout: QuadLayout,
-    manifest: Mapping[str, Any],
-    *,
-    force: bool,
-) -> None:
-    """Write into a temporary sibling directory and rename it onto ``target``."""
-    parent = target.absolute().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
-    aside: Path | None = None
-    try:
-        for i, port in enumerate(layout.ports):
-            (tmp / f"cam{i}.tif").write_bytes(captured[port].tiff)
-        (tmp / "quad.json").write_text(json.dumps(manifest, indent=2) + "\n")
-        _check_target(target, force=force)  # again: it may have appeared meanwhile
-        if force and (target.exists() or target.is_symlink()):
-            aside = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
-            os.rename(target, aside / "old")
-        os.rename(tmp, target)  # replaces an empty directory
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if aside is not None and (aside / "old").exists() and not target.exists():
-            os.rename(aside / "old", target)  # put the old one back
-        raise
-    finally:
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
+    return QuadManifest(
+        cameras=quad_cameras(layout.positions, per_camera),
+        bayer=bayer,
+        full_scale_dn=(1 << bits) - 1,
+        optics=None if layout.optics is None else dict(layout.optics),
+        extra={"capture": capture},
+    )

@@ -13,14 +13,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tifffile
 
 from elphel_host.camera.client import CameraClient
 from elphel_host.cli_common import add_camera_options, emit
-from elphel_host.tp.capture import DEFAULT_TRIGGER_PERIOD_MS, capture_quad, read_layout
-from elphel_host.tp.io import read_quad_dir, write_dsi, write_ml_data
-from elphel_host.tp.processor import TpConfig, correlation_tiles, disparity_map
-from elphel_host.tp.texture import rendered_images, rgba_texture
+from elphel_host.tp.capture import capture_quad
+from elphel_host.tp.config import TpConfig
+from elphel_host.tp.dsi import write_dsi, write_ml_data
+from elphel_host.tp.io import read_quad_dir
+from elphel_host.tp.layout import read_layout
+from elphel_host.tp.pipeline import correlation_tiles
+from elphel_host.tp.processor import disparity_map
+from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
+from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
 USAGE = """elphel tp QUAD_DIR --out DSI.tif [--json] [tile processor options]
@@ -35,8 +39,8 @@ def register(subparsers: Any) -> None:
         usage=USAGE,
         help="disparity space image (DSI) of a quad directory; `tp capture` takes one",
         description="Tile processor: per-tile sub-pixel disparity and strength of a quad image set "
-        "(DESIGN 4.4 in, 4.5 out). `elphel tp capture` takes the quad set from a camera: one "
-        "trigger, four sensor ports, the same timestamp.",
+        "(a quad directory in, a DSI TIFF out). `elphel tp capture` takes the quad set from a "
+        "camera: one trigger, four sensor ports, the same timestamp.",
     )
     p.add_argument(
         "quad_dir",
@@ -146,7 +150,7 @@ def run_capture(args: argparse.Namespace) -> int:
             timeout_s=args.timeout,
         )
     seconds = time.perf_counter() - t0
-    cams = got.manifest["cameras"]
+    cams = [cam.to_json() for cam in got.manifest.cameras]
     result: dict[str, Any] = {
         "quad_dir": str(got.path),
         "frames": {str(p): f for p, f in got.frames.items()},
@@ -155,7 +159,7 @@ def run_capture(args: argparse.Namespace) -> int:
         "height": got.height,
         "bayer": got.bayer,
         "cameras": [{k: c[k] for k in ("file", "port", "position", "frame")} for c in cams],
-        "trigger": got.manifest["capture"]["trigger"],
+        "trigger": got.manifest.extra["capture"]["trigger"],
         "seconds": round(seconds, 3),
     }
     frames = ", ".join(f"port {p} #{f}" for p, f in got.frames.items())
@@ -206,7 +210,7 @@ def run_tp(args: argparse.Namespace) -> int:
     if args.texture:
         rendered = rendered_images(qs.quad, dsi["disparity"])
         rgba = rgba_texture(rendered, bayer=qs.quad.bayer)
-        tifffile.imwrite(args.texture, rgba, photometric="rgb", extrasamples=["unassalpha"])
+        write_texture(args.texture, rgba)
         result["texture"] = str(args.texture)
     human = (
         f"{result['dsi']}: {result['tiles_x']}x{result['tiles_y']} tiles, {len(dsi)} layers, "

@@ -2,14 +2,11 @@
 
 Everything here works on chunks of tiles as arrays. The per-camera spectra use the
 complex form of the CLT (see :mod:`elphel_host.tp.clt`): one tile-colour is an array
-``(8 kh, 2, 8 kv)`` of complex numbers, ``[..., 0, :] = z2`` and ``[..., 1, :] = z1``.
-
-A colour lattice (8x8 samples of a Bayer colour, or 16x16 of a mono sensor) is
-transformed as if its samples sat on the even tile positions; the true offset j0 (0 or
-1) is added to the fractional shift, since moving the samples by one pixel is exactly a
-phase rotation by s = 1 (``E[k, n+1] = E[k, n] exp(i pi (2k+1)/16)``). The fractional part
-of each camera's tile position is the shifted window plus the same rotation (reference
-2.5), so the images are never resampled.
+``(8 kh, 2, 8 kv)`` of complex numbers, ``[..., 0, :] = z2`` and ``[..., 1, :] = z1``
+(the full layout), or ``(2, F)`` on the frequencies the production path keeps
+(the compact layout of :class:`~elphel_host.tp.clt.batch.FrequencySet`).
+:func:`pair_products` is the full-layout reference of :func:`compact_pair_products`, and
+:func:`profile_basis` of :func:`compact_profiles`.
 
 The pair product (conjugate of the first camera), the fat-zero normalisation and the
 correlation LPF follow reference 6.2-6.4. The 15x15 pixel-domain correlation of 6.4 is a
@@ -25,18 +22,15 @@ pairs in a common orientation.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.tp.bayer import Lattice
-from elphel_host.tp.clt import E_COMPLEX, TILE, N
+from elphel_host.tp.clt.batch import FrequencySet
+from elphel_host.tp.clt.transform import OMEGA, TILE, N
 
 F32 = NDArray[np.float32]
 C64 = NDArray[np.complex64]
-
-OMEGA = np.pi * (2 * np.arange(N) + 1) / TILE  # angular frequency of index k, rad/pixel
 
 
 def lpf_mask(sigma: float) -> NDArray[np.float64]:
@@ -61,91 +55,6 @@ def lpf_mask(sigma: float) -> NDArray[np.float64]:
     )
     out: NDArray[np.float64] = 16.0 * c3e @ f @ c3e.T
     return out
-
-
-@lru_cache(maxsize=8)
-def _stage_matrices(step: int) -> tuple[F32, F32]:
-    """Real matrices of the two separable stages of a lattice transform.
-
-    Stage 1 (rows, x): samples (n) -> interleaved complex over kh (16 reals).
-    Stage 2 (columns, y): interleaved complex over t (2n reals) -> [z2 over kv, z1 over kv]
-    interleaved (32 reals).
-    """
-    e = E_COMPLEX[:, ::step]  # (8 k, n), lattice samples on the even positions
-    n = e.shape[1]
-    a1 = np.empty((n, 2 * N))
-    a1[:, 0::2] = e.real.T
-    a1[:, 1::2] = e.imag.T
-    a2 = np.zeros((2 * n, 4 * N))
-    for which, ev in enumerate((e, np.conj(e))):
-        cols = slice(2 * N * which, 2 * N * (which + 1))
-        blk = np.zeros((2 * n, 2 * N))
-        blk[0::2, 0::2] = ev.real.T  # Yr -> re
-        blk[0::2, 1::2] = ev.imag.T  # Yr -> im
-        blk[1::2, 0::2] = -ev.imag.T  # Yi -> re
-        blk[1::2, 1::2] = ev.real.T  # Yi -> im
-        a2[:, cols] = blk
-    return a1.astype(np.float32), a2.astype(np.float32)
-
-
-def lattice_spectra(
-    sub: F32,
-    lattice: Lattice,
-    left_x: NDArray[np.int64],
-    shift_x: NDArray[np.float64],
-    top_y: NDArray[np.int64],
-    shift_y: NDArray[np.float64],
-    *,
-    pad: int,
-) -> C64:
-    """Shifted CLT (complex form) of one lattice of one camera for a batch of tiles.
-
-    Parameters
-    ----------
-    sub
-        The lattice's padded sub-image (:func:`elphel_host.tp.bayer.sublattice`).
-    lattice
-        Which lattice.
-    left_x, top_y
-        ``(T,)`` integer first pixel of each tile window on the sensor.
-    shift_x, shift_y
-        ``(T,)`` residual shifts s in [-0.5, 0.5].
-    pad
-        Padding of ``sub`` in sub-image samples.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(T, 8, 2, 8)`` complex64: [kh, (z2, z1), kv].
-    """
-    st = lattice.step
-    n = lattice.samples
-    t = left_x.shape[0]
-    # first lattice sample inside each window, and its offset j0 from the window start
-    mx = -((lattice.col - left_x) // st)
-    my = -((lattice.row - top_y) // st)
-    j0x = st * mx + lattice.col - left_x
-    j0y = st * my + lattice.row - top_y
-    h, w = sub.shape
-    gx = np.clip(mx + pad, 0, w - n)
-    gy = np.clip(my + pad, 0, h - n)
-    view = np.lib.stride_tricks.sliding_window_view(sub, (n, n))
-    block = view[gy, gx]  # (T, n, n) copy
-    pos = np.arange(n) * st + 0.5
-    wx = np.sin(np.pi / TILE * (pos[None, :] + (j0x + shift_x)[:, None])).astype(np.float32)
-    wy = np.sin(np.pi / TILE * (pos[None, :] + (j0y + shift_y)[:, None])).astype(np.float32)
-    block *= wy[:, :, None]
-    block *= wx[:, None, :]
-    a1, a2 = _stage_matrices(st)
-    y = (block.reshape(t * n, n) @ a1).view(np.complex64).reshape(t, n, N)
-    rot_h = np.exp(1j * ((j0x + shift_x)[:, None] * OMEGA[None, :])).astype(np.complex64)
-    y *= rot_h[:, None, :]
-    yt = np.ascontiguousarray(y.transpose(0, 2, 1)).view(np.float32).reshape(t * N, 2 * n)
-    z = (yt @ a2).view(np.complex64).reshape(t, N, 2, N)
-    rot_v = np.exp(1j * ((j0y + shift_y)[:, None] * OMEGA[None, :])).astype(np.complex64)
-    z[:, :, 0, :] *= rot_v[:, None, :]
-    z[:, :, 1, :] *= np.conj(rot_v)[:, None, :]
-    return z
 
 
 def pair_products(
@@ -184,6 +93,31 @@ def pair_products(
             else:
                 term *= w[c]
                 acc += term
+    return out
+
+
+def compact_pair_products(
+    spectra: list[list[C64]], pairs: tuple[tuple[int, int], ...], fset: FrequencySet
+) -> C64:
+    """Pair products summed over colours, compact layout: ``(T, pairs, 2, F)``.
+
+    The production form of :func:`pair_products`: the spectra come from
+    :func:`~elphel_host.tp.clt.batch.camera_spectra` with the square roots of the colour
+    weights already inside, per camera a list of colours ``(T, 2, F_c)`` (red and blue on
+    the first ``fset.n_box`` frequencies, green or mono on all).
+    """
+    t = spectra[0][0].shape[0]
+    conj = [[np.conj(z) for z in cam] for cam in spectra]
+    out = np.empty((t, len(pairs), 2, fset.size), dtype=np.complex64)
+    for p, (a, b) in enumerate(pairs):
+        acc = out[:, p]
+        ncol = len(spectra[a])
+        np.multiply(
+            conj[a][ncol - 1], spectra[b][ncol - 1], out=acc
+        )  # green (or mono): all frequencies
+        box = acc[:, :, : fset.n_box]
+        for c in range(ncol - 1):
+            box += conj[a][c] * spectra[b][c]
     return out
 
 
@@ -258,6 +192,24 @@ def profile_basis(
         full = np.concatenate([block(lags, 0), block(dl, 1), block(dl, 2)])
         mats.append(full.T.astype(np.float32))
     return Profiles(lags=lags, deriv_lags=dl, basis=tuple(mats))
+
+
+def compact_profiles(full: Profiles, fset: FrequencySet, lpf: NDArray[np.floating]) -> Profiles:
+    """Restrict a :func:`profile_basis` to the kept frequencies.
+
+    Rescaled so that a normalised product of 1 at every kept frequency gives 1 at lag 0.
+    """
+    rows = []
+    for which in range(2):
+        for f in range(fset.size):
+            r = ((fset.kh[f] * 2 + which) * 8 + fset.kv[f]) * 2
+            rows.extend([r, r + 1])
+    scale = float(lpf.sum()) / float(lpf[fset.kv, fset.kh].sum())
+    return Profiles(
+        lags=full.lags,
+        deriv_lags=full.deriv_lags,
+        basis=tuple((b[rows] * scale).astype(np.float32) for b in full.basis),
+    )
 
 
 def window_envelope(

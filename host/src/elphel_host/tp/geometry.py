@@ -81,3 +81,33 @@ def place(
     )
     left = np.floor(p + 0.5)
     return left.astype(np.int64), left - p
+
+
+@dataclass(frozen=True, eq=False)
+class TilePlacement:
+    """Where one camera's tiles lie on its sensor, each field ``(T,)`` (see :func:`place`).
+
+    Attributes
+    ----------
+    left_x, top_y
+        Integer first pixel of each tile's 16-sample window.
+    shift_x, shift_y
+        Residual shifts s in [-0.5, 0.5]: the tile is the image sampled at ``left - s + j``.
+    """
+
+    left_x: NDArray[np.int64]
+    shift_x: NDArray[np.float64]
+    top_y: NDArray[np.int64]
+    shift_y: NDArray[np.float64]
+
+
+def place_tiles(
+    cx: NDArray[np.floating],
+    cy: NDArray[np.floating],
+    disparity: NDArray[np.floating],
+    position: tuple[float, float],
+) -> TilePlacement:
+    """:func:`place` along both axes: one camera's tiles centred at (cx, cy) at a disparity."""
+    left_x, shift_x = place(cx, disparity, position[0])
+    top_y, shift_y = place(cy, disparity, position[1])
+    return TilePlacement(left_x=left_x, shift_x=shift_x, top_y=top_y, shift_y=shift_y)

@@ -1,37 +1,310 @@
-"""Files of the tile processor: quad directories in, DSI and ML_DATA stacks out.
+"""The quad directory format: its one reader and writer.
 
-* Quad directory (DESIGN 4.4): ``quad.json`` + four same-size 16-bit images.
-* DSI (DESIGN 4.5): ImageJ float32 stack, one slice per layer, tiles-Y x tiles-X, slice
-  labels naming the layers; the ImageJ "info" string holds Elphel-style XML properties
-  with the tile size, stride and geometry (reference section 9).
-* ML_DATA (reference section 9, version 1.1, 32-bit variant): per layer one image of
-  9 x 9 pixels per tile (the centre of the 15 x 15 correlation), layers ``diagm-pair``,
-  ``diago-pair``, ``hor-pairs``, ``vert-pairs`` and ``other`` (target disparity at
-  tile-local index 0, ground-truth disparity at 2 and its strength at 4).
+A quad directory (DESIGN 4.4) is ``quad.json`` + four same-size 16-bit images
+``cam0.tif .. cam3.tif`` of one instant; in a quad-burst directory (DESIGN 4.7) each
+camera's ``file`` names its burst directory instead. ``quad.json`` is one frozen
+:class:`QuadManifest`: whoever writes or reads one (`elphel tp capture`, `elphel tp`, the
+simulator) goes through :meth:`QuadManifest.to_json` / :meth:`QuadManifest.from_json`.
+
+The DSI and ML_DATA files live in :mod:`elphel_host.tp.dsi`; their functions are
+importable from here too.
 """
 
 from __future__ import annotations
 
 import json
-import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.errors import InputFormatError
+from elphel_host.fileio import write_atomic
 from elphel_host.tp.bayer import BAYER_PATTERNS
+
+# The DSI and ML_DATA files are dsi.py's; importable from here as they always were.
+from elphel_host.tp.dsi import read_dsi as read_dsi
+from elphel_host.tp.dsi import read_ml_data as read_ml_data
+from elphel_host.tp.dsi import write_dsi as write_dsi
+from elphel_host.tp.dsi import write_ml_data as write_ml_data
 from elphel_host.tp.geometry import QuadGeometry
-from elphel_host.tp.processor import QuadImages
+from elphel_host.tp.images import QuadImages
 
 F32 = NDArray[np.float32]
 
-ML_LAYERS = ("diagm-pair", "diago-pair", "hor-pairs", "vert-pairs", "other")
-ML_HALF = 4  # 9x9 per tile
-ML_OTHER_TARGET, ML_OTHER_GTRUTH, ML_OTHER_GTRUTH_STRENGTH = 0, 2, 4
+MANIFEST = "quad.json"
+
+
+def load_json(path: Path) -> Any:
+    """The JSON document in ``path``; `InputFormatError` when it is not JSON."""
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise InputFormatError(f"{path}: not valid JSON ({e})") from e
+
+
+def camera_list(doc: Any, where: str) -> list[Any]:
+    """``doc["cameras"]``, which must list four cameras."""
+    cams = doc.get("cameras") if isinstance(doc, dict) else None
+    if not isinstance(cams, list) or len(cams) != 4:
+        raise InputFormatError(f"{where}: 'cameras' must list 4 cameras, got {cams!r}")
+    return cams
+
+
+def parse_position(value: Any, where: str) -> tuple[float, float]:
+    """A camera ``position``: ``[x, y]`` numbers in units of the square's side."""
+    if not (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        raise InputFormatError(f"{where}.position={value!r}; allowed: [x, y] numbers")
+    return float(value[0]), float(value[1])
+
+
+@dataclass(frozen=True)
+class QuadCamera:
+    """One camera of ``quad.json``.
+
+    Attributes
+    ----------
+    file
+        Its image (or, in a quad burst, its burst directory), relative to the directory.
+    position
+        Camera centre in units of the square's side, +x right, +y down.
+    fields
+        Everything else the entry records, in order (a capture writes ``port``,
+        ``sensor``, ``frame``, ``timestamp_ns`` and ``params``).
+    """
+
+    file: str
+    position: tuple[float, float]
+    fields: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        clash = {"file", "position"} & set(self.fields)
+        if clash:
+            raise ValueError(f"fields {sorted(clash)} are attributes of QuadCamera, not fields")
+
+    def to_json(self) -> dict[str, Any]:
+        """The camera's entry of ``quad.json``."""
+        return {"file": self.file, "position": list(self.position), **self.fields}
+
+
+def quad_cameras(
+    positions: Sequence[tuple[float, float]],
+    fields: Sequence[Mapping[str, Any]] | None = None,
+) -> tuple[QuadCamera, ...]:
+    """Cameras 0..3 with the standard file names ``cam0.tif .. cam3.tif``."""
+    per_camera = [{}] * len(positions) if fields is None else list(fields)
+    return tuple(
+        QuadCamera(file=f"cam{i}.tif", position=(float(p[0]), float(p[1])), fields=dict(f))
+        for i, (p, f) in enumerate(zip(positions, per_camera, strict=True))
+    )
+
+
+@dataclass(frozen=True)
+class KernelFile:
+    """``"kernels": {"file": "kernels.npy", "step": 16}``: aberration kernels of the quad.
+
+    The file holds a NumPy array ``(4, colours, ky, kx, 15, 15)``: a grid of pixel-domain
+    convolution kernels ``step`` pixels apart (see docs/tile-processor.md).
+    """
+
+    file: str
+    step: int = 16
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``kernels`` entry of ``quad.json``."""
+        return {"file": self.file, "step": self.step}
+
+
+@dataclass(frozen=True)
+class QuadManifest:
+    """``quad.json``: the cameras, their positions, the Bayer pattern and optional records.
+
+    Attributes
+    ----------
+    cameras
+        Cameras 0..3.
+    bayer
+        ``None`` (mono) or one of ``GRBG``, ``RGGB``, ``GBRG``, ``BGGR``.
+    full_scale_dn
+        The images' full scale (e.g. 4095 for 12-bit data); None: from the data.
+    optics
+        ``focal_length_mm``, ``pixel_pitch_um``, ``baseline_mm`` (the square's side), ...
+    kernels
+        Aberration-correction kernels, if any.
+    extra
+        Other top-level records, kept in order (a capture writes ``capture``).
+    """
+
+    VERSION: ClassVar[int] = 1
+    FIELDS: ClassVar[tuple[str, ...]] = (
+        "version",
+        "cameras",
+        "bayer",
+        "full_scale_dn",
+        "optics",
+        "kernels",
+    )
+
+    cameras: tuple[QuadCamera, ...]
+    bayer: str | None = None
+    full_scale_dn: int | float | None = None
+    optics: Mapping[str, Any] | None = None
+    kernels: KernelFile | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if len(self.cameras) != 4:
+            raise ValueError(f"cameras: {len(self.cameras)} given; allowed: 4")
+        if self.bayer is not None and self.bayer not in BAYER_PATTERNS:
+            raise ValueError(
+                f"bayer={self.bayer!r}; allowed: None or one of {', '.join(BAYER_PATTERNS)}"
+            )
+        clash = set(self.FIELDS) & set(self.extra)
+        if clash:
+            raise ValueError(f"extra {sorted(clash)} are attributes of QuadManifest, not extras")
+
+    @property
+    def positions(self) -> tuple[tuple[float, float], ...]:
+        """The four camera positions."""
+        return tuple(cam.position for cam in self.cameras)
+
+    @property
+    def geometry(self) -> QuadGeometry:
+        """The quad's geometry (positions and the six pairs)."""
+        return QuadGeometry(positions=self.positions)
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``quad.json`` document."""
+        doc: dict[str, Any] = {
+            "version": self.VERSION,
+            "cameras": [cam.to_json() for cam in self.cameras],
+            "bayer": self.bayer,
+        }
+        if self.full_scale_dn is not None:
+            doc["full_scale_dn"] = self.full_scale_dn
+        if self.optics is not None:
+            doc["optics"] = dict(self.optics)
+        if self.kernels is not None:
+            doc["kernels"] = self.kernels.to_json()
+        doc.update(self.extra)
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: Any, *, source: str = MANIFEST) -> QuadManifest:
+        """Check and take a ``quad.json`` document; ``source`` names it in errors.
+
+        Raises
+        ------
+        InputFormatError
+            A field is missing or has a value the format does not allow (the message
+            names the field, the value and what is allowed).
+        """
+        if not isinstance(doc, dict):
+            raise InputFormatError(f"{source}: top level must be an object")
+        if doc.get("version") != cls.VERSION:
+            raise InputFormatError(f"{source}: version={doc.get('version')!r}; allowed: 1")
+        cams = camera_list(doc, source)
+        bayer = doc.get("bayer")
+        if bayer is not None and bayer not in BAYER_PATTERNS:
+            raise InputFormatError(
+                f"{source}: bayer={bayer!r}; allowed: null or one of {', '.join(BAYER_PATTERNS)}"
+            )
+        cameras = []
+        for i, cam in enumerate(cams):
+            if not isinstance(cam, dict) or "file" not in cam or "position" not in cam:
+                raise InputFormatError(
+                    f"{source}: cameras[{i}] needs 'file' and 'position', got {cam!r}"
+                )
+            position = parse_position(cam["position"], f"{source}: cameras[{i}]")
+            rest = {k: v for k, v in cam.items() if k not in ("file", "position")}
+            cameras.append(QuadCamera(file=str(cam["file"]), position=position, fields=rest))
+        full = doc.get("full_scale_dn")
+        if full is not None and not (isinstance(full, int | float) and full > 0):
+            raise InputFormatError(f"{source}: full_scale_dn={full!r}; allowed: a number > 0")
+        optics = doc.get("optics")
+        if optics is not None and not isinstance(optics, dict):
+            raise InputFormatError(f"{source}: optics={optics!r}; allowed: an object")
+        return cls(
+            cameras=tuple(cameras),
+            bayer=bayer,
+            full_scale_dn=full,
+            optics=optics,
+            kernels=_kernel_file(doc.get("kernels"), source),
+            extra={k: v for k, v in doc.items() if k not in cls.FIELDS},
+        )
+
+    @classmethod
+    def read(cls, root: str | Path) -> QuadManifest:
+        """Read ``root/quad.json``."""
+        path = Path(root) / MANIFEST
+        if not path.is_file():
+            raise InputFormatError(
+                f"{root}: no {MANIFEST} (expected a quad directory: {MANIFEST} + cam0..3.tif)"
+            )
+        return cls.from_json(load_json(path), source=str(path))
+
+    def write(self, root: str | Path) -> Path:
+        """Write ``root/quad.json`` (atomically)."""
+        text = json.dumps(self.to_json(), indent=2) + "\n"
+        return write_atomic(Path(root) / MANIFEST, text.encode())
+
+
+def _kernel_file(spec: Any, source: str) -> KernelFile | None:
+    if spec is None:
+        return None
+    if not isinstance(spec, dict) or "file" not in spec:
+        raise InputFormatError(
+            f"{source}: kernels={spec!r}; allowed: {{'file': NAME.npy, 'step': 16}}"
+        )
+    step = spec.get("step", 16)
+    if not isinstance(step, int) or step < 1:
+        raise InputFormatError(f"{source}: kernels.step={step!r}; allowed: an integer >= 1")
+    return KernelFile(file=str(spec["file"]), step=step)
+
+
+def write_quad_dir(
+    root: str | Path,
+    manifest: QuadManifest,
+    images: Sequence[NDArray[Any] | bytes],
+    *,
+    kernels: NDArray[np.floating] | None = None,
+) -> Path:
+    """Write a quad directory into ``root`` (created if needed), ``quad.json`` last.
+
+    Parameters
+    ----------
+    root
+        The directory.
+    manifest
+        What ``quad.json`` says; the images are written under its cameras' file names.
+    images
+        Per camera a 2-D array (written as a TIFF) or the bytes of a TIFF as received.
+    kernels
+        The array of ``manifest.kernels`` (required exactly when the manifest names one).
+    """
+    out = Path(root)
+    if len(images) != len(manifest.cameras):
+        raise ValueError(f"{len(images)} images for {len(manifest.cameras)} cameras")
+    if (kernels is None) != (manifest.kernels is None):
+        raise ValueError("kernels must be given exactly when the manifest names a kernel file")
+    out.mkdir(parents=True, exist_ok=True)
+    for cam, image in zip(manifest.cameras, images, strict=True):
+        if isinstance(image, bytes):
+            (out / cam.file).write_bytes(image)
+        else:
+            tifffile.imwrite(out / cam.file, image)
+    if kernels is not None and manifest.kernels is not None:
+        np.save(out / manifest.kernels.file, kernels)
+    manifest.write(out)
+    return out
 
 
 @dataclass(frozen=True)
@@ -40,11 +313,11 @@ class QuadSet:
 
     quad: QuadImages
     full_scale_dn: float
-    manifest: dict[str, Any]
+    manifest: QuadManifest
 
 
 def read_quad_dir(path: str | Path) -> QuadSet:
-    """Load a quad directory (DESIGN 4.4).
+    """Load a quad directory: ``quad.json``, the four images and the optional kernels.
 
     Raises
     ------
@@ -52,43 +325,13 @@ def read_quad_dir(path: str | Path) -> QuadSet:
         When quad.json or an image is missing or does not follow the format.
     """
     root = Path(path)
-    manifest_path = root / "quad.json"
-    if not manifest_path.is_file():
-        raise InputFormatError(f"{root}: no quad.json (expected a quad directory, DESIGN 4.4)")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputFormatError(f"{manifest_path}: not valid JSON ({e})") from e
-    if not isinstance(manifest, dict):
-        raise InputFormatError(f"{manifest_path}: top level must be an object")
-    if manifest.get("version") != 1:
-        raise InputFormatError(f"{manifest_path}: version={manifest.get('version')!r}; allowed: 1")
-    cams = manifest.get("cameras")
-    if not isinstance(cams, list) or len(cams) != 4:
-        raise InputFormatError(f"{manifest_path}: 'cameras' must list 4 cameras, got {cams!r}")
-    bayer = manifest.get("bayer")
-    if bayer is not None and bayer not in BAYER_PATTERNS:
-        raise InputFormatError(
-            f"{manifest_path}: bayer={bayer!r}; allowed: null or one of {', '.join(BAYER_PATTERNS)}"
-        )
+    manifest = QuadManifest.read(root)
+    source = root / MANIFEST
     images = []
-    positions = []
-    for i, cam in enumerate(cams):
-        if not isinstance(cam, dict) or "file" not in cam or "position" not in cam:
-            raise InputFormatError(
-                f"{manifest_path}: cameras[{i}] needs 'file' and 'position', got {cam!r}"
-            )
-        pos = cam["position"]
-        if not (
-            isinstance(pos, list) and len(pos) == 2 and all(isinstance(v, int | float) for v in pos)
-        ):
-            raise InputFormatError(
-                f"{manifest_path}: cameras[{i}].position={pos!r}; allowed: [x, y] numbers"
-            )
-        positions.append((float(pos[0]), float(pos[1])))
-        file = root / str(cam["file"])
+    for i, cam in enumerate(manifest.cameras):
+        file = root / cam.file
         if not file.is_file():
-            raise InputFormatError(f"{manifest_path}: cameras[{i}].file {file} does not exist")
+            raise InputFormatError(f"{source}: cameras[{i}].file {file} does not exist")
         img = tifffile.imread(file)
         if img.ndim != 2:
             raise InputFormatError(
@@ -101,7 +344,7 @@ def read_quad_dir(path: str | Path) -> QuadSet:
     h, w = images[0].shape
     if h % 8 or w % 8:
         raise InputFormatError(f"{root}: image size {w}x{h}; allowed: multiples of 8")
-    full = manifest.get("full_scale_dn")
+    full = manifest.full_scale_dn
     if full is None:
         peak = max(float(np.max(im)) for im in images)
         full = (
@@ -109,226 +352,25 @@ def read_quad_dir(path: str | Path) -> QuadSet:
             if np.issubdtype(images[0].dtype, np.integer)
             else max(peak, 1.0)
         )
-    elif not (isinstance(full, int | float) and full > 0):
-        raise InputFormatError(f"{manifest_path}: full_scale_dn={full!r}; allowed: a number > 0")
     stack = np.stack([np.asarray(im, dtype=np.float32) for im in images]) / np.float32(full)
-    geometry = QuadGeometry(positions=tuple(positions))
-    kernels, step = _read_kernels(root, manifest, manifest_path)
+    kernels = None
+    if manifest.kernels is not None:
+        kernels = _load_kernels(root / manifest.kernels.file, source)
     quad = QuadImages(
-        stack.astype(np.float32), bayer=bayer, geometry=geometry, kernels=kernels, kernel_step=step
+        stack.astype(np.float32),
+        bayer=manifest.bayer,
+        geometry=manifest.geometry,
+        kernels=kernels,
+        kernel_step=16 if manifest.kernels is None else manifest.kernels.step,
     )
     return QuadSet(quad=quad, full_scale_dn=float(full), manifest=manifest)
 
 
-def _read_kernels(
-    root: Path, manifest: dict[str, Any], manifest_path: Path
-) -> tuple[F32 | None, int]:
-    """Optional ``"kernels": {"file": "kernels.npy", "step": 16}``: (4, colours, ky, kx, 15, 15)."""
-    spec = manifest.get("kernels")
-    if spec is None:
-        return None, 16
-    if not isinstance(spec, dict) or "file" not in spec:
-        raise InputFormatError(
-            f"{manifest_path}: kernels={spec!r}; allowed: {{'file': NAME.npy, 'step': 16}}"
-        )
-    step = spec.get("step", 16)
-    if not isinstance(step, int) or step < 1:
-        raise InputFormatError(f"{manifest_path}: kernels.step={step!r}; allowed: an integer >= 1")
-    file = root / str(spec["file"])
+def _load_kernels(file: Path, source: Path) -> F32:
     if not file.is_file():
-        raise InputFormatError(f"{manifest_path}: kernels.file {file} does not exist")
+        raise InputFormatError(f"{source}: kernels.file {file} does not exist")
     try:
         data = np.load(file, allow_pickle=False)
     except ValueError as e:
         raise InputFormatError(f"{file}: not a .npy array ({e})") from e
-    return np.asarray(data, dtype=np.float32), step
-
-
-def properties_xml(props: dict[str, Any]) -> str:
-    """Elphel-style ImageJ info: ``<?xml ...?><properties><KEY>value</KEY>...</properties>``."""
-    root = ET.Element("properties")
-    for key, value in props.items():
-        ET.SubElement(root, key).text = value if isinstance(value, str) else json.dumps(value)
-    return '<?xml version="1.0" encoding="UTF-8"?>' + ET.tostring(root, encoding="unicode")
-
-
-def parse_properties(info: str) -> dict[str, str]:
-    """Inverse of :func:`properties_xml` (values as strings)."""
-    start = info.find("<properties")
-    if start < 0:
-        return {}
-    root = ET.fromstring(info[start:])
-    return {child.tag: child.text or "" for child in root}
-
-
-def write_dsi(
-    path: str | Path,
-    layers: dict[str, F32],
-    *,
-    image_size: tuple[int, int],
-    geometry: QuadGeometry,
-    bayer: str | None,
-    extra: dict[str, Any] | None = None,
-) -> None:
-    """Write a DSI as an ImageJ float32 stack (DESIGN 4.5).
-
-    Parameters
-    ----------
-    layers
-        Name -> ``(tiles_y, tiles_x)`` array; slice order = dict order.
-    image_size
-        (width, height) of the source images.
-    """
-    names = list(layers)
-    if not names:
-        raise ValueError("layers is empty; at least 'disparity' and 'strength' are expected")
-    shapes = {np.shape(layers[n]) for n in names}
-    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
-        raise ValueError(f"all layers must share one 2-D shape, got {sorted(map(str, shapes))}")
-    stack = np.stack([np.asarray(layers[n], dtype=np.float32) for n in names])
-    ty, tx = stack.shape[1:]
-    props: dict[str, Any] = {
-        "VERSION": "1.0",
-        "tileSize": 16,
-        "tileStride": 8,
-        "tilesX": tx,
-        "tilesY": ty,
-        "imageWidth": image_size[0],
-        "imageHeight": image_size[1],
-        "tileCentre": "(8*tx+4, 8*ty+4)",
-        "tileCovers": "8*tx-4 .. 8*tx+11",
-        "bayer": bayer if bayer is not None else "null",
-        "cameraPositions": [list(p) for p in geometry.positions],
-        "pairs": [list(p) for p in geometry.pairs],
-        "disparityConvention": "camera i sees p - D*position_i (D: shift across one side)",
-        "layers": names,
-    }
-    props.update(extra or {})
-    tifffile.imwrite(
-        path, stack, imagej=True, metadata={"Labels": names, "Info": properties_xml(props)}
-    )
-
-
-def read_dsi(path: str | Path) -> tuple[dict[str, F32], dict[str, str]]:
-    """Read a DSI written by :func:`write_dsi`: (layers, properties)."""
-    with tifffile.TiffFile(path) as tif:
-        data = tif.asarray()
-        meta = tif.imagej_metadata or {}
-    labels = meta.get("Labels")
-    if data.ndim == 2:
-        data = data[None]
-    if not labels or len(labels) != data.shape[0]:
-        raise InputFormatError(f"{path}: ImageJ slice labels missing or not one per slice")
-    props = parse_properties(str(meta.get("Info", "")))
-    return {str(n): data[i].astype(np.float32) for i, n in enumerate(labels)}, props
-
-
-def ml_data_name(timestamp: str, *, fat_zero: float, offset: float = 0.0) -> str:
-    """Elphel's ML_DATA file name for a 32-bit hor/vert export."""
-    return f"{timestamp}-ML_DATA-32B-O-FZ{fat_zero:g}-OFFS{offset:g}.tiff"
-
-
-def _combine(a: F32, b: F32, offset: float) -> F32:
-    if offset < 0:
-        out: F32 = (0.5 * (a + b)).astype(np.float32)
-        return out
-    prod = np.maximum(a + offset, 0) * np.maximum(b + offset, 0)
-    res: F32 = (np.sqrt(prod) - offset).astype(np.float32)
-    return res
-
-
-def write_ml_data(
-    path: str | Path,
-    correlations: F32,
-    target: F32,
-    *,
-    ground_truth: F32 | None = None,
-    ground_truth_strength: F32 | None = None,
-    combine_offset: float = 0.1,
-    extra: dict[str, Any] | None = None,
-) -> None:
-    """Write correlation tiles in the ML_DATA layout (32-bit floats, version 1.1).
-
-    Parameters
-    ----------
-    correlations
-        ``(tiles_y, tiles_x, 6, 15, 15)`` pair correlations in native orientation (pairs in
-        the order of ``geometry.PAIRS``).
-    target
-        ``(tiles_y, tiles_x)`` target disparity of the correlations.
-    ground_truth, ground_truth_strength
-        Optional ``(tiles_y, tiles_x)`` truth for training (NaN when absent).
-    combine_offset
-        Offset of the shifted geometric mean combining the two horizontal (vertical) pairs;
-        negative: plain average.
-    """
-    c = np.asarray(correlations, dtype=np.float32)
-    if c.ndim != 5 or c.shape[2] != 6 or c.shape[3:] != (15, 15):
-        raise ValueError(f"correlations must have shape (ty, tx, 6, 15, 15), got {c.shape}")
-    ty, tx = c.shape[:2]
-    centre = c[:, :, :, 7 - ML_HALF : 8 + ML_HALF, 7 - ML_HALF : 8 + ML_HALF]  # (ty, tx, 6, 9, 9)
-    layers = [
-        centre[:, :, 4],
-        centre[:, :, 5],
-        _combine(centre[:, :, 0], centre[:, :, 1], combine_offset),
-        _combine(centre[:, :, 2], centre[:, :, 3], combine_offset),
-    ]
-    other = np.full((ty, tx, 9, 9), np.nan, dtype=np.float32)
-    flat = other.reshape(ty, tx, 81)
-    flat[:, :, ML_OTHER_TARGET] = target
-    if ground_truth is not None:
-        flat[:, :, ML_OTHER_GTRUTH] = ground_truth
-    if ground_truth_strength is not None:
-        flat[:, :, ML_OTHER_GTRUTH_STRENGTH] = ground_truth_strength
-    layers.append(other)
-    side = 2 * ML_HALF + 1
-    images = np.stack([lay.transpose(0, 2, 1, 3).reshape(ty * side, tx * side) for lay in layers])
-    corr = np.stack(layers[:4])
-    props: dict[str, Any] = {
-        "VERSION": "1.1",
-        "tileWidth": side,
-        "ML_OTHER_TARGET": ML_OTHER_TARGET,
-        "ML_OTHER_GTRUTH": ML_OTHER_GTRUTH,
-        "ML_OTHER_GTRUTH_STRENGTH": ML_OTHER_GTRUTH_STRENGTH,
-        "data_min": float(np.nanmin(corr)),
-        "data_max": float(np.nanmax(corr)),
-    }
-    props.update(extra or {})
-    tifffile.imwrite(
-        path,
-        images.astype(np.float32),
-        imagej=True,
-        metadata={"Labels": list(ML_LAYERS), "Info": properties_xml(props)},
-    )
-
-
-def read_ml_data(path: str | Path) -> tuple[F32, F32, dict[str, str]]:
-    """Read an ML_DATA file: correlations ``(ty, tx, 9, 9, 4)``, other ``(ty, tx, 3)``, properties.
-
-    ``other`` holds the target disparity, the ground-truth disparity and its strength.
-    """
-    layers, props = read_dsi(path)
-    side = int(props.get("tileWidth", 2 * ML_HALF + 1))
-    missing = [n for n in ML_LAYERS if n not in layers]
-    if missing:
-        raise InputFormatError(f"{path}: ML_DATA layers missing: {missing}")
-    h, w = layers[ML_LAYERS[0]].shape
-    if h % side or w % side:
-        raise InputFormatError(f"{path}: layer size {w}x{h} is not a multiple of tileWidth={side}")
-    ty, tx = h // side, w // side
-
-    def tiles(img: F32) -> F32:
-        out: F32 = img.reshape(ty, side, tx, side).transpose(0, 2, 1, 3)
-        return out
-
-    corr = np.stack([tiles(layers[n]) for n in ML_LAYERS[:4]], axis=-1)
-    other = tiles(layers["other"]).reshape(ty, tx, side * side)
-    idx = [
-        int(props.get(k, d))
-        for k, d in (
-            ("ML_OTHER_TARGET", 0),
-            ("ML_OTHER_GTRUTH", 2),
-            ("ML_OTHER_GTRUTH_STRENGTH", 4),
-        )
-    ]
-    return corr.astype(np.float32), other[:, :, idx].astype(np.float32), props
+    return np.asarray(data, dtype=np.float32)

@@ -15,15 +15,18 @@ image; the reference transforms the sparse colour planes instead and interpolate
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import tifffile
 from numpy.typing import NDArray
 from scipy import ndimage
 
 from elphel_host.tp.bayer import colour_weights, lattices
 from elphel_host.tp.clt import TILE, clt_tiles, iclt_tiles, overlap_add
 from elphel_host.tp.correlation import lpf_mask
-from elphel_host.tp.geometry import place, tile_centres
-from elphel_host.tp.processor import QuadImages
+from elphel_host.tp.geometry import place_tiles, tile_centres
+from elphel_host.tp.images import QuadImages
 
 F32 = NDArray[np.float32]
 
@@ -80,8 +83,7 @@ def rendered_images(
     out = []
     for cam, (px, py) in enumerate(quad.geometry.positions):
         planes = demosaic(quad.images[cam], quad.bayer)
-        lx, sx = place(cx, d, px)
-        ly, sy = place(cy, d, py)
+        at = place_tiles(cx, cy, d, (px, py))
         colours = []
         for plane in planes:
             padded = np.pad(plane, pad, mode="edge")
@@ -89,9 +91,9 @@ def rendered_images(
             tiles_out = np.empty((ty * tx, TILE, TILE), dtype=np.float32)
             for s in range(0, ty * tx, chunk_tiles):
                 e = min(s + chunk_tiles, ty * tx)
-                yy = np.clip(ly[s:e] + pad, 0, view.shape[0] - 1)
-                xx = np.clip(lx[s:e] + pad, 0, view.shape[1] - 1)
-                c = clt_tiles(view[yy, xx], shift_x=sx[s:e], shift_y=sy[s:e])
+                yy = np.clip(at.top_y[s:e] + pad, 0, view.shape[0] - 1)
+                xx = np.clip(at.left_x[s:e] + pad, 0, view.shape[1] - 1)
+                c = clt_tiles(view[yy, xx], shift_x=at.shift_x[s:e], shift_y=at.shift_y[s:e])
                 tiles_out[s:e] = iclt_tiles(c * lpf)
             colours.append(overlap_add(tiles_out.reshape(ty, tx, TILE, TILE)))
         out.append(np.stack(colours))
@@ -142,3 +144,8 @@ def rgba_texture(
     rgb = np.stack([avg[0], avg[2], avg[1]]) if bayer is not None else np.repeat(avg, 3, axis=0)
     out: F32 = np.concatenate([rgb, alpha[None]]).transpose(1, 2, 0).astype(np.float32)
     return out
+
+
+def write_texture(path: str | Path, rgba: F32) -> None:
+    """Write an RGBA texture from :func:`rgba_texture` as a float32 TIFF (unassociated alpha)."""
+    tifffile.imwrite(path, rgba, photometric="rgb", extrasamples=["unassalpha"])

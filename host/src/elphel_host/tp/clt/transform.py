@@ -1,4 +1,6 @@
-"""Complex lapped transform (CLT) of 16x16 tiles: fold, DCT-IV/DST-IV, inverse, phase rotation.
+"""The CLT itself, tile by tile: window, fold, DCT-IV/DST-IV, inverse, phase rotation.
+
+This is the definition every faster form is checked against.
 
 The transform follows reference/tile-processor.md section 2. A tile of 16x16 samples at
 stride 8 is multiplied by the sine window, folded to 8x8 with the MDCT (cosine) or MDST
@@ -28,6 +30,8 @@ from elphel_host.errors import InputFormatError
 
 N = 8  # DTT size; tiles are 2N x 2N at stride N
 TILE = 2 * N
+#: Angular frequency of index k, rad/pixel: a shift by s rotates coefficient k by s * OMEGA[k].
+OMEGA: NDArray[np.float64] = np.pi * (2 * np.arange(N) + 1) / TILE
 
 FloatArray = NDArray[np.floating]
 ComplexArray = NDArray[np.complexfloating]
@@ -143,7 +147,7 @@ def rotate(
     """
     c = np.asarray(clt)
     batch = c.shape[:-3]
-    k = (2 * np.arange(N) + 1) * np.pi / TILE
+    k = OMEGA
     sx = np.broadcast_to(np.asarray(shift_x, dtype=np.float64), batch)[..., None, None]
     sy = np.broadcast_to(np.asarray(shift_y, dtype=np.float64), batch)[..., None, None]
     ch, sh = np.cos(sx * k[None, :]).astype(c.dtype), np.sin(sx * k[None, :]).astype(c.dtype)

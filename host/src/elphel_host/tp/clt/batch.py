@@ -1,7 +1,9 @@
-"""Fast per-camera colour spectra of shifted tiles, on the frequencies the correlation uses.
+"""The production CLT: every colour of one camera's shifted tiles, batched, on the kept frequencies.
 
-This is the production path of :mod:`elphel_host.tp.correlation`'s lattice transform,
-reorganised for speed; it computes the same numbers (tested against it):
+This is what the tile processor runs. It is the reference lattice transform
+(:mod:`elphel_host.tp.clt.reference`) reorganised for speed and computes the same numbers
+(``tests/host/tp/test_clt_batch.py`` checks it against that and against the tile-by-tile
+definition):
 
 * Only the frequencies that survive the colour filters are computed (red and blue: the
   4x4 lowest, below their lattice's alias band; green: ``kh + kv <= green_band``; mono:
@@ -27,8 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_host.tp.bayer import Lattice, lattices
-from elphel_host.tp.clt import E_COMPLEX, TILE
-from elphel_host.tp.correlation import OMEGA, Profiles
+from elphel_host.tp.clt.transform import E_COMPLEX, OMEGA, TILE
+from elphel_host.tp.geometry import TilePlacement
 
 F32 = NDArray[np.float32]
 C64 = NDArray[np.complex64]
@@ -201,10 +203,7 @@ def padded_mosaic(image: NDArray[np.floating], pad: int, *, bayer: bool) -> F32:
 def camera_spectra(
     flat: F32,
     tr: CameraTransform,
-    left_x: NDArray[np.int64],
-    shift_x: NDArray[np.float64],
-    top_y: NDArray[np.int64],
-    shift_y: NDArray[np.float64],
+    at: TilePlacement,
     *,
     kernels: list[C64] | None = None,
     kernel_index: NDArray[np.intp] | None = None,
@@ -222,11 +221,10 @@ def camera_spectra(
         :func:`padded_mosaic` of the camera.
     tr
         :func:`camera_transform` of the sensor.
-    left_x, top_y
-        ``(T,)`` integer first pixel of each tile window (sensor coordinates).
-    shift_x, shift_y
-        ``(T,)`` residual shifts in [-0.5, 0.5].
+    at
+        Where the camera's tiles lie on the sensor.
     """
+    left_x, shift_x, top_y, shift_y = at.left_x, at.shift_x, at.top_y, at.shift_y
     t = left_x.shape[0]
     nrows = flat.size // tr.row_stride
     lx = np.clip(left_x + tr.pad, 0, tr.row_stride - TILE)
@@ -275,43 +273,6 @@ def camera_spectra(
         z *= phase3[:, :, :n]
         result.append(z)
     return result
-
-
-def pair_products(
-    spectra: list[list[C64]], pairs: tuple[tuple[int, int], ...], fset: FrequencySet
-) -> C64:
-    """Pair products summed over colours (weights already inside): ``(T, pairs, 2, F)``."""
-    t = spectra[0][0].shape[0]
-    conj = [[np.conj(z) for z in cam] for cam in spectra]
-    out = np.empty((t, len(pairs), 2, fset.size), dtype=np.complex64)
-    for p, (a, b) in enumerate(pairs):
-        acc = out[:, p]
-        ncol = len(spectra[a])
-        np.multiply(
-            conj[a][ncol - 1], spectra[b][ncol - 1], out=acc
-        )  # green (or mono): all frequencies
-        box = acc[:, :, : fset.n_box]
-        for c in range(ncol - 1):
-            box += conj[a][c] * spectra[b][c]
-    return out
-
-
-def compact_profiles(full: Profiles, fset: FrequencySet, lpf: NDArray[np.floating]) -> Profiles:
-    """Restrict a :func:`~elphel_host.tp.correlation.profile_basis` to the kept frequencies.
-
-    Rescaled so that a normalised product of 1 at every kept frequency gives 1 at lag 0.
-    """
-    rows = []
-    for which in range(2):
-        for f in range(fset.size):
-            r = ((fset.kh[f] * 2 + which) * 8 + fset.kv[f]) * 2
-            rows.extend([r, r + 1])
-    scale = float(lpf.sum()) / float(lpf[fset.kv, fset.kh].sum())
-    return Profiles(
-        lags=full.lags,
-        deriv_lags=full.deriv_lags,
-        basis=tuple((b[rows] * scale).astype(np.float32) for b in full.basis),
-    )
 
 
 def expand(products: C64, fset: FrequencySet) -> C64:

@@ -1,0 +1,288 @@
+"""One pass of the tile processor over all tiles, at a target disparity per tile.
+
+A pass places every camera's tile at the target disparity, transforms the four cameras
+(:mod:`elphel_host.tp.clt.batch`), correlates the six pairs and measures the residual
+disparity at the correlation maximum (:mod:`elphel_host.tp.correlation`). What does not
+depend on the target (the padded mosaics, the transform plans, the profile basis, the
+kernel spectra) is prepared once per image set and shared by every pass.
+
+Work is split into chunks of tiles (sized to stay in cache) processed by a few threads;
+NumPy and BLAS release the GIL, and BLAS is kept single-threaded meanwhile so the
+threads do not oversubscribe the cores.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_host.parallel import parallel_map, single_threaded_blas
+from elphel_host.tp.bayer import colour_weights
+from elphel_host.tp.clt.batch import (
+    CameraTransform,
+    camera_spectra,
+    camera_transform,
+    expand,
+    padded_mosaic,
+)
+from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
+from elphel_host.tp.correlation import (
+    Profiles,
+    compact_pair_products,
+    compact_profiles,
+    correlation_2d,
+    lpf_mask,
+    normalise,
+    pair_profiles,
+    profile_basis,
+    subpixel_max,
+    window_envelope,
+    windowed_centroid,
+)
+from elphel_host.tp.geometry import place_tiles, tile_centres
+from elphel_host.tp.images import QuadImages
+from elphel_host.tp.kernels import kernel_spectra
+
+F32 = NDArray[np.float32]
+
+#: What :func:`measure` returns, per tile.
+MEASURED = (
+    "residual",
+    "strength",
+    "residual_hor",
+    "strength_hor",
+    "residual_vert",
+    "strength_vert",
+    "residual_diag",
+    "strength_diag",
+    "residual_cm",
+    "levelled",
+)
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedQuad:
+    """What every pass over one image set shares (see :func:`prepare`)."""
+
+    quad: QuadImages
+    config: TpConfig
+    flats: list[F32]
+    transform: CameraTransform
+    centres: tuple[NDArray[np.float64], NDArray[np.float64]]
+    profiles: Profiles
+    pair_vectors: NDArray[np.float64]
+    envelope: NDArray[np.float32]
+    kernels: list[list[NDArray[np.complex64]]] | None = None
+
+
+def colour_masks(bayer: str | None, config: TpConfig) -> NDArray[np.float32]:
+    """Per-colour frequency weights ``(colours, 8, 2, 8)``: colour weight x colour LPF."""
+    w = colour_weights(bayer, red=config.red_weight, blue=config.blue_weight)
+    masks = np.ones((w.size, 8, 2, 8))
+    if bayer is not None:
+        rb = lpf_mask(config.lpf_sigma_rb)  # [kv][kh]
+        rb = (rb / rb[0, 0]).T[:, None, :]
+        masks[0] *= rb
+        masks[1] *= rb
+        k = np.arange(8)
+        masks[2] *= ((k[:, None] + k[None, :]) <= config.green_band)[:, None, :]
+    out: NDArray[np.float32] = (w[:, None, None, None] * masks).astype(np.float32)
+    return out
+
+
+def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad:
+    """Prepare an image set for passes whose tiles move at most ``reach_px`` pixels."""
+    pad = 2 * math.ceil((reach_px + 16) / 2)  # even: keeps the Bayer parity
+    w = quad.images.shape[2] + 2 * pad
+    transform = camera_transform(
+        quad.bayer,
+        colour_masks(quad.bayer, config),
+        green_band=config.green_band,
+        pad=pad,
+        row_stride=w,
+    )
+    flats = [padded_mosaic(img, pad, bayer=quad.bayer is not None) for img in quad.images]
+    ty, tx = quad.tiles
+    lags = np.arange(-config.radius, config.radius + 1, dtype=np.float64)
+    vectors = quad.geometry.pair_vectors()
+    full = profile_basis(vectors, lags, lpf_sigma=config.lpf_sigma)
+    return PreparedQuad(
+        quad=quad,
+        config=config,
+        flats=flats,
+        transform=transform,
+        centres=tile_centres(ty, tx),
+        profiles=compact_profiles(full, transform.fset, lpf_mask(config.lpf_sigma)),
+        pair_vectors=vectors,
+        envelope=np.maximum(window_envelope(lags, vectors), 0.05).astype(np.float32),
+        kernels=None
+        if quad.kernels is None
+        else [
+            [
+                kernel_spectra(
+                    quad.kernels[cam, c].reshape(-1, 15, 15), transform.fset.kh, transform.fset.kv
+                )
+                for c in range(quad.kernels.shape[1])
+            ]
+            for cam in range(4)
+        ],
+    )
+
+
+def _kernel_index(
+    quad: QuadImages, cx: NDArray[np.float64], cy: NDArray[np.float64]
+) -> NDArray[np.intp]:
+    """Nearest kernel of the grid to each tile centre on the sensor."""
+    assert quad.kernels is not None
+    ky, kx = quad.kernels.shape[2:4]
+    step = quad.kernel_step
+    ix = np.clip(np.floor(cx / step).astype(np.intp), 0, kx - 1)
+    iy = np.clip(np.floor(cy / step).astype(np.intp), 0, ky - 1)
+    out: NDArray[np.intp] = iy * kx + ix
+    return out
+
+
+def _products(
+    prep: PreparedQuad, tiles: NDArray[np.intp], target: NDArray[np.float64]
+) -> NDArray[np.complex64]:
+    """Normalised pair products of some tiles at their targets: ``(T, pairs, 2, F)``."""
+    quad = prep.quad
+    cy = prep.centres[0].ravel()[tiles]
+    cx = prep.centres[1].ravel()[tiles]
+    per_camera = []
+    for cam, (px, py) in enumerate(quad.geometry.positions):
+        at = place_tiles(cx, cy, target, (px, py))
+        if prep.kernels is None:
+            per_camera.append(camera_spectra(prep.flats[cam], prep.transform, at))
+        else:
+            index = _kernel_index(quad, cx - target * px, cy - target * py)
+            per_camera.append(
+                camera_spectra(
+                    prep.flats[cam],
+                    prep.transform,
+                    at,
+                    kernels=prep.kernels[cam],
+                    kernel_index=index,
+                )
+            )
+    p = compact_pair_products(per_camera, quad.geometry.pairs, prep.transform.fset)
+    return normalise(p, prep.config.fat_zero)
+
+
+def _measure_chunk(
+    prep: PreparedQuad, tiles: NDArray[np.intp], target: NDArray[np.float64], full: bool
+) -> dict[str, F32]:
+    config = prep.config
+    p = _products(prep, tiles, target)
+    prof = pair_profiles(p, prep.profiles)  # (T, pairs, lags)
+    groups = {"": list(config.pairs)}
+    if full:
+        groups.update({"_hor": [0, 1], "_vert": [2, 3], "_diag": [4, 5]})
+    out: dict[str, F32] = {}
+    for suffix, members in groups.items():
+        combined = prof[:, members].mean(axis=1)
+        nl = prep.profiles.lags.size
+        levelled = (prof[:, members, :nl] / prep.envelope[members]).mean(axis=1)
+        pos, val, idx = subpixel_max(
+            combined, prep.profiles, lag_min=config.min_disparity - target, select=levelled
+        )
+        out["residual" + suffix] = pos
+        out["strength" + suffix] = val
+        if suffix == "":
+            out["residual_cm"] = windowed_centroid(combined, prep.profiles, idx)
+            out["levelled"] = levelled
+    return out
+
+
+def _checked_target(quad: QuadImages, target: NDArray[np.floating]) -> NDArray[np.float64]:
+    tgt = np.asarray(target, dtype=np.float64)
+    if tgt.shape != quad.tiles:
+        raise ValueError(f"target must have shape {quad.tiles}, got {tgt.shape}")
+    return tgt
+
+
+def _in_chunks(fn: Callable[[NDArray[np.intp]], None], n: int, config: TpConfig) -> None:
+    """``fn(tile indices)`` over chunks of ``config.chunk_tiles`` on ``config.threads``."""
+    size = config.chunk_tiles
+    bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
+    with single_threaded_blas():
+        parallel_map(lambda b: fn(np.arange(b[0], b[1])), bounds, threads=config.threads)
+
+
+def measure(
+    quad: QuadImages,
+    target: NDArray[np.floating],
+    *,
+    config: TpConfig = DEFAULT_CONFIG,
+    prep: PreparedQuad | None = None,
+    full: bool = True,
+) -> dict[str, F32]:
+    """One pass: residual disparities and strengths of all tiles at a target disparity.
+
+    Parameters
+    ----------
+    quad
+        The images.
+    target
+        ``(tiles_y, tiles_x)`` target disparity per tile.
+    config
+        Options.
+    prep
+        :func:`prepare` of ``quad`` and ``config`` (built when None).
+    full
+        False: only the combined result (the per-direction layers are NaN), as a
+        first pass that only sets the next target needs.
+
+    Returns
+    -------
+    dict
+        ``residual``, ``strength`` and the same with suffixes ``_hor``, ``_vert``,
+        ``_diag``, plus ``residual_cm`` (windowed centroid), each ``(tiles_y, tiles_x)``,
+        and ``levelled``: ``(tiles_y, tiles_x, lags)`` combined correlation divided by the
+        window-overlap envelope (lags below ``min_disparity`` at -inf).
+        The disparity is ``target + residual``.
+    """
+    ty, tx = quad.tiles
+    tgt = _checked_target(quad, target)
+    if prep is None:
+        prep = prepare(quad, config, float(np.abs(tgt).max()) + config.radius)
+    flat = tgt.ravel()
+    n = flat.size
+    nl = prep.profiles.lags.size
+    result = {k: np.empty((n, nl) if k == "levelled" else n, dtype=np.float32) for k in MEASURED}
+
+    def run(idx: NDArray[np.intp]) -> None:
+        part = _measure_chunk(prep, idx, flat[idx], full)
+        for k in MEASURED:
+            result[k][idx[0] : idx[-1] + 1] = part.get(k, np.float32(np.nan))
+
+    _in_chunks(run, n, prep.config)
+    return {k: v.reshape(ty, tx, *v.shape[1:]) for k, v in result.items()}
+
+
+def correlation_tiles(
+    quad: QuadImages,
+    target: NDArray[np.floating],
+    *,
+    config: TpConfig = DEFAULT_CONFIG,
+    radius: int = 7,
+) -> F32:
+    """Pixel-domain correlation tiles of all pairs: ``(tiles_y, tiles_x, pairs, 2r+1, 2r+1)``."""
+    ty, tx = quad.tiles
+    tgt = _checked_target(quad, target)
+    prep = prepare(quad, config, float(np.abs(tgt).max()) + config.radius)
+    flat = tgt.ravel()
+    n = flat.size
+    npairs = len(quad.geometry.pairs)
+    out = np.empty((n, npairs, 2 * radius + 1, 2 * radius + 1), dtype=np.float32)
+
+    def run(idx: NDArray[np.intp]) -> None:
+        p = expand(_products(prep, idx, flat[idx]), prep.transform.fset)
+        out[idx[0] : idx[-1] + 1] = correlation_2d(p, lpf_sigma=config.lpf_sigma, radius=radius)
+
+    _in_chunks(run, n, config)
+    return out.reshape(ty, tx, npairs, 2 * radius + 1, 2 * radius + 1)
