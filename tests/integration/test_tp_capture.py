@@ -25,7 +25,7 @@ from elphel_sim.board import SimBoard
 from elphel_sim.launcher import bind_loopback
 from elphel_sim.scenarios import build
 
-from .conftest import run_cli, start_rig, stop_rig
+from .rig import run_cli, start_rig, stop_rig
 
 TRIGGER = ("TRIG", "TRIG_PERIOD", "TRIG_MASTER", "TRIG_DELAY", "TRIG_DECIMATE")
 
