@@ -43,8 +43,8 @@ SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
 }
 
 
-class SimBoard:
-    """A simulated board serving a scenario's world.
+class SimCameraBoard:
+    """A simulated camera board serving a scenario's world.
 
     Parameters
     ----------
@@ -346,8 +346,14 @@ class SimBoard:
             self._clock = None
 
 
-def make_sim_board(*, scenario: str = "default", seed: int = 0, noise: bool = True) -> SimBoard:
+# Deprecated alias: the camera board's old name (it collided with the ESP8266's board).
+SimBoard = SimCameraBoard
+
+
+def make_sim_board(
+    *, scenario: str = "default", seed: int = 0, noise: bool = True
+) -> SimCameraBoard:
     """Entry point for ``elphel-camd --board sim`` (options from ``--config``)."""
-    board = SimBoard(build(scenario, seed=seed), seed=seed, noise=noise)
+    board = SimCameraBoard(build(scenario, seed=seed), seed=seed, noise=noise)
     board.start_clock()
     return board

@@ -20,7 +20,7 @@ from elphel_camd.board import Camera
 from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.demo import DISTANCE_MM, FRAMES, SCALE, comparison_picture, reference_image
 from elphel_sim.scenarios import build
 
@@ -32,7 +32,7 @@ START_MM = 40.0
 
 @pytest.fixture(scope="module")
 def sim_burst() -> tuple[list[np.ndarray], dict[str, Any], np.ndarray]:
-    board = SimBoard(build("default", seed=SEED), seed=SEED, noise=True)
+    board = SimCameraBoard(build("default", seed=SEED), seed=SEED, noise=True)
     camera = Camera(board)
     target = camera.set_params(0, WINDOW)
     while camera.capture(0)[0].frame < target:
