@@ -1,7 +1,7 @@
-"""The camera board's FPGA: frame timing, the common trigger, and image formation.
+"""The camera board's FPGA: frame timing, the common trigger, and the frames it records.
 
-The FPGA asks each port's simulated chip (`elphel_sim.chips.SimSensor`) for its timing
-and how it reads out a frame; the chip model knows its own registers.
+The FPGA asks each port's simulated chip (`elphel_sim.chips.SimSensor`) for its timing;
+the chip model knows its own registers and when a write reaches the image.
 
 Each port's frame starts are events on one virtual timeline. In free-run a port starts its
 next frame one frame period (set by its sensor's registers in effect) after the last; in
@@ -10,7 +10,8 @@ own delay, on every (decimate + 1)-th trigger, once the sensor is ready again; a
 timestamp is then the trigger time, the same on every port. In photo-finish a frame is a
 composite of strips, each strip one sensor frame. At each frame start the sensor latches
 the register writes due, and the frame is recorded with the register state in effect; its
-image is formed from that record only when someone asks for it (ring buffer, lazily).
+image is formed from that record (by the chip and the renderer, `elphel_sim.render`) only
+when someone asks for it (ring buffer, lazily).
 """
 
 from __future__ import annotations
@@ -22,14 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_sim.render import (
-    Intrinsics,
-    SensorModel,
-    bayer_channels,
-    expose,
-    render_strips,
-)
-from elphel_sim.world import Pose, World
+from elphel_sim.world import FloatArray, Pose
 
 RING_FRAMES = 64
 CAMSYNC_HZ = 100_000_000  # TRIG_PERIOD and TRIG_DELAY count 10 ns ticks
@@ -74,6 +68,14 @@ class FrameRecord:
     strip_period_s: float
     image: NDArray[np.uint16] | None = None
 
+    def strip_times_s(self) -> FloatArray:
+        """Start time of each strip of the frame (one entry for a normal frame)."""
+        strips = max(self.strips, 1)
+        times: FloatArray = self.start_s + self.strip_period_s * np.arange(
+            strips, dtype=np.float64
+        )
+        return times
+
 
 @dataclass
 class PortFPGA:
@@ -90,50 +92,3 @@ class PortFPGA:
     next_timestamp_s: float = 0.0
     pending: list[tuple[int, str, int]] = field(default_factory=list)
     ring: deque[FrameRecord] = field(default_factory=lambda: deque(maxlen=RING_FRAMES))
-
-
-@dataclass(frozen=True)
-class Readout:
-    """How a Bayer sensor reads a frame, decoded from its registers in effect."""
-
-    left: int
-    top: int
-    width: int
-    height: int
-    exposure_us: float
-    gains: tuple[float, float, float, float]  # red, green on red rows, green on blue rows, blue
-    fliph: bool
-    flipv: bool
-    bayer: str  # the array's colour cell at even rows and columns
-
-
-def form_bayer_image(
-    readout: Readout,
-    record: FrameRecord,
-    world: World,
-    *,
-    intrinsics: Intrinsics,
-    model: SensorModel,
-    rng: np.random.Generator | None,
-) -> NDArray[np.uint16]:
-    """Render a recorded frame of a Bayer sensor: window, exposure, gains, flips, strips."""
-    left, top = readout.left, readout.top
-    width = min(readout.width, intrinsics.width - left)
-    height = min(readout.height, intrinsics.height - top)
-    strips = max(record.strips, 1)
-    times = record.start_s + record.strip_period_s * np.arange(strips, dtype=np.float64)
-    rgb = render_strips(
-        world, intrinsics, record.pose, window=(left, top, width, height), times_s=times
-    )
-    channels = bayer_channels(readout.bayer, (height, width), row0=top, col0=left)
-    red, green_r, green_b, blue = readout.gains
-    gain = np.array([red, green_r, blue])[channels]
-    rows_with_blue = (channels == 2).any(axis=1)
-    gain[(channels == 1) & rows_with_blue[:, None]] = green_b
-    radiance = np.take_along_axis(rgb, channels[None, ..., None], axis=3)[..., 0]
-    image = expose(radiance, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
-    if readout.fliph:
-        image = image[:, :, ::-1]
-    if readout.flipv:
-        image = image[:, ::-1, :]
-    return np.ascontiguousarray(image.reshape(strips * height, width))

@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from elphel_camd.sensors import mt9f002 as spec
 from elphel_sim.chips.registers import SimLatchedChip
 from elphel_sim.chips.sensor import SensorTiming
-from elphel_sim.fpga import FrameRecord, Readout, form_bayer_image
-from elphel_sim.render import Intrinsics, SensorModel
+from elphel_sim.fpga import FrameRecord
+from elphel_sim.render import Intrinsics, Readout, SensorModel, form_bayer_image
 from elphel_sim.world import World
 
 _COLOUR_GAINS = ("green1_gain", "blue_gain", "red_gain", "green2_gain")
