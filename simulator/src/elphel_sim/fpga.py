@@ -18,15 +18,22 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
 from elphel_sim.world import FloatArray, Pose
+
+if TYPE_CHECKING:
+    from elphel_sim.chips.sensor import SensorTiming
 
 RING_FRAMES = 64
 CAMSYNC_HZ = 100_000_000  # TRIG_PERIOD and TRIG_DELAY count 10 ns ticks
+CAMSYNC = "camsync"  # a pending setting of the common trigger generator (its period)
 
 
 @dataclass
@@ -77,14 +84,25 @@ class FrameRecord:
         return times
 
 
-@dataclass
-class PortFPGA:
-    """Per-port FPGA settings (programmed by the daemon through the board) and frame state."""
+@dataclass(frozen=True)
+class PortSettings:
+    """A port's FPGA settings, as programmed by the daemon through the board."""
 
-    snapshot: bool = False
+    snapshot: bool = False  # start frames on the common trigger
     delay_10ns: int = 0
     decimate: int = 0
-    pf_strips: int = 0
+    pf_strips: int = 0  # photo-finish strips per composite frame (0: normal frames)
+
+
+@dataclass
+class PortFPGA:
+    """One port's frame clock: its settings in effect, pending settings and recent frames.
+
+    A setting programmed for frame N is pending until frame N starts (per-register
+    latency); `apply_due` puts the due ones in effect at each frame start.
+    """
+
+    settings: PortSettings = field(default_factory=PortSettings)
     frame: int = 0
     last_start_s: float = 0.0
     busy_until_s: float = 0.0
@@ -92,3 +110,80 @@ class PortFPGA:
     next_timestamp_s: float = 0.0
     pending: list[tuple[int, str, int]] = field(default_factory=list)
     ring: deque[FrameRecord] = field(default_factory=lambda: deque(maxlen=RING_FRAMES))
+
+    def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
+        """Queue the FPGA side of a parameter function of port ``port`` for its target frame.
+
+        The port whose number is TRIG_MASTER also programs the common trigger's period.
+        """
+        target = state.get("FRAME", 0)
+        if function == TRIGSEQ:
+            self.pending.append((target, "delay_10ns", state["TRIG_DELAY"]))
+            self.pending.append((target, "decimate", state["TRIG_DECIMATE"]))
+            if port == state["TRIG_MASTER"]:
+                self.pending.append((target, CAMSYNC, state["TRIG_PERIOD"]))
+        elif function == TRIGGERMODE:
+            self.pending.append((target, "snapshot", int(bool(state["TRIG"] & TRIG_SNAPSHOT))))
+        elif function == WINDOW:
+            pf = state["PF_HEIGHT"]
+            self.pending.append((target, "pf_strips", state["WOI_HEIGHT"] // pf if pf else 0))
+
+    def apply_due(self) -> list[int]:
+        """Put the settings due by the current frame in effect.
+
+        Returns the trigger periods (10 ns) due for the common trigger generator, in the
+        order they were programmed; the board programs them (they concern every port).
+        """
+        due = [p for p in self.pending if p[0] <= self.frame]
+        self.pending = [p for p in self.pending if p[0] > self.frame]
+        periods = []
+        for _, key, value in due:
+            if key == CAMSYNC:
+                periods.append(value)
+            else:
+                change: dict[str, Any] = {key: bool(value) if key == "snapshot" else value}
+                self.settings = replace(self.settings, **change)
+        return periods
+
+    def schedule_next(
+        self, timing: SensorTiming, *, sensor_snapshot: bool, camsync: Camsync, now_s: float
+    ) -> None:
+        """When the next frame starts, from the sensor's timing and the settings in effect."""
+        settings = self.settings
+        strips = max(settings.pf_strips, 1)
+        if settings.snapshot and sensor_snapshot:
+            every = settings.decimate + 1
+            ready = max(self.busy_until_s, now_s if self.frame else 0.0)
+            delay_s = settings.delay_10ns / 1e8
+            trigger = camsync.next_trigger(ready - delay_s, every=every)
+            if trigger is None:
+                self.next_start_s = math.inf
+            else:
+                self.next_start_s = trigger + delay_s
+                self.next_timestamp_s = trigger
+        else:
+            start = self.last_start_s + timing.frame_s * strips if self.frame else 0.0
+            self.next_start_s = start
+            self.next_timestamp_s = start
+
+    def start_frame(self) -> float:
+        """The next frame starts: count it and return its start time."""
+        self.frame += 1
+        self.last_start_s = self.next_start_s
+        return self.last_start_s
+
+    def strip_period_s(
+        self, timing: SensorTiming, *, sensor_snapshot: bool, camsync: Camsync
+    ) -> float:
+        """Time between the strips of the frame just started (a frame period if free-run).
+
+        Also marks the sensor busy until the frame's last strip is read out.
+        """
+        settings = self.settings
+        strips = settings.pf_strips
+        if strips and settings.snapshot and sensor_snapshot and camsync.period_10ns > 1:
+            period_s = camsync.period_10ns * (settings.decimate + 1) / 1e8
+        else:
+            period_s = timing.frame_s
+        self.busy_until_s = self.last_start_s + timing.busy_s + period_s * max(strips - 1, 0)
+        return period_s
