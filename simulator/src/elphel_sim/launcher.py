@@ -26,7 +26,8 @@ from elphel_camd.api import create_app
 from elphel_camd.board import Camera
 from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_sim.board import SimCameraBoard
-from elphel_sim.quad import QuadScene, TileTruth, tile_truth
+from elphel_sim.quad import QuadScene
+from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
 
