@@ -20,7 +20,7 @@ from elphel_camd.sensors import mt9p006 as spec
 from elphel_sim.chips.registers import SimLatchedChip
 from elphel_sim.chips.sensor import SensorTiming
 from elphel_sim.fpga import FrameRecord
-from elphel_sim.render import Intrinsics, Readout, SensorModel, form_bayer_image
+from elphel_sim.render import Intrinsics, Readout, SensorModel, read_out, render_strips
 from elphel_sim.world import World
 
 _COLOUR_GAINS = ("green1_gain", "blue_gain", "red_gain", "green2_gain")
@@ -110,4 +110,6 @@ class SimMT9P006(SimLatchedChip):
             flipv=bool(r["read_mode_2"] >> 15 & 1),
             bayer=spec.BAYER,
         )
-        return form_bayer_image(readout, record, world, intrinsics=intrinsics, model=model, rng=rng)
+        window, times = readout.window_on(intrinsics), record.strip_times_s()
+        rgb = render_strips(world, intrinsics, record.pose, window=window, times_s=times)
+        return read_out(rgb, readout, model=model, rng=rng)

@@ -15,8 +15,8 @@ from elphel_sim.render.sensor import (
     SensorModel,
     bayer_channels,
     expose,
-    form_bayer_image,
     mosaic,
+    read_out,
 )
 
 __all__ = [
@@ -27,8 +27,8 @@ __all__ = [
     "Window",
     "bayer_channels",
     "expose",
-    "form_bayer_image",
     "mosaic",
+    "read_out",
     "render_radiance",
     "render_strips",
 ]

@@ -2,24 +2,20 @@
 
 `expose` turns radiance into DN through a `SensorModel` (shot and read noise from a
 seeded generator, clipping to the ADC's range); `mosaic` and `bayer_channels` sample
-colour through a Bayer filter; `form_bayer_image` forms the image of a recorded frame of
-a Bayer sensor from its `Readout` (the window, exposure, gains and flips decoded from the
+colour through a Bayer filter; `read_out` forms a Bayer sensor's image from the radiance
+of its window and its `Readout` (the window, exposure, gains and flips decoded from the
 registers in effect), strip by strip for photo-finish.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_sim.render.radiance import Intrinsics, render_strips
-from elphel_sim.world import FloatArray, World
-
-if TYPE_CHECKING:
-    from elphel_sim.fpga import FrameRecord
+from elphel_sim.render.radiance import Intrinsics, Window
+from elphel_sim.world import FloatArray
 
 BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 _CHANNEL = {"R": 0, "G": 1, "B": 2}
@@ -133,32 +129,44 @@ class Readout:
     flipv: bool
     bayer: str  # the array's colour cell at even rows and columns
 
+    def window_on(self, intrinsics: Intrinsics) -> Window:
+        """The window read out, as far as it lies on the sensor's array."""
+        width = min(self.width, intrinsics.width - self.left)
+        height = min(self.height, intrinsics.height - self.top)
+        return (self.left, self.top, width, height)
 
-def form_bayer_image(
-    readout: Readout,
-    record: FrameRecord,
-    world: World,
-    *,
-    intrinsics: Intrinsics,
-    model: SensorModel,
-    rng: np.random.Generator | None,
+
+def read_out(
+    radiance: FloatArray, readout: Readout, *, model: SensorModel, rng: np.random.Generator | None
 ) -> NDArray[np.uint16]:
-    """Render a recorded frame of a Bayer sensor: window, exposure, gains, flips, strips."""
-    left, top = readout.left, readout.top
-    width = min(readout.width, intrinsics.width - left)
-    height = min(readout.height, intrinsics.height - top)
-    times = record.strip_times_s()
-    strips = len(times)
-    rgb = render_strips(
-        world, intrinsics, record.pose, window=(left, top, width, height), times_s=times
-    )
-    channels = bayer_channels(readout.bayer, (height, width), row0=top, col0=left)
+    """Read radiance out as a Bayer sensor does: colour filter, gains, exposure, flips.
+
+    Parameters
+    ----------
+    radiance
+        ``(strips, height, width, 3)`` linear RGB radiance of the window read out
+        (`render_strips` of ``readout.window_on(intrinsics)``), one entry per strip.
+    readout
+        The window's origin on the array (it sets the Bayer phase), the exposure, the
+        per-colour gains, the flips and the colour filter.
+    model
+        The sensor's conversion to DN.
+    rng
+        Source of shot and read noise; None renders the noise-free expectation.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint16, ``(strips * height, width)``: the strips one below the other.
+    """
+    strips, height, width = radiance.shape[:3]
+    channels = bayer_channels(readout.bayer, (height, width), row0=readout.top, col0=readout.left)
     red, green_r, green_b, blue = readout.gains
     gain = np.array([red, green_r, blue])[channels]
     rows_with_blue = (channels == 2).any(axis=1)
     gain[(channels == 1) & rows_with_blue[:, None]] = green_b
-    radiance = np.take_along_axis(rgb, channels[None, ..., None], axis=3)[..., 0]
-    image = expose(radiance, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
+    raw = np.take_along_axis(radiance, channels[None, ..., None], axis=3)[..., 0]
+    image = expose(raw, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
     if readout.fliph:
         image = image[:, :, ::-1]
     if readout.flipv:
