@@ -2,7 +2,7 @@
 
 A quad rig is four identical pinhole cameras (:mod:`elphel_sim.render`) on a square of
 side ``baseline_mm``, all looking along +z with parallel axes, camera i at
-``baseline * position_i`` (+x right, +y down, DESIGN 4.4). A point at depth Z then appears
+``baseline * position_i`` (+x right, +y down, as quad.json positions). A point at depth Z then appears
 in camera i at ``p - D * position_i`` with ``D = f B / (Z pitch)`` pixels, p its position
 in a virtual camera at the centre. Because the renderer integrates band-limited textures
 over each pixel's footprint, every camera's image is sub-pixel exact, so the disparity
