@@ -204,7 +204,7 @@ class SimStage:
 
     # ---- truth and faults ---------------------------------------------------------
     def sim_state(self) -> dict[str, Any]:
-        """The simulator's truth: carriage position and mechanics (DESIGN 4.1 /stage)."""
+        """The simulator's truth: carriage position and mechanics (`GET {sim_url}/stage`)."""
         m = self.mech
         return {
             "true_mm": float(m.carriage_mm),
