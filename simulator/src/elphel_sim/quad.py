@@ -2,13 +2,14 @@
 
 A quad rig is four identical pinhole cameras (:mod:`elphel_sim.render`) on a square of
 side ``baseline_mm``, all looking along +z with parallel axes, camera i at
-``baseline * position_i`` (+x right, +y down, as quad.json positions). A point at depth Z then appears
-in camera i at ``p - D * position_i`` with ``D = f B / (Z pitch)`` pixels, p its position
-in a virtual camera at the centre. Because the renderer integrates band-limited textures
-over each pixel's footprint, every camera's image is sub-pixel exact, so the disparity
-of every plane is known without error; :func:`elphel_sim.quad_truth.tile_truth`
-ray-casts the tile centres of the virtual centre camera to give the true disparity per
-tile, and :mod:`elphel_sim.aberrations` adds a space-variant blur when asked.
+``baseline * position_i`` (+x right, +y down, as quad.json positions). A point at depth
+Z then appears in camera i at ``p - D * position_i`` with ``D = f B / (Z pitch)`` pixels,
+p its position in a virtual camera at the centre. Because the renderer integrates
+band-limited textures over each pixel's footprint, every camera's image is sub-pixel
+exact, so the disparity of every plane is known without error;
+:func:`elphel_sim.quad_truth.tile_truth` ray-casts the tile centres of the virtual centre
+camera to give the true disparity per tile, and :mod:`elphel_sim.aberrations` adds a
+space-variant blur when asked.
 
 The standard scene (:func:`standard_scene`) has a far background (D = 0), fronto-parallel
 rectangles at chosen disparities, a slanted rectangle (disparity varying linearly across
