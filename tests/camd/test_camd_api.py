@@ -14,7 +14,7 @@ from elphel_camd.api import create_app
 from elphel_camd.params import PARAMS
 from elphel_camd.service import CameraService
 from elphel_camd.store import ParamStore, last_journal_line
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import PortSpec, build
 
 TOKEN = "test-token"
@@ -22,15 +22,15 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 SMALL = {"WOI_WIDTH": 64, "WOI_HEIGHT": 48, "WOI_LEFT": 1200, "WOI_TOP": 900}
 
 
-def two_port_board() -> SimBoard:
+def two_port_board() -> SimCameraBoard:
     scenario = build("default", seed=3)
     scenario.ports.append(PortSpec("MT9P006", "cam0", scenario.ports[0].intrinsics))
-    return SimBoard(scenario, seed=3)
+    return SimCameraBoard(scenario, seed=3)
 
 
 @pytest.fixture
 def board():
-    return SimBoard(build("default", seed=1), seed=1)
+    return SimCameraBoard(build("default", seed=1), seed=1)
 
 
 @pytest.fixture
@@ -51,7 +51,7 @@ def client(camera):
 @pytest.fixture(scope="module")
 def shared_client(tmp_path_factory):
     """One camera for the tests that must leave it unchanged."""
-    board = SimBoard(build("default", seed=1), seed=1)
+    board = SimCameraBoard(build("default", seed=1), seed=1)
     cam = CameraService(board, store=ParamStore(tmp_path_factory.mktemp("params")))
     cam.set_params(0, SMALL)
     board.sim_advance(frames=4)
@@ -151,12 +151,12 @@ def test_patch_persists_every_accepted_change(client, tmp_path):
 
 def test_saved_parameters_are_restored_at_start(tmp_path):
     store = ParamStore(tmp_path / "params")
-    first = CameraService(SimBoard(build("default", seed=1), seed=1), store=store)
+    first = CameraService(SimCameraBoard(build("default", seed=1), seed=1), store=store)
     first.set_params(0, {**SMALL, "EXPOS": 4321, "FLIPH": 1})
     expected = first.params(0, frame=first.sequencer(0).this_frame + 14)
     first.close()
     second = CameraService(
-        SimBoard(build("default", seed=1), seed=1), store=ParamStore(tmp_path / "params")
+        SimCameraBoard(build("default", seed=1), seed=1), store=ParamStore(tmp_path / "params")
     )
     got = second.params(0)
     second.close()

@@ -18,7 +18,7 @@ from schemathesis.checks import (
 
 from elphel_camd.api import create_app
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import build
 
 TOKEN = "fuzz-token"
@@ -27,7 +27,7 @@ SMALL = {"WOI_WIDTH": 64, "WOI_HEIGHT": 48, "WOI_LEFT": 1200, "WOI_TOP": 900}
 
 def fresh_app():
     # A fresh camera per operation: a small window keeps the simulated renders quick.
-    camera = CameraService(SimBoard(build("default", seed=2), seed=2, noise=False))
+    camera = CameraService(SimCameraBoard(build("default", seed=2), seed=2, noise=False))
     camera.set_params(0, SMALL)
     camera.board.sim_advance(frames=4)
     return create_app(camera, token=TOKEN)

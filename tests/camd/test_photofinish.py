@@ -7,7 +7,7 @@ import pytest
 
 from elphel_camd.errors import ParameterRangeError
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import LAB_LIGHT, PortSpec, Scenario, mt9p006_intrinsics
 from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 
@@ -33,7 +33,7 @@ def world() -> World:
 def rig():
     intrinsics = mt9p006_intrinsics(4.5)
     scenario = Scenario(world(), [PortSpec("MT9P006", "cam0", intrinsics, LAB_LIGHT)])
-    board = SimBoard(scenario, noise=False)
+    board = SimCameraBoard(scenario, noise=False)
     cam = CameraService(board)
     params = {
         "WOI_LEFT": LEFT,
@@ -97,7 +97,7 @@ def test_object_appears_where_its_crossing_time_says(rig):
 
 def test_photofinish_limits():
     scenario = Scenario(world(), [PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5))])
-    cam = CameraService(SimBoard(scenario))
+    cam = CameraService(SimCameraBoard(scenario))
     with pytest.raises(ParameterRangeError, match="multiple of PF_HEIGHT"):
         cam.set_params(0, {"PF_HEIGHT": 4, "WOI_HEIGHT": 1002})
     with pytest.raises(ParameterRangeError, match="16384"):

@@ -11,7 +11,7 @@ from elphel_camd.errors import (
     UnsupportedError,
 )
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import build
 
 SMALL = {"WOI_LEFT": 1000, "WOI_TOP": 800, "WOI_WIDTH": 128, "WOI_HEIGHT": 96, "EXPOS": 4000}
@@ -20,7 +20,7 @@ SMALL = {"WOI_LEFT": 1000, "WOI_TOP": 800, "WOI_WIDTH": 128, "WOI_HEIGHT": 96, "
 def camera(noise=True, ports=1):
     scenario = build("default", seed=3)
     scenario.ports = scenario.ports * ports
-    board = SimBoard(scenario, seed=3, noise=noise)
+    board = SimCameraBoard(scenario, seed=3, noise=noise)
     return board, CameraService(board)
 
 
@@ -278,7 +278,7 @@ def test_daemon_survives_stuck_bus_during_frames():
 
 
 def test_unsupported_on_bare_i2c_board():
-    class NoFpga(SimBoard):
+    class NoFpga(SimCameraBoard):
         capabilities = frozenset({"frames", "capture"})
 
     cam = CameraService(NoFpga(build("default", seed=0)))

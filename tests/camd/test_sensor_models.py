@@ -18,7 +18,7 @@ from elphel_camd.i2c import RegisterIO
 from elphel_camd.sensors import MT9F002, Lepton35, cci
 from elphel_camd.sensors import mt9f002 as f002
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.lepton35 import SimLepton35
 from elphel_sim.scenarios import Scenario, build
@@ -36,7 +36,7 @@ def camera(noise=True):
     # A fresh rig and clock each time, sharing the scene (and its filtered textures).
     rig = _MIXED.world.rig
     world = World(_MIXED.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
-    board = SimBoard(Scenario(world, list(_MIXED.ports)), seed=3, noise=noise)
+    board = SimCameraBoard(Scenario(world, list(_MIXED.ports)), seed=3, noise=noise)
     return board, CameraService(board)
 
 

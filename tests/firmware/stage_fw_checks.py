@@ -147,13 +147,20 @@ def check_mean():
     assert cd.mean_um([0, 0]) == 0 and cd.mean_um([-10, 10]) == 0
 
 
+# Every check, in the order run_all() runs them; the tests take one test per entry.
+CHECKS = (
+    check_mean,
+    check_bin6,
+    check_sylvac48,
+    check_bcd7,
+    check_igaging21,
+    check_digimatic,
+    check_formats,
+    check_ramp,
+    check_protocol,
+)
+
+
 def run_all():
-    check_mean()
-    check_bin6()
-    check_sylvac48()
-    check_bcd7()
-    check_igaging21()
-    check_digimatic()
-    check_formats()
-    check_ramp()
-    check_protocol()
+    for check in CHECKS:
+        check()

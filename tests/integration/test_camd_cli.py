@@ -13,7 +13,7 @@ import tifffile
 
 from elphel_host.camera import CameraClient, CameraHTTPError
 
-from .conftest import run_cli
+from .rig import run_cli
 
 WINDOW = {"WOI_WIDTH": 96, "WOI_HEIGHT": 64, "WOI_LEFT": 1200, "WOI_TOP": 900}
 # A 150 ms exposure makes frames long: the ring buffer (64 frames) then spans 10 s, time

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from .conftest import run_cli, start_rig, stop_rig
+from .rig import run_cli, start_rig, stop_rig
 
 
 @pytest.fixture(scope="module")

@@ -21,11 +21,11 @@ from elphel_camd.api import create_app
 from elphel_camd.service import CameraService
 from elphel_host.camera import CameraClient
 from elphel_host.tp.io import read_dsi
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.launcher import bind_loopback
 from elphel_sim.scenarios import build
 
-from .conftest import run_cli, start_rig, stop_rig
+from .rig import run_cli, start_rig, stop_rig
 
 TRIGGER = ("TRIG", "TRIG_PERIOD", "TRIG_MASTER", "TRIG_DELAY", "TRIG_DECIMATE")
 
@@ -117,9 +117,9 @@ def test_a_non_empty_quad_dir_is_kept_without_force(tmp_path):
 
 
 @pytest.fixture
-def skewed_quad() -> Iterator[tuple[str, SimBoard]]:
+def skewed_quad() -> Iterator[tuple[str, SimCameraBoard]]:
     """The quad scenario served in this process, so a test can reach the board's hooks."""
-    board = SimBoard(build("quad", seed=2), seed=2)
+    board = SimCameraBoard(build("quad", seed=2), seed=2)
     camera = CameraService(board)
     board.start_clock()
     sock = bind_loopback(0)

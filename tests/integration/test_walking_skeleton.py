@@ -5,7 +5,7 @@ import json
 import numpy as np
 import tifffile
 
-from .conftest import run_cli
+from .rig import run_cli
 
 
 def test_announcement_names_the_services(sim_rig):

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from elphel_camd.api import create_app
 from elphel_camd.boards import board_factories
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard, make_sim_board
+from elphel_sim.board import SimCameraBoard, make_sim_board
 from elphel_sim.scenarios import build
 
 TOKEN = "test-token"
@@ -20,7 +20,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 @pytest.fixture
 def board():
-    return SimBoard(build("default", seed=1), seed=1)
+    return SimCameraBoard(build("default", seed=1), seed=1)
 
 
 @pytest.fixture
@@ -136,7 +136,7 @@ def test_missing_sensor_reported_as_empty_port():
 
     scenario = build("default", seed=0)
     scenario.ports.append(PortSpec(None, "cam0", scenario.ports[0].intrinsics))
-    camera = CameraService(SimBoard(scenario))
+    camera = CameraService(SimCameraBoard(scenario))
     info = camera.info()
     assert info["ports"][1]["sensor"] is None
     with TestClient(create_app(camera, token=TOKEN)) as c:

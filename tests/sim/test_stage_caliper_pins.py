@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from elphel_sim.micropython.board import FirmwareModules, SimBoard
-from elphel_sim.stage_hw import (
-    CaliperConfig,
-    MechanicsConfig,
-    SimCaliper,
-    StageHardware,
-    StageMechanics,
-)
+from elphel_sim.caliper import CaliperConfig, SimCaliper
+from elphel_sim.micropython.esp8266 import SimEsp8266
+from elphel_sim.micropython.modules import FirmwareModules
+from elphel_sim.stage_hw import MechanicsConfig, StageHardware, StageMechanics
 from elphel_sim.stage_server import PINS
 
 LSB_UM = {
@@ -29,7 +25,7 @@ LSB_UM = {
 
 class Rig:
     def __init__(self, tmp_path, cal: CaliperConfig, settings: dict | None = None) -> None:
-        self.board = SimBoard(fs_dir=tmp_path, time_scale=1e9)
+        self.board = SimEsp8266(fs_dir=tmp_path, time_scale=1e9)
         self.mech = StageMechanics(MechanicsConfig(start_mm=50.0), seed=1)
         self.caliper = SimCaliper(cal, self.mech, seed=2)
         StageHardware(self.board, self.mech, self.caliper, PINS)

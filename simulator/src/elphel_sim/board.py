@@ -23,7 +23,6 @@ import numpy as np
 from elphel_camd.boards import Frame
 from elphel_camd.errors import CaptureUnavailableError, FrameNotAvailableError, PortError
 from elphel_camd.i2c.bus import I2CBus
-from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.lepton35 import SimLepton35
 from elphel_sim.chips.mt9f002 import SimMT9F002
@@ -43,8 +42,8 @@ SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
 }
 
 
-class SimBoard:
-    """A simulated board serving a scenario's world.
+class SimCameraBoard:
+    """A simulated camera board serving a scenario's world.
 
     Parameters
     ----------
@@ -110,19 +109,9 @@ class SimBoard:
         fpga = self.fpga.get(port)
         if fpga is None:
             return
-        target = state.get("FRAME", 0)
         with self._cond:
-            if function == TRIGSEQ:
-                fpga.pending.append((target, "delay_10ns", state["TRIG_DELAY"]))
-                fpga.pending.append((target, "decimate", state["TRIG_DECIMATE"]))
-                if port == state["TRIG_MASTER"]:
-                    fpga.pending.append((target, "camsync", state["TRIG_PERIOD"]))
-            elif function == TRIGGERMODE:
-                fpga.pending.append((target, "snapshot", int(bool(state["TRIG"] & TRIG_SNAPSHOT))))
-            elif function == WINDOW:
-                pf = state["PF_HEIGHT"]
-                fpga.pending.append((target, "pf_strips", state["WOI_HEIGHT"] // pf if pf else 0))
-            if target <= fpga.frame:
+            fpga.program(port, function, state)
+            if state.get("FRAME", 0) <= fpga.frame:
                 self._apply_pending(port)
                 self._schedule_next(port)
 
@@ -148,55 +137,35 @@ class SimBoard:
     # -- time ------------------------------------------------------------------------------
 
     def _apply_pending(self, port: int) -> None:
-        fpga = self.fpga[port]
-        due = [p for p in fpga.pending if p[0] <= fpga.frame]
-        fpga.pending = [p for p in fpga.pending if p[0] > fpga.frame]
-        for _, key, value in due:
-            if key == "camsync":
-                self.camsync.program(value, self.now_s)
-                for other in self.fpga:
-                    if other != port:
-                        self._schedule_next(other)
-            else:
-                setattr(fpga, key, value)
+        periods = self.fpga[port].apply_due()
+        for period_10ns in periods:
+            self.camsync.program(period_10ns, self.now_s)
+        if periods:
+            for other in self.fpga:
+                if other != port:
+                    self._schedule_next(other)
 
     def _schedule_next(self, port: int) -> None:
         """When the port's next frame starts, from its sensor and FPGA state in effect."""
         fpga, chip = self.fpga[port], self.chips[port]
-        timing = chip.timing()
-        strips = max(fpga.pf_strips, 1)
-        if fpga.snapshot and chip.is_snapshot():
-            every = fpga.decimate + 1
-            ready = max(fpga.busy_until_s, self.now_s if fpga.frame else 0.0)
-            delay_s = fpga.delay_10ns / 1e8
-            trigger = self.camsync.next_trigger(ready - delay_s, every=every)
-            if trigger is None:
-                fpga.next_start_s = math.inf
-            else:
-                fpga.next_start_s = trigger + delay_s
-                fpga.next_timestamp_s = trigger
-        else:
-            start = fpga.last_start_s + timing.frame_s * strips if fpga.frame else 0.0
-            fpga.next_start_s = start
-            fpga.next_timestamp_s = start
+        fpga.schedule_next(
+            chip.timing(),
+            sensor_snapshot=chip.is_snapshot(),
+            camsync=self.camsync,
+            now_s=self.now_s,
+        )
 
     def _start_frame(self, port: int) -> tuple[int, int]:
         fpga, chip = self.fpga[port], self.chips[port]
-        self.now_s = fpga.next_start_s
+        self.now_s = fpga.start_frame()
         self.world.time_s = self.now_s
-        fpga.frame += 1
-        fpga.last_start_s = self.now_s
         with self._buses[port].lock:
             chip.latch(fpga.frame)
         self._apply_pending(port)
-        timing = chip.timing()
-        strips = fpga.pf_strips
-        snapshot = fpga.snapshot and chip.is_snapshot()
-        if strips and snapshot and self.camsync.period_10ns > 1:
-            strip_period_s = self.camsync.period_10ns * (fpga.decimate + 1) / 1e8
-        else:
-            strip_period_s = timing.frame_s
-        fpga.busy_until_s = self.now_s + timing.busy_s + strip_period_s * max(strips - 1, 0)
+        strip_period_s = fpga.strip_period_s(
+            chip.timing(), sensor_snapshot=chip.is_snapshot(), camsync=self.camsync
+        )
+        strips = fpga.settings.pf_strips
         timestamp_ns = round(fpga.next_timestamp_s * 1e9) + self._timestamp_skew_ns.get(port, 0)
         spec = self.ports[port]
         fpga.ring.append(
@@ -346,8 +315,14 @@ class SimBoard:
             self._clock = None
 
 
-def make_sim_board(*, scenario: str = "default", seed: int = 0, noise: bool = True) -> SimBoard:
+# Deprecated alias: the camera board's old name (it collided with the ESP8266's board).
+SimBoard = SimCameraBoard
+
+
+def make_sim_board(
+    *, scenario: str = "default", seed: int = 0, noise: bool = True
+) -> SimCameraBoard:
     """Entry point for ``elphel-camd --board sim`` (options from ``--config``)."""
-    board = SimBoard(build(scenario, seed=seed), seed=seed, noise=noise)
+    board = SimCameraBoard(build(scenario, seed=seed), seed=seed, noise=noise)
     board.start_clock()
     return board

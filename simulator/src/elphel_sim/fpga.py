@@ -1,7 +1,7 @@
-"""The camera board's FPGA: frame timing, the common trigger, and image formation.
+"""The camera board's FPGA: frame timing, the common trigger, and the frames it records.
 
-The FPGA asks each port's simulated chip (`elphel_sim.chips.SimSensor`) for its timing
-and how it reads out a frame; the chip model knows its own registers.
+The FPGA asks each port's simulated chip (`elphel_sim.chips.SimSensor`) for its timing;
+the chip model knows its own registers and when a write reaches the image.
 
 Each port's frame starts are events on one virtual timeline. In free-run a port starts its
 next frame one frame period (set by its sensor's registers in effect) after the last; in
@@ -10,29 +10,30 @@ own delay, on every (decimate + 1)-th trigger, once the sensor is ready again; a
 timestamp is then the trigger time, the same on every port. In photo-finish a frame is a
 composite of strips, each strip one sensor frame. At each frame start the sensor latches
 the register writes due, and the frame is recorded with the register state in effect; its
-image is formed from that record only when someone asks for it (ring buffer, lazily).
+image is formed from that record (by the chip and the renderer, `elphel_sim.render`) only
+when someone asks for it (ring buffer, lazily).
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_sim.render import (
-    Intrinsics,
-    SensorModel,
-    bayer_channels,
-    expose,
-    render_strips,
-)
-from elphel_sim.world import Pose, World
+from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
+from elphel_sim.world import FloatArray, Pose
+
+if TYPE_CHECKING:
+    from elphel_sim.chips.sensor import SensorTiming
 
 RING_FRAMES = 64
 CAMSYNC_HZ = 100_000_000  # TRIG_PERIOD and TRIG_DELAY count 10 ns ticks
+CAMSYNC = "camsync"  # a pending setting of the common trigger generator (its period)
 
 
 @dataclass
@@ -74,15 +75,34 @@ class FrameRecord:
     strip_period_s: float
     image: NDArray[np.uint16] | None = None
 
+    def strip_times_s(self) -> FloatArray:
+        """Start time of each strip of the frame (one entry for a normal frame)."""
+        strips = max(self.strips, 1)
+        times: FloatArray = self.start_s + self.strip_period_s * np.arange(
+            strips, dtype=np.float64
+        )
+        return times
+
+
+@dataclass(frozen=True)
+class PortSettings:
+    """A port's FPGA settings, as programmed by the daemon through the board."""
+
+    snapshot: bool = False  # start frames on the common trigger
+    delay_10ns: int = 0
+    decimate: int = 0
+    pf_strips: int = 0  # photo-finish strips per composite frame (0: normal frames)
+
 
 @dataclass
 class PortFPGA:
-    """Per-port FPGA settings (programmed by the daemon through the board) and frame state."""
+    """One port's frame clock: its settings in effect, pending settings and recent frames.
 
-    snapshot: bool = False
-    delay_10ns: int = 0
-    decimate: int = 0
-    pf_strips: int = 0
+    A setting programmed for frame N is pending until frame N starts (per-register
+    latency); `apply_due` puts the due ones in effect at each frame start.
+    """
+
+    settings: PortSettings = field(default_factory=PortSettings)
     frame: int = 0
     last_start_s: float = 0.0
     busy_until_s: float = 0.0
@@ -91,49 +111,79 @@ class PortFPGA:
     pending: list[tuple[int, str, int]] = field(default_factory=list)
     ring: deque[FrameRecord] = field(default_factory=lambda: deque(maxlen=RING_FRAMES))
 
+    def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
+        """Queue the FPGA side of a parameter function of port ``port`` for its target frame.
 
-@dataclass(frozen=True)
-class Readout:
-    """How a Bayer sensor reads a frame, decoded from its registers in effect."""
+        The port whose number is TRIG_MASTER also programs the common trigger's period.
+        """
+        target = state.get("FRAME", 0)
+        if function == TRIGSEQ:
+            self.pending.append((target, "delay_10ns", state["TRIG_DELAY"]))
+            self.pending.append((target, "decimate", state["TRIG_DECIMATE"]))
+            if port == state["TRIG_MASTER"]:
+                self.pending.append((target, CAMSYNC, state["TRIG_PERIOD"]))
+        elif function == TRIGGERMODE:
+            self.pending.append((target, "snapshot", int(bool(state["TRIG"] & TRIG_SNAPSHOT))))
+        elif function == WINDOW:
+            pf = state["PF_HEIGHT"]
+            self.pending.append((target, "pf_strips", state["WOI_HEIGHT"] // pf if pf else 0))
 
-    left: int
-    top: int
-    width: int
-    height: int
-    exposure_us: float
-    gains: tuple[float, float, float, float]  # red, green on red rows, green on blue rows, blue
-    fliph: bool
-    flipv: bool
-    bayer: str  # the array's colour cell at even rows and columns
+    def apply_due(self) -> list[int]:
+        """Put the settings due by the current frame in effect.
 
+        Returns the trigger periods (10 ns) due for the common trigger generator, in the
+        order they were programmed; the board programs them (they concern every port).
+        """
+        due = [p for p in self.pending if p[0] <= self.frame]
+        self.pending = [p for p in self.pending if p[0] > self.frame]
+        periods = []
+        for _, key, value in due:
+            if key == CAMSYNC:
+                periods.append(value)
+            else:
+                change: dict[str, Any] = {key: bool(value) if key == "snapshot" else value}
+                self.settings = replace(self.settings, **change)
+        return periods
 
-def form_bayer_image(
-    readout: Readout,
-    record: FrameRecord,
-    world: World,
-    *,
-    intrinsics: Intrinsics,
-    model: SensorModel,
-    rng: np.random.Generator | None,
-) -> NDArray[np.uint16]:
-    """Render a recorded frame of a Bayer sensor: window, exposure, gains, flips, strips."""
-    left, top = readout.left, readout.top
-    width = min(readout.width, intrinsics.width - left)
-    height = min(readout.height, intrinsics.height - top)
-    strips = max(record.strips, 1)
-    times = record.start_s + record.strip_period_s * np.arange(strips, dtype=np.float64)
-    rgb = render_strips(
-        world, intrinsics, record.pose, window=(left, top, width, height), times_s=times
-    )
-    channels = bayer_channels(readout.bayer, (height, width), row0=top, col0=left)
-    red, green_r, green_b, blue = readout.gains
-    gain = np.array([red, green_r, blue])[channels]
-    rows_with_blue = (channels == 2).any(axis=1)
-    gain[(channels == 1) & rows_with_blue[:, None]] = green_b
-    radiance = np.take_along_axis(rgb, channels[None, ..., None], axis=3)[..., 0]
-    image = expose(radiance, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
-    if readout.fliph:
-        image = image[:, :, ::-1]
-    if readout.flipv:
-        image = image[:, ::-1, :]
-    return np.ascontiguousarray(image.reshape(strips * height, width))
+    def schedule_next(
+        self, timing: SensorTiming, *, sensor_snapshot: bool, camsync: Camsync, now_s: float
+    ) -> None:
+        """When the next frame starts, from the sensor's timing and the settings in effect."""
+        settings = self.settings
+        strips = max(settings.pf_strips, 1)
+        if settings.snapshot and sensor_snapshot:
+            every = settings.decimate + 1
+            ready = max(self.busy_until_s, now_s if self.frame else 0.0)
+            delay_s = settings.delay_10ns / 1e8
+            trigger = camsync.next_trigger(ready - delay_s, every=every)
+            if trigger is None:
+                self.next_start_s = math.inf
+            else:
+                self.next_start_s = trigger + delay_s
+                self.next_timestamp_s = trigger
+        else:
+            start = self.last_start_s + timing.frame_s * strips if self.frame else 0.0
+            self.next_start_s = start
+            self.next_timestamp_s = start
+
+    def start_frame(self) -> float:
+        """The next frame starts: count it and return its start time."""
+        self.frame += 1
+        self.last_start_s = self.next_start_s
+        return self.last_start_s
+
+    def strip_period_s(
+        self, timing: SensorTiming, *, sensor_snapshot: bool, camsync: Camsync
+    ) -> float:
+        """Time between the strips of the frame just started (a frame period if free-run).
+
+        Also marks the sensor busy until the frame's last strip is read out.
+        """
+        settings = self.settings
+        strips = settings.pf_strips
+        if strips and settings.snapshot and sensor_snapshot and camsync.period_10ns > 1:
+            period_s = camsync.period_10ns * (settings.decimate + 1) / 1e8
+        else:
+            period_s = timing.frame_s
+        self.busy_until_s = self.last_start_s + timing.busy_s + period_s * max(strips - 1, 0)
+        return period_s

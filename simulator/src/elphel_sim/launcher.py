@@ -25,13 +25,14 @@ from fastapi import FastAPI, HTTPException
 from elphel_camd.api import create_app
 from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard
-from elphel_sim.quad import QuadScene, TileTruth, tile_truth
+from elphel_sim.board import SimCameraBoard
+from elphel_sim.quad import QuadScene
+from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
 
 
-def create_sim_app(board: SimBoard, stage: SimStage | None = None) -> FastAPI:
+def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> FastAPI:
     """The inspection API: what the simulator knows to be true."""
     app = FastAPI(title="elphel-sim inspection")
     lock = threading.Lock()
@@ -185,7 +186,7 @@ async def serve_all(served: list[Served]) -> None:
 
 
 def up(*, scenario: str, seed: int, camera_port: int, stage_port: int, as_json: bool) -> int:
-    board = SimBoard(build(scenario, seed=seed), seed=seed)
+    board = SimCameraBoard(build(scenario, seed=seed), seed=seed)
     camera = CameraService(board)
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()

@@ -2,12 +2,14 @@
 
 A quad rig is four identical pinhole cameras (:mod:`elphel_sim.render`) on a square of
 side ``baseline_mm``, all looking along +z with parallel axes, camera i at
-``baseline * position_i`` (+x right, +y down, DESIGN 4.4). A point at depth Z then appears
-in camera i at ``p - D * position_i`` with ``D = f B / (Z pitch)`` pixels, p its position
-in a virtual camera at the centre. Because the renderer integrates band-limited textures
-over each pixel's footprint, every camera's image is sub-pixel exact, so the disparity
-of every plane is known without error; :func:`tile_truth` ray-casts the tile centres of
-the virtual centre camera to give the true disparity per tile.
+``baseline * position_i`` (+x right, +y down, as quad.json positions). A point at depth
+Z then appears in camera i at ``p - D * position_i`` with ``D = f B / (Z pitch)`` pixels,
+p its position in a virtual camera at the centre. Because the renderer integrates
+band-limited textures over each pixel's footprint, every camera's image is sub-pixel
+exact, so the disparity of every plane is known without error;
+:func:`elphel_sim.quad_truth.tile_truth` ray-casts the tile centres of the virtual centre
+camera to give the true disparity per tile, and :mod:`elphel_sim.aberrations` adds a
+space-variant blur when asked.
 
 The standard scene (:func:`standard_scene`) has a far background (D = 0), fronto-parallel
 rectangles at chosen disparities, a slanted rectangle (disparity varying linearly across
@@ -21,11 +23,31 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from elphel_host.tp import io as quad_format
+from elphel_sim.aberrations import Aberrations, aberrations, apply_aberrations, correction_kernels
+from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.render import Intrinsics, SensorModel, expose, mosaic, render_radiance
 from elphel_sim.world import FloatArray, Plane, Pose, Scene, Texture, World
+
+# The blur and the truth live in their own modules; these names stay importable from here.
+__all__ = [
+    "Aberrations",
+    "QuadRig",
+    "QuadScene",
+    "Region",
+    "TileTruth",
+    "aberrations",
+    "apply_aberrations",
+    "correction_kernels",
+    "fronto_rect",
+    "render_quad",
+    "simulate_quad_dir",
+    "slanted_rect",
+    "standard_scene",
+    "tile_truth",
+    "write_quad_dir",
+]
 
 IDEAL_POSITIONS = ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))
 FAR_DEPTH_MM = 1e12  # "infinity": disparity ~3e-7 px with the default rig
@@ -226,176 +248,6 @@ def standard_scene(
     )
     regions.append(background)
     return QuadScene(rig, regions)
-
-
-@dataclass(frozen=True)
-class TileTruth:
-    """True disparity of every tile centre of the virtual centre camera.
-
-    Attributes
-    ----------
-    disparity
-        ``(tiles_y, tiles_x)`` float64.
-    label
-        Index into ``names`` of the region seen at each tile centre (-1: nothing).
-    names
-        Region names.
-    interior
-        Tiles whose 16x16 footprint (plus the disparity shift) lies within one region in
-        every camera: the ones whose disparity is defined without a depth edge.
-    textured
-        Whether each tile's region is textured.
-    """
-
-    disparity: NDArray[np.float64]
-    label: NDArray[np.intp]
-    names: tuple[str, ...]
-    interior: NDArray[np.bool_]
-    textured: NDArray[np.bool_]
-
-
-def _cast(
-    rig: QuadRig, scene: QuadScene, xs: NDArray[np.float64], ys: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
-    """Depth and region label seen by the centre camera at continuous pixel coordinates."""
-    cx, cy = rig.intrinsics.principal_point
-    d = np.stack(
-        [
-            (xs - cx) * rig.pitch_mm,
-            (ys - cy) * rig.pitch_mm,
-            np.full(xs.shape, rig.focal_length_mm),
-        ],
-        -1,
-    )
-    best = np.full(xs.shape, np.inf)
-    label = np.full(xs.shape, -1, dtype=np.intp)
-    for i, region in enumerate(scene.regions):
-        u, v, nrm = region.plane.basis()
-        o = np.asarray(region.plane.origin, dtype=np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (nrm @ o) / (d @ nrm)
-        hit = t[..., None] * d
-        ok = np.isfinite(t) & (t > 0) & (t < best)
-        if region.plane.half_extent_mm is not None:
-            hu, hv = region.plane.half_extent_mm
-            ok &= (np.abs((hit - o) @ u) <= hu) & (np.abs((hit - o) @ v) <= hv)
-        best = np.where(ok, t, best)
-        label = np.where(ok, i, label)
-    depth = best * rig.focal_length_mm
-    return depth, label
-
-
-def tile_truth(scene: QuadScene, *, margin_px: float = 12.0) -> TileTruth:
-    """True per-tile disparity at tile centres (8tx+4, 8ty+4) of the virtual centre camera."""
-    rig = scene.rig
-    ty, tx = rig.height // 8, rig.width // 8
-    yy, xx = np.meshgrid(8.0 * np.arange(ty) + 4.0, 8.0 * np.arange(tx) + 4.0, indexing="ij")
-    depth, label = _cast(rig, scene, xx, yy)
-    disparity = np.where(
-        np.isfinite(depth), rig.disparity_px(np.where(np.isfinite(depth), depth, 1.0)), 0.0
-    )
-    # interior: same label on a ring of probes around the tile centre (tile half-size plus
-    # the largest camera offset) in the centre view
-    reach = margin_px + 0.5 * float(np.max(disparity)) * np.sqrt(2.0)
-    interior = label >= 0
-    for ang in np.linspace(0, 2 * np.pi, 16, endpoint=False):
-        for r in (0.5 * reach, reach):
-            _, lab = _cast(rig, scene, xx + r * np.cos(ang), yy + r * np.sin(ang))
-            interior &= lab == label
-    textured = np.array([r.textured for r in scene.regions])[np.maximum(label, 0)] & (label >= 0)
-    return TileTruth(disparity, label, tuple(r.name for r in scene.regions), interior, textured)
-
-
-@dataclass(frozen=True)
-class Aberrations:
-    """A space-variant blur per camera and colour: one 15x15 PSF per grid cell.
-
-    ``psfs`` is ``(4, 3, ky, kx, 15, 15)`` in RGB order (row = 7 + dy); cell (kx, ky)
-    covers pixels ``[kx*step, (kx+1)*step) x [ky*step, (ky+1)*step)``.
-    """
-
-    psfs: NDArray[np.float64]
-    step: int
-
-
-def aberrations(
-    rig: QuadRig,
-    *,
-    seed: int,
-    cells: tuple[int, int] = (2, 3),
-    sigma_px: tuple[float, float] = (0.6, 1.2),
-    max_offset_px: float = 0.3,
-) -> Aberrations:
-    """Random elliptical Gaussian PSFs, off-centre by up to ``max_offset_px``, per cell."""
-    rng = np.random.default_rng(seed)
-    ky, kx = cells
-    step = int(np.ceil(max(rig.height / ky, rig.width / kx) / 8) * 8)
-    ky, kx = -(-rig.height // step), -(-rig.width // step)
-    yy, xx = np.mgrid[-7:8, -7:8].astype(np.float64)
-    psfs = np.empty((4, 3, ky, kx, 15, 15))
-    for idx in np.ndindex(4, 3, ky, kx):
-        sx, sy = rng.uniform(*sigma_px, size=2)
-        ang = rng.uniform(0, np.pi)
-        ox, oy = rng.uniform(-max_offset_px, max_offset_px, size=2)
-        c, s_ = np.cos(ang), np.sin(ang)
-        u = c * (xx - ox) + s_ * (yy - oy)
-        v = -s_ * (xx - ox) + c * (yy - oy)
-        k = np.exp(-0.5 * ((u / sx) ** 2 + (v / sy) ** 2))
-        psfs[idx] = k / k.sum()
-    return Aberrations(psfs, step)
-
-
-def apply_aberrations(rgb: FloatArray, psfs: NDArray[np.float64], step: int) -> FloatArray:
-    """Blur an (H, W, 3) image with the PSF of the cell each pixel lies in."""
-    h, w = rgb.shape[:2]
-    out = np.empty_like(rgb)
-    ky, kx = psfs.shape[1:3]
-    for colour in range(3):
-        for cy in range(ky):
-            for cx in range(kx):
-                y0, y1 = cy * step, min((cy + 1) * step, h)
-                x0, x1 = cx * step, min((cx + 1) * step, w)
-                if y0 >= y1 or x0 >= x1:
-                    continue
-                # convolve a margin-padded crop so the cell's pixels see their neighbours
-                ya, yb, xa, xb = max(y0 - 8, 0), min(y1 + 8, h), max(x0 - 8, 0), min(x1 + 8, w)
-                crop = ndimage.convolve(
-                    rgb[ya:yb, xa:xb, colour], psfs[colour, cy, cx], mode="nearest"
-                )
-                out[y0:y1, x0:x1, colour] = crop[y0 - ya : y1 - ya, x0 - xa : x1 - xa]
-    return out
-
-
-def correction_kernels(
-    ab: Aberrations, *, bayer: str | None, target_sigma_px: float = 1.3, eps: float = 1e-3
-) -> NDArray[np.float32]:
-    """Kernels that turn each camera's PSF into one common Gaussian (regularised inverse).
-
-    Returns the tile processor's layout ``(4, colours, ky, kx, 15, 15)``: colours R, B, G
-    for Bayer, one (the mean PSF's kernel) for mono.
-    """
-    n = 64
-    f = np.fft.fftfreq(n)
-    fr2 = f[:, None] ** 2 + f[None, :] ** 2
-    target = np.exp(-2 * np.pi**2 * target_sigma_px**2 * fr2)
-    psfs = ab.psfs
-    if bayer is None:
-        psfs = psfs.mean(axis=1, keepdims=True)
-        order = [0]
-    else:
-        order = [0, 2, 1]  # RGB -> R, B, G
-    out = np.empty((4, len(order), *psfs.shape[2:4], 15, 15), dtype=np.float32)
-    for cam in range(4):
-        for i, colour in enumerate(order):
-            for cy, cx in np.ndindex(*psfs.shape[2:4]):
-                big = np.zeros((n, n))
-                big[:15, :15] = psfs[cam, colour, cy, cx]
-                big = np.roll(big, (-7, -7), axis=(0, 1))  # centre at (0, 0)
-                p = np.fft.fft2(big)
-                kf = target * np.conj(p) / (np.abs(p) ** 2 + eps)
-                k = np.roll(np.fft.ifft2(kf).real, (7, 7), axis=(0, 1))[:15, :15]
-                out[cam, i, cy, cx] = k / k.sum()
-    return out
 
 
 def render_quad(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import ModuleType
 
 from elphel_camd.sensors import mt9f002
 from elphel_camd.sensors import mt9p006 as spec
@@ -37,15 +38,32 @@ class Scenario:
 LAB_LIGHT = SensorModel(bits=12, electrons_per_us=0.8, full_well_e=8000.0, dn_per_e=0.5)
 
 
-def mt9p006_intrinsics(focal_length_mm: float) -> Intrinsics:
-    """The MT9P006's full pixel array with the optical centre on the default window's centre."""
+def full_array(
+    sensor: ModuleType,
+    focal_length_mm: float,
+    centre: tuple[float, float],
+    *,
+    pixel_pitch_um: float | None = None,
+) -> Intrinsics:
+    """A sensor's full pixel array behind a lens, the optical centre at ``centre`` (array px).
+
+    ``sensor`` is the daemon's sensor module (its ``ARRAY_WIDTH``, ``ARRAY_HEIGHT`` and
+    ``PIXEL_PITCH_UM``); ``pixel_pitch_um`` overrides the pitch.
+    """
     return Intrinsics(
         focal_length_mm=focal_length_mm,
-        pixel_pitch_um=spec.PIXEL_PITCH_UM,
-        width=spec.ARRAY_WIDTH,
-        height=spec.ARRAY_HEIGHT,
-        cx=16 + spec.ACTIVE_WIDTH / 2,
-        cy=54 + spec.ACTIVE_HEIGHT / 2,
+        pixel_pitch_um=sensor.PIXEL_PITCH_UM if pixel_pitch_um is None else pixel_pitch_um,
+        width=sensor.ARRAY_WIDTH,
+        height=sensor.ARRAY_HEIGHT,
+        cx=centre[0],
+        cy=centre[1],
+    )
+
+
+def mt9p006_intrinsics(focal_length_mm: float) -> Intrinsics:
+    """The MT9P006's full pixel array with the optical centre on the default window's centre."""
+    return full_array(
+        spec, focal_length_mm, (16 + spec.ACTIVE_WIDTH / 2, 54 + spec.ACTIVE_HEIGHT / 2)
     )
 
 
@@ -80,14 +98,11 @@ def default(seed: int) -> Scenario:
 
 def mt9f002_intrinsics(focal_length_mm: float) -> Intrinsics:
     """The MT9F002's full pixel array with the optical centre on the default window's centre."""
-    return Intrinsics(
-        focal_length_mm=focal_length_mm,
-        pixel_pitch_um=mt9f002.PIXEL_PITCH_UM,
-        width=mt9f002.ARRAY_WIDTH,
-        height=mt9f002.ARRAY_HEIGHT,
-        cx=mt9f002.CLEAR_LEFT + mt9f002.IMAGE_WIDTH / 2,
-        cy=mt9f002.CLEAR_TOP + mt9f002.IMAGE_HEIGHT / 2,
+    centre = (
+        mt9f002.CLEAR_LEFT + mt9f002.IMAGE_WIDTH / 2,
+        mt9f002.CLEAR_TOP + mt9f002.IMAGE_HEIGHT / 2,
     )
+    return full_array(mt9f002, focal_length_mm, centre)
 
 
 def mixed(seed: int) -> Scenario:
@@ -131,20 +146,14 @@ def quad_intrinsics(rig: QuadRig) -> Intrinsics:
     The default window starts at Elphel's clear-area origin, so the window's pixel (x, y)
     is the quad rig's pixel (x, y) and tile truth needs no offset.
     """
-    return Intrinsics(
-        focal_length_mm=rig.focal_length_mm,
-        pixel_pitch_um=rig.pixel_pitch_um,
-        width=spec.ARRAY_WIDTH,
-        height=spec.ARRAY_HEIGHT,
-        cx=spec.CLEAR_LEFT + rig.width / 2,
-        cy=spec.CLEAR_TOP + rig.height / 2,
-    )
+    centre = (spec.CLEAR_LEFT + rig.width / 2, spec.CLEAR_TOP + rig.height / 2)
+    return full_array(spec, rig.focal_length_mm, centre, pixel_pitch_um=rig.pixel_pitch_um)
 
 
 def quad(seed: int) -> Scenario:
     """A quad camera: four MT9P006 on ports 0..3 at the corners of a 150 mm square.
 
-    Port i is camera i of the Elphel square (DESIGN 4.4: positions (-0.5, -0.5),
+    Port i is camera i of the Elphel square (the quad directory's positions (-0.5, -0.5),
     (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5) of the side, +x right, +y down), all looking
     along +z with parallel axes. They see the tile processor's standard scene
     (`elphel_sim.quad.standard_scene`): a background at disparity 0, fronto-parallel

@@ -19,14 +19,9 @@ import tty
 from pathlib import Path
 from typing import Any
 
-from elphel_sim.micropython.board import SimBoard
-from elphel_sim.stage_hw import (
-    CaliperConfig,
-    MechanicsConfig,
-    SimCaliper,
-    StageHardware,
-    StageMechanics,
-)
+from elphel_sim.caliper import CaliperConfig, SimCaliper
+from elphel_sim.micropython.esp8266 import SimEsp8266
+from elphel_sim.stage_hw import MechanicsConfig, StageHardware, StageMechanics
 
 PINS = {
     "step": 14,
@@ -79,7 +74,9 @@ class SimStage:
         self.fw_extra = firmware_config or {}
         self.want_pty = pty
         self._fs = Path(tempfile.mkdtemp(prefix="elphel-stage-fs-"))
-        self.board = SimBoard(fs_dir=self._fs, time_scale=time_scale, tcp_port=tcp_port, seed=seed)
+        self.board = SimEsp8266(
+            fs_dir=self._fs, time_scale=time_scale, tcp_port=tcp_port, seed=seed
+        )
         self.mech = StageMechanics(self.mech_cfg, seed=seed + 1, world=world)
         self.caliper = SimCaliper(self.cal_cfg, self.mech, seed=seed + 2)
         self._link_rng = random.Random(seed + 3)
@@ -207,7 +204,7 @@ class SimStage:
 
     # ---- truth and faults ---------------------------------------------------------
     def sim_state(self) -> dict[str, Any]:
-        """The simulator's truth: carriage position and mechanics (DESIGN 4.1 /stage)."""
+        """The simulator's truth: carriage position and mechanics (`GET {sim_url}/stage`)."""
         m = self.mech
         return {
             "true_mm": float(m.carriage_mm),

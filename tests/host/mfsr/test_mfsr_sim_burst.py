@@ -2,7 +2,7 @@
 
 The burst is what `make demo` captures, on a small window: the MT9P006 (GRBG Bayer) of
 the default scenario, rolled by atan(1/4), moved along the stage axis by the x2 Bayer plan.
-The reference is :func:`elphel_sim.demo.reference_image`, the same scene seen by pixels
+The reference is :func:`elphel_sim.demo_report.reference_image`, the same scene seen by pixels
 of half the pitch. Robust fusion must beat bicubic on it clearly, as it does on synthetic
 bursts: robust once scored below bicubic here, because the noise was estimated on each
 colour plane alone and read its aliased texture as noise (about 4x the real noise).
@@ -20,8 +20,9 @@ from elphel_camd.service import CameraService
 from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
-from elphel_sim.board import SimBoard
-from elphel_sim.demo import DISTANCE_MM, FRAMES, SCALE, comparison_picture, reference_image
+from elphel_sim.board import SimCameraBoard
+from elphel_sim.demo import DISTANCE_MM, FRAMES, SCALE
+from elphel_sim.demo_report import comparison_picture, reference_image
 from elphel_sim.scenarios import build
 
 SEED = 5
@@ -32,7 +33,7 @@ START_MM = 40.0
 
 @pytest.fixture(scope="module")
 def sim_burst() -> tuple[list[np.ndarray], dict[str, Any], np.ndarray]:
-    board = SimBoard(build("default", seed=SEED), seed=SEED, noise=True)
+    board = SimCameraBoard(build("default", seed=SEED), seed=SEED, noise=True)
     camera = CameraService(board)
     target = camera.set_params(0, WINDOW)
     while camera.capture(0)[0].frame < target:

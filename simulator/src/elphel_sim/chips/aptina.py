@@ -20,7 +20,8 @@ from numpy.typing import NDArray
 from elphel_camd.sensors.registers import RegisterTable
 from elphel_sim.chips.registers import SimLatchedChip
 from elphel_sim.chips.sensor import ImageContext, SensorTiming, SimSensor
-from elphel_sim.fpga import FrameRecord, Readout, form_bayer_image
+from elphel_sim.fpga import FrameRecord
+from elphel_sim.render import Readout, read_out, render_strips
 
 # The colour-gain registers (same names on both sensors), in the order of their addresses.
 COLOUR_GAINS = ("green1_gain", "blue_gain", "red_gain", "green2_gain")
@@ -104,11 +105,12 @@ class SimAptinaChip(SimLatchedChip, SimSensor):
             flipv=bool(flipv.get(r[flipv.register.name])),
             bayer=self.bayer,
         )
-        return form_bayer_image(
-            readout,
-            record,
+        intrinsics = context.intrinsics
+        rgb = render_strips(
             context.world,
-            intrinsics=context.intrinsics,
-            model=context.model,
-            rng=context.rng,
+            intrinsics,
+            record.pose,
+            window=readout.window_on(intrinsics),
+            times_s=record.strip_times_s(),
         )
+        return read_out(rgb, readout, model=context.model, rng=context.rng)

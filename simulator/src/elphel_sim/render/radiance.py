@@ -1,4 +1,4 @@
-"""Camera model -> sensor image: sub-pixel exact radiance, Bayer mosaic, noise, quantisation.
+"""Scene radiance seen by each pixel of a pinhole camera, sub-pixel exact.
 
 Pixels integrate radiance over their area. Each plane's texture is band-limited, so the
 area integral over a pixel's footprint is the texture convolved with the footprint's
@@ -19,15 +19,11 @@ import weakref
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy import ndimage
 
 from elphel_sim.world import FloatArray, Plane, Pose, Texture, World
 
 Window = tuple[int, int, int, int]  # left, top, width, height in array pixels
-
-BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
-_CHANNEL = {"R": 0, "G": 1, "B": 2}
 
 
 @dataclass(frozen=True)
@@ -261,97 +257,3 @@ def render_strips(
     if times.size == 0:
         raise ValueError("times_s is empty; allowed: one or more times")
     return _render(world, intrinsics, pose, win, times)
-
-
-def bayer_channels(
-    pattern: str, shape: tuple[int, int], *, row0: int = 0, col0: int = 0
-) -> NDArray[np.intp]:
-    """Colour index (0 R, 1 G, 2 B) of every pixel of a window of a Bayer sensor.
-
-    ``pattern`` names the colours of the array's 2x2 cell at even rows/columns
-    (e.g. ``"GRBG"``); ``row0, col0`` are the window's origin in the array.
-    """
-    if pattern not in BAYER_PATTERNS:
-        raise ValueError(f"bayer pattern {pattern!r}; allowed: {', '.join(BAYER_PATTERNS)}")
-    cell = np.array(
-        [[_CHANNEL[pattern[0]], _CHANNEL[pattern[1]]], [_CHANNEL[pattern[2]], _CHANNEL[pattern[3]]]]
-    )
-    r = (row0 + np.arange(shape[0])) % 2
-    c = (col0 + np.arange(shape[1])) % 2
-    out: NDArray[np.intp] = cell[r[:, None], c[None, :]]
-    return out
-
-
-def mosaic(rgb: FloatArray, pattern: str | None, *, row0: int = 0, col0: int = 0) -> FloatArray:
-    """Sample an RGB radiance image through a Bayer filter (None: a mono sensor, mean of RGB)."""
-    if rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"rgb must have shape (H, W, 3), got {rgb.shape}")
-    if pattern is None:
-        mono: FloatArray = rgb.mean(axis=2)
-        return mono
-    ch = bayer_channels(pattern, rgb.shape[:2], row0=row0, col0=col0)
-    out: FloatArray = np.take_along_axis(rgb, ch[..., None], axis=2)[..., 0]
-    return out
-
-
-@dataclass(frozen=True)
-class SensorModel:
-    """Photon-to-DN conversion of a sensor.
-
-    Parameters
-    ----------
-    bits
-        ADC depth; output is clipped to 0 .. 2**bits - 1.
-    electrons_per_us
-        Electrons collected per microsecond at radiance 1.0 (scene illumination x QE).
-    full_well_e
-        Saturation charge.
-    dn_per_e
-        Conversion gain at analog gain 1.0.
-    read_noise_e
-        Gaussian read noise (electrons RMS).
-    black_level_dn
-        Offset added to every pixel.
-    """
-
-    bits: int = 12
-    electrons_per_us: float = 0.1
-    full_well_e: float = 8000.0
-    dn_per_e: float = 0.5
-    read_noise_e: float = 3.0
-    black_level_dn: float = 0.0
-
-
-def expose(
-    radiance: FloatArray,
-    *,
-    exposure_us: float,
-    gain: float | FloatArray = 1.0,
-    model: SensorModel = SensorModel(),
-    rng: np.random.Generator | None = None,
-) -> NDArray[np.uint16]:
-    """Integrate radiance into quantised DN.
-
-    Parameters
-    ----------
-    radiance
-        Per-pixel radiance (after the colour filter), any shape.
-    exposure_us
-        Integration time.
-    gain
-        Analog gain, a scalar or an array broadcastable to ``radiance`` (per-colour gains).
-    model
-        The sensor's conversion.
-    rng
-        Source of shot and read noise; None renders the noise-free expectation.
-    """
-    if exposure_us < 0:
-        raise ValueError(f"exposure_us={exposure_us}; allowed: >= 0")
-    electrons = np.clip(radiance * (exposure_us * model.electrons_per_us), 0.0, model.full_well_e)
-    if rng is not None:
-        electrons = rng.poisson(electrons).astype(np.float64)
-        electrons += rng.normal(0.0, model.read_noise_e, electrons.shape)
-    dn = electrons * model.dn_per_e * gain + model.black_level_dn
-    top = (1 << model.bits) - 1
-    out: NDArray[np.uint16] = np.clip(np.rint(dn), 0, top).astype(np.uint16)
-    return out

@@ -1,0 +1,34 @@
+"""The renderer: camera model -> sensor image.
+
+`radiance` integrates the scene's radiance over each pixel's footprint (sub-pixel exact,
+moving planes at each strip's time); `sensor` reads it out as a sensor does (Bayer
+mosaic, per-colour gains, exposure, shot and read noise, 12- or 14-bit quantisation,
+flips). Everything a caller needs is importable from here.
+"""
+
+from __future__ import annotations
+
+from elphel_sim.render.radiance import Intrinsics, Window, render_radiance, render_strips
+from elphel_sim.render.sensor import (
+    BAYER_PATTERNS,
+    Readout,
+    SensorModel,
+    bayer_channels,
+    expose,
+    mosaic,
+    read_out,
+)
+
+__all__ = [
+    "BAYER_PATTERNS",
+    "Intrinsics",
+    "Readout",
+    "SensorModel",
+    "Window",
+    "bayer_channels",
+    "expose",
+    "mosaic",
+    "read_out",
+    "render_radiance",
+    "render_strips",
+]

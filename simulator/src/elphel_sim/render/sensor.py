@@ -1,0 +1,174 @@
+"""A sensor's readout of radiance: colour filter, exposure, gains, noise, quantisation, flips.
+
+`expose` turns radiance into DN through a `SensorModel` (shot and read noise from a
+seeded generator, clipping to the ADC's range); `mosaic` and `bayer_channels` sample
+colour through a Bayer filter; `read_out` forms a Bayer sensor's image from the radiance
+of its window and its `Readout` (the window, exposure, gains and flips decoded from the
+registers in effect), strip by strip for photo-finish.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_sim.render.radiance import Intrinsics, Window
+from elphel_sim.world import FloatArray
+
+BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
+_CHANNEL = {"R": 0, "G": 1, "B": 2}
+
+
+def bayer_channels(
+    pattern: str, shape: tuple[int, int], *, row0: int = 0, col0: int = 0
+) -> NDArray[np.intp]:
+    """Colour index (0 R, 1 G, 2 B) of every pixel of a window of a Bayer sensor.
+
+    ``pattern`` names the colours of the array's 2x2 cell at even rows/columns
+    (e.g. ``"GRBG"``); ``row0, col0`` are the window's origin in the array.
+    """
+    if pattern not in BAYER_PATTERNS:
+        raise ValueError(f"bayer pattern {pattern!r}; allowed: {', '.join(BAYER_PATTERNS)}")
+    cell = np.array(
+        [[_CHANNEL[pattern[0]], _CHANNEL[pattern[1]]], [_CHANNEL[pattern[2]], _CHANNEL[pattern[3]]]]
+    )
+    r = (row0 + np.arange(shape[0])) % 2
+    c = (col0 + np.arange(shape[1])) % 2
+    out: NDArray[np.intp] = cell[r[:, None], c[None, :]]
+    return out
+
+
+def mosaic(rgb: FloatArray, pattern: str | None, *, row0: int = 0, col0: int = 0) -> FloatArray:
+    """Sample an RGB radiance image through a Bayer filter (None: a mono sensor, mean of RGB)."""
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb must have shape (H, W, 3), got {rgb.shape}")
+    if pattern is None:
+        mono: FloatArray = rgb.mean(axis=2)
+        return mono
+    ch = bayer_channels(pattern, rgb.shape[:2], row0=row0, col0=col0)
+    out: FloatArray = np.take_along_axis(rgb, ch[..., None], axis=2)[..., 0]
+    return out
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Photon-to-DN conversion of a sensor.
+
+    Parameters
+    ----------
+    bits
+        ADC depth; output is clipped to 0 .. 2**bits - 1.
+    electrons_per_us
+        Electrons collected per microsecond at radiance 1.0 (scene illumination x QE).
+    full_well_e
+        Saturation charge.
+    dn_per_e
+        Conversion gain at analog gain 1.0.
+    read_noise_e
+        Gaussian read noise (electrons RMS).
+    black_level_dn
+        Offset added to every pixel.
+    """
+
+    bits: int = 12
+    electrons_per_us: float = 0.1
+    full_well_e: float = 8000.0
+    dn_per_e: float = 0.5
+    read_noise_e: float = 3.0
+    black_level_dn: float = 0.0
+
+
+def expose(
+    radiance: FloatArray,
+    *,
+    exposure_us: float,
+    gain: float | FloatArray = 1.0,
+    model: SensorModel = SensorModel(),
+    rng: np.random.Generator | None = None,
+) -> NDArray[np.uint16]:
+    """Integrate radiance into quantised DN.
+
+    Parameters
+    ----------
+    radiance
+        Per-pixel radiance (after the colour filter), any shape.
+    exposure_us
+        Integration time.
+    gain
+        Analog gain, a scalar or an array broadcastable to ``radiance`` (per-colour gains).
+    model
+        The sensor's conversion.
+    rng
+        Source of shot and read noise; None renders the noise-free expectation.
+    """
+    if exposure_us < 0:
+        raise ValueError(f"exposure_us={exposure_us}; allowed: >= 0")
+    electrons = np.clip(radiance * (exposure_us * model.electrons_per_us), 0.0, model.full_well_e)
+    if rng is not None:
+        electrons = rng.poisson(electrons).astype(np.float64)
+        electrons += rng.normal(0.0, model.read_noise_e, electrons.shape)
+    dn = electrons * model.dn_per_e * gain + model.black_level_dn
+    top = (1 << model.bits) - 1
+    out: NDArray[np.uint16] = np.clip(np.rint(dn), 0, top).astype(np.uint16)
+    return out
+
+
+@dataclass(frozen=True)
+class Readout:
+    """How a Bayer sensor reads a frame, decoded from its registers in effect."""
+
+    left: int
+    top: int
+    width: int
+    height: int
+    exposure_us: float
+    gains: tuple[float, float, float, float]  # red, green on red rows, green on blue rows, blue
+    fliph: bool
+    flipv: bool
+    bayer: str  # the array's colour cell at even rows and columns
+
+    def window_on(self, intrinsics: Intrinsics) -> Window:
+        """The window read out, as far as it lies on the sensor's array."""
+        width = min(self.width, intrinsics.width - self.left)
+        height = min(self.height, intrinsics.height - self.top)
+        return (self.left, self.top, width, height)
+
+
+def read_out(
+    radiance: FloatArray, readout: Readout, *, model: SensorModel, rng: np.random.Generator | None
+) -> NDArray[np.uint16]:
+    """Read radiance out as a Bayer sensor does: colour filter, gains, exposure, flips.
+
+    Parameters
+    ----------
+    radiance
+        ``(strips, height, width, 3)`` linear RGB radiance of the window read out
+        (`render_strips` of ``readout.window_on(intrinsics)``), one entry per strip.
+    readout
+        The window's origin on the array (it sets the Bayer phase), the exposure, the
+        per-colour gains, the flips and the colour filter.
+    model
+        The sensor's conversion to DN.
+    rng
+        Source of shot and read noise; None renders the noise-free expectation.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint16, ``(strips * height, width)``: the strips one below the other.
+    """
+    strips, height, width = radiance.shape[:3]
+    channels = bayer_channels(readout.bayer, (height, width), row0=readout.top, col0=readout.left)
+    red, green_r, green_b, blue = readout.gains
+    gain = np.array([red, green_r, blue])[channels]
+    rows_with_blue = (channels == 2).any(axis=1)
+    gain[(channels == 1) & rows_with_blue[:, None]] = green_b
+    raw = np.take_along_axis(radiance, channels[None, ..., None], axis=3)[..., 0]
+    image = expose(raw, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
+    if readout.fliph:
+        image = image[:, :, ::-1]
+    if readout.flipv:
+        image = image[:, ::-1, :]
+    return np.ascontiguousarray(image.reshape(strips * height, width))
