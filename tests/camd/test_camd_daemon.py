@@ -14,9 +14,16 @@ from pathlib import Path
 import httpx
 import pytest
 
+from elphel_camd import store
 from elphel_camd.cli import build_parser, build_service, settings_from_args
 from elphel_camd.config import ConfigError, DaemonSettings, load_settings
-from elphel_camd.store import ParamStore, last_journal_line, load_or_create_token, write_atomic
+from elphel_camd.store import (
+    ParamStore,
+    last_journal_line,
+    load_or_create_token,
+    new_token,
+    write_atomic,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 LAYER_CONFIG = REPO / "yocto/meta-elphel/recipes-camera/elphel-camd/files/config.json"
@@ -75,6 +82,13 @@ def test_token_file_is_created_0600_once_and_reused(tmp_path):
     assert len(token) >= 24
     assert stat.S_IMODE(path.stat().st_mode) == 0o600
     assert load_or_create_token(path) == token
+
+
+def test_new_tokens_never_start_with_a_dash(monkeypatch):
+    # A token starting with "-" is taken for an option in `elphel ... --token T`.
+    drawn = iter(["-starts-like-an-option", "-again", "fine-token"])
+    monkeypatch.setattr(store.secrets, "token_urlsafe", lambda n: next(drawn))
+    assert new_token() == "fine-token"
 
 
 def test_atomic_write_leaves_old_or_new_file_and_store_ignores_bad_files(tmp_path):

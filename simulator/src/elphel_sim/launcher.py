@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import secrets
 import signal
 import socket
 import sys
@@ -25,6 +24,7 @@ from fastapi import FastAPI, HTTPException
 from elphel_camd.api import create_app
 from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_camd.service import CameraService
+from elphel_camd.store import new_token
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
@@ -190,7 +190,7 @@ def up(*, scenario: str, seed: int, camera_port: int, stage_port: int, as_json: 
     camera = CameraService(board)
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
-    token = secrets.token_urlsafe(24)
+    token = new_token()
     camera_served = Served(create_app(camera, token=token), bind_loopback(camera_port))
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
     announce = {

@@ -85,6 +85,18 @@ def remove_stale_temporaries(directory: Path) -> None:
                 stale.unlink()
 
 
+def new_token() -> str:
+    """A random bearer token (192 bits, URL-safe) that never starts with ``-``.
+
+    One URL-safe token in 64 would start with a dash, and ``--token -abc...`` on a command
+    line is then taken for an option.
+    """
+    token = secrets.token_urlsafe(24)
+    while token.startswith("-"):
+        token = secrets.token_urlsafe(24)
+    return token
+
+
 def load_or_create_token(path: Path) -> str:
     """The token in ``path``; on first start a new random one, written there with mode 0600."""
     try:
@@ -97,7 +109,7 @@ def load_or_create_token(path: Path) -> str:
         if path.stat().st_mode & 0o077:
             log.warning("token file %s is readable by others; chmod 600 it", path)
         return token
-    token = secrets.token_urlsafe(24)
+    token = new_token()
     try:
         write_atomic(path, (token + "\n").encode(), mode=0o600)
     except OSError as e:
