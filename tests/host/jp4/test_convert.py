@@ -220,3 +220,27 @@ def test_cli_usage_errors(capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as info:
         main(["jp4", "convert", "x.jp4", "--out", "o", "--quad", "--burst"])
     assert info.value.code == 2
+
+
+def test_frames_that_do_not_fit_are_left_out(tmp_path: Path) -> None:
+    paths = record(tmp_path / "rec", 3, (2,))
+    mosaic = np.zeros((32, 64), np.uint16)
+    paths[1].write_bytes(encode_jp4(mosaic, bits=12, frame=1, timestamp_ns=0, flips=(1, 0)))
+    result = convert([tmp_path / "rec"], tmp_path / "out", layout="burst")
+    assert [(f.source, f.reason) for f in result.failed] == [
+        (paths[1], f"{paths[1]}: bayer RGGB, 64x32; the burst's first frame: bayer GRBG, 64x32")
+    ]
+    assert not (tmp_path / "out" / "channel2" / "frames" / f"{paths[1].stem}.tif").exists()
+    assert len(read_burst(tmp_path / "out" / "channel2").infos) == 2
+
+
+def test_a_quad_of_mixed_bayer_orders(tmp_path: Path) -> None:
+    paths = record(tmp_path / "rec", 1)
+    mosaic = np.zeros((32, 64), np.uint16)
+    paths[3].write_bytes(encode_jp4(mosaic, bits=12, frame=1, timestamp_ns=0, flips=(0, 1)))
+    result = convert([tmp_path / "rec"], tmp_path / "out", layout="quad")
+    assert not result.converted and len(result.failed) == 4
+    assert result.failed[0].reason.endswith(
+        f"quad {SEC}_250000: the cameras differ in Bayer order ['BGGR', 'GRBG']"
+    )
+    assert not (tmp_path / "out" / f"{SEC}_250000").exists()

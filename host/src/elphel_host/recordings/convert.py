@@ -148,6 +148,10 @@ def _burst_frame(source: Path, target: Path) -> tuple[Converted | Failure, dict[
     return Converted(source, target), meta
 
 
+def _shape(key: tuple[Any, ...]) -> str:
+    return f"bayer {key[0]}, {key[1]}x{key[2]}"
+
+
 def _finish_burst(
     root: Path, group: Group, results: dict[Path, tuple[Converted | Failure, Any]]
 ) -> list[Converted | Failure]:
@@ -164,11 +168,7 @@ def _finish_burst(
         if key != first:  # a frame that does not fit the burst is not kept in it
             outcome.output.unlink(missing_ok=True)
             outcomes.append(
-                Failure(
-                    path,
-                    f"{path}: Bayer order and size {key} differ from the burst's first frame "
-                    f"{first}",
-                )
+                Failure(path, f"{path}: {_shape(key)}; the burst's first frame: {_shape(first)}")
             )
             continue
         entries.append(
