@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,8 @@ from elphel_host.burst.io import read_burst
 from elphel_host.camera.frames import read_tiff_metadata
 from elphel_host.camera.jp4 import decode_jp4
 from elphel_host.cli import main
-from elphel_host.recordings import convert
+from elphel_host.recordings import conversion, convert
+from elphel_host.recordings.frames import read_recording
 from elphel_host.recordings.names import find_inputs, recorded_name
 from elphel_host.tp.io import read_quad_dir
 from elphel_sim.jp4 import encode_jp4
@@ -97,21 +99,33 @@ def test_a_rerun_skips_complete_outputs_and_redoes_damaged_ones(tmp_path: Path) 
     assert tifffile.imread(damaged).shape == (32, 64)
 
 
-def test_an_interrupt_keeps_what_was_converted(tmp_path: Path) -> None:
+def test_an_interrupt_keeps_what_was_converted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     paths = record(tmp_path / "rec", 2, (0, 1, 2))
+    interrupted = threading.Event()
+    calls = []
+
+    def read(path: Path) -> object:
+        calls.append(path)
+        if len(calls) == 3:  # the frame being converted when Ctrl-C comes
+            assert interrupted.wait(10)
+        return read_recording(path)
 
     def stop(done: int, total: int, name: str) -> None:
         if done == 2:
+            interrupted.set()
             raise KeyboardInterrupt
 
+    monkeypatch.setattr(conversion, "read_recording", read)
     with pytest.raises(KeyboardInterrupt):
         convert([tmp_path / "rec"], tmp_path / "out", workers=1, progress=stop)
     written = sorted((tmp_path / "out").iterdir())
-    assert 2 <= len(written) < len(paths)
-    assert all(not p.name.startswith(".") for p in written)  # no partial files left
+    assert [p.stem for p in written] == [p.stem for p in calls] == [p.stem for p in paths[:3]]
+    monkeypatch.undo()
     resumed = convert([tmp_path / "rec"], tmp_path / "out", workers=1)
-    assert sum(c.skipped for c in resumed.converted) == len(written)
-    assert len(resumed.converted) == len(paths) and not resumed.failed
+    assert [c.skipped for c in resumed.converted] == [True] * 3 + [False] * 3
+    assert not resumed.failed
 
 
 def test_two_inputs_with_one_output_name(tmp_path: Path) -> None:

@@ -2,6 +2,6 @@
 
 from __future__ import annotations
 
-from elphel_host.recordings.convert import Converted, ConvertResult, Failure, convert
+from elphel_host.recordings.conversion import Converted, ConvertResult, Failure, convert
 
 __all__ = ["ConvertResult", "Converted", "Failure", "convert"]

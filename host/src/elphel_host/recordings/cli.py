@@ -1,6 +1,6 @@
 """``elphel jp4 convert PATH... --out DIR [--quad | --burst] [--json]``: Elphel recordings.
 
-The conversion is :mod:`elphel_host.recordings.convert`; this module parses the options,
+The conversion is :mod:`elphel_host.recordings.conversion`; this module parses the options,
 shows progress on stderr and reports each file that failed, then the result.
 """
 
@@ -11,7 +11,7 @@ import sys
 from typing import Any
 
 from elphel_host.cli_common import ProgressLine, add_json_option, emit
-from elphel_host.recordings.convert import convert
+from elphel_host.recordings.conversion import convert
 
 
 def register(subparsers: Any) -> None:
