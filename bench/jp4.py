@@ -142,11 +142,13 @@ def main() -> int:
             files.append(path)
         one = run_convert(files, root / "out", 1)
         every = run_convert(files, root / "out", args.workers)
+    load_after = os.getloadavg()[0]
 
     result: dict[str, Any] = {
         "conditions": {
             "cpus": os.cpu_count(),
             "load_average_1min_before": load_before,
+            "load_average_1min_after": load_after,
             "python": sys.version.split()[0],
             "numpy": np.__version__,
             "pillow": PIL.__version__,
@@ -181,7 +183,9 @@ def main() -> int:
     result["ratios"] = ratios
     result["targets_met"] = {
         "decode_le_1.5x_plain": ratios["decode_jp4_over_plain"] <= 1.5,
-        "convert_uses_both_cores": every["cpu_over_wall"] >= 1.5,
+        # CPU/wall on every core against one thread, both in this run: about 2 when both
+        # cores are free to use (other load on the machine lowers it; see conditions)
+        "convert_uses_both_cores": ratios["cpu_over_wall_every_core_over_one"] >= 1.5,
         "quality_100_median_under_half_step": (
             result["round_trip"]["quality_100"]["median_code_steps"] < 0.5
         ),
