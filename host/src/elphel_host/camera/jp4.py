@@ -6,8 +6,9 @@ times 65535, black level subtracted, with the metadata an elphel-camd capture ca
 (frame, timestamp_ns, port, bayer after the flips, EXPOS, gains, WOI, flips, COLOR) plus
 ``source``, ``gamma``, ``black_level``, ``gamma_scale`` and ``quality``. The JPEG itself
 is decoded by Pillow (libjpeg-turbo); undoing the JP4/JP46 block layout is a reshape and
-a transpose, undoing the gamma a 256-entry lookup per Bayer site. `decode_frame` also
-takes imgsrv's raw ``image/tiff`` (COLOR=15), so callers have one entry point.
+a transpose, undoing the gamma one lookup per pair of adjacent samples in a table built
+from the two sites' inverse gamma tables (`elphel_host.camera.makernote`). `decode_frame`
+also takes imgsrv's raw ``image/tiff`` (COLOR=15), so callers have one entry point.
 """
 
 from __future__ import annotations
