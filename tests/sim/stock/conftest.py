@@ -8,7 +8,8 @@ from elphel_sim.scenarios import build
 from elphel_sim.stock.firmware import StockFirmware
 from elphel_sim.stock.server import imgsrv_app, parsedit_app
 
-SMALL = {"WOI_WIDTH": 256, "WOI_HEIGHT": 128, "EXPOS": 5000}
+# A small window at 40 fps: quick to render, and the ring's 64 frames last 1.6 s.
+SMALL = {"WOI_WIDTH": 256, "WOI_HEIGHT": 128, "EXPOS": 5000, "FP1000SLIM": 40000, "FPSFLAGS": 1}
 
 
 @pytest.fixture
