@@ -134,7 +134,7 @@ def test_exif_read_back_by_pillow() -> None:
     assert note[:4] == (0x10000, 0x18000, 0x20000, 0x28000)
     assert note[4:8] == ((10 << 24) | (57 << 16) | 0x400,) * 4
     assert note[8] == (64 << 16) | 16 and note[9] == (48 << 16) | 32
-    assert note[10] == 1 | (2 << 2) | (5 << 4)
+    assert note[10] == 1 | (2 << 2) | (5 << 4) | 0x111100  # decimation, binning 1
     assert note[13] & 0x7F == 90
     assert note[14] == note[15] == 0xFFFFFFFF
 

@@ -167,6 +167,8 @@ def maker_note(
     bayer_mode: int,
     color_mode: int,
     quality: int,
+    decimation: tuple[int, int] = (1, 1),
+    binning: tuple[int, int] = (1, 1),
 ) -> list[int]:
     """Elphel's 16-word MakerNote (gains, gamma words, window, mode, quality, no temperatures)."""
     words = [int(g) & 0xFFFFFFFF for g in gains]
@@ -175,7 +177,10 @@ def maker_note(
     left, top, width, height = woi
     words.append((width << 16) | left)
     words.append((height << 16) | top)
-    words.append((flips[0] & 1) | (flips[1] & 1) << 1 | (bayer_mode & 3) << 2 | color_mode << 4)
+    mode = (flips[0] & 1) | (flips[1] & 1) << 1 | (bayer_mode & 3) << 2 | color_mode << 4
+    mode |= (decimation[0] & 0xF) << 8 | (decimation[1] & 0xF) << 12
+    mode |= (binning[0] & 0xF) << 16 | (binning[1] & 0xF) << 20
+    words.append(mode)
     words += [0, 0, quality & 0x7F, 0xFFFFFFFF, 0xFFFFFFFF]
     return words
 
@@ -197,6 +202,8 @@ def encode_jp4(
     flips: tuple[int, int] = (0, 0),
     bayer_mode: int = 0,
     woi: tuple[int, int, int, int] | None = None,
+    decimation: tuple[int, int] = (1, 1),
+    binning: tuple[int, int] = (1, 1),
     model: str = "NC393",
 ) -> bytes:
     """Compress one read-out Bayer frame the way a stock NC393 does.
@@ -228,6 +235,8 @@ def encode_jp4(
         (G R / B G unflipped), and recorded in the MakerNote.
     woi
         (WOI_LEFT, WOI_TOP, WOI_WIDTH, WOI_HEIGHT); default (0, 0, W, H).
+    decimation, binning
+        (DCM_HOR, DCM_VERT) and (BIN_HOR, BIN_VERT), 1..15, recorded in the MakerNote.
     model
         Exif Model.
 
@@ -286,6 +295,8 @@ def encode_jp4(
         bayer_mode=bayer_mode,
         color_mode=color_mode,
         quality=quality,
+        decimation=decimation,
+        binning=binning,
     )
     app1 = exif_block(
         frame=frame,
