@@ -20,6 +20,7 @@ def firmware():
     fw.service.set_params(0, SMALL)
     board.start_clock()
     assert fw.wait_frame(0, fw.frame(0) + 5)
+    fw.service.capture(0)  # the first image builds the scene's texture (longer than the ring)
     yield fw
     fw.service.close()
 

@@ -10,14 +10,13 @@ serves: JP4 or JP46 through `elphel_sim.jp4.encode_jp4`, or a 16-bit TIFF for CO
 
 from __future__ import annotations
 
-import io
+import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
-import tifffile
 from numpy.typing import NDArray
 
 from elphel_sim.jp4 import JP4, JP46, encode_jp4, maker_note
@@ -29,6 +28,8 @@ BAYER_DEFAULTS = {"COLOR": JP4, "QUALITY": 100, **dict.fromkeys(GAMMA_NAMES, ELP
 # The Lepton's frames bypass the compressor: always raw 16-bit.
 RAW_DEFAULTS = {"COLOR": RAW, "QUALITY": 100, **dict.fromkeys(GAMMA_NAMES, ELPHEL_GAMMA)}
 NAMES = frozenset(BAYER_DEFAULTS)
+EXIF_IFD = 0x8769  # the Exif IFD pointer tag
+_ASCII, _SHORT, _LONG, _RATIONAL = 2, 3, 4, 5  # TIFF field types
 KEEP_FRAMES = 256  # frames of history kept (the sensor parameters keep as many)
 
 
@@ -161,35 +162,78 @@ def encode_frame(
     return EncodedFrame(data, f"image/{extension}", extension)
 
 
-def raw_tiff(image: NDArray[np.uint16], metadata: Mapping[str, Any], note: list[int]) -> bytes:
-    """A raw frame as a big-endian 16-bit TIFF with the Exif fields as tags of its IFD.
+def ifd_bytes(entries: list[tuple[int, int, int, bytes]], start: int) -> bytes:
+    """One big-endian TIFF IFD written at file offset ``start`` (values after it).
 
-    ImageNumber (0x9211) the frame, PageNumber (0x0129) the port, ExposureTime, DateTime
-    and DateTimeOriginal, SubSecTimeOriginal (microseconds) and the 16-word MakerNote
-    (0x927C, LONG), all in the first IFD (a TIFF needs no Exif sub-IFD to carry them).
+    ``entries`` are (tag, type, count, value bytes); values over 4 bytes go after the
+    IFD, word aligned.
     """
+    entries = sorted(entries)
+    data_at = start + 2 + 12 * len(entries) + 4
+    head, data = [struct.pack(">H", len(entries))], b""
+    for tag, kind, count, payload in entries:
+        if len(payload) <= 4:
+            head.append(struct.pack(">HHI", tag, kind, count) + payload.ljust(4, b"\0"))
+        else:
+            head.append(struct.pack(">HHII", tag, kind, count, data_at + len(data)))
+            data += payload + b"\0" * (len(payload) % 2)
+    return b"".join(head) + b"\0\0\0\0" + data
+
+
+def raw_tiff(image: NDArray[np.uint16], metadata: Mapping[str, Any], note: list[int]) -> bytes:
+    """A raw frame as a big-endian 16-bit TIFF carrying the Exif fields a JPEG frame has.
+
+    IFD0 holds the image tags, Make, Model, Software, DateTime, ImageNumber (0x9211, the
+    frame), PageNumber (0x0129, the port) and the Exif IFD pointer; the Exif IFD holds
+    ExposureTime, DateTimeOriginal, SubSecTimeOriginal (microseconds) and the 16-word
+    MakerNote (0x927C, LONG): the same structure as the Exif block of a JP4 frame. One
+    strip, uncompressed, minisblack.
+    """
+    pixels = np.ascontiguousarray(image, dtype=">u2")
+    height, width = pixels.shape
     ns = int(metadata["timestamp_ns"])
     stamp = datetime.fromtimestamp(ns // 1_000_000_000, tz=UTC).strftime("%Y:%m:%d %H:%M:%S")
-    usec = f"{(ns // 1000) % 1_000_000:06d}"
-    extratags = [
-        (0x010F, "s", 0, "Elphel", True),
-        (0x0110, "s", 0, "NC393", True),
-        (0x0129, "H", 2, (int(metadata["port"]), 4), True),
-        (0x0132, "s", 0, stamp, True),
-        (0x829A, "2I", 1, (int(metadata.get("EXPOS", 0)), 1_000_000), True),
-        (0x9003, "s", 0, stamp, True),
-        (0x9211, "I", 1, int(metadata["frame"]) & 0xFFFFFFFF, True),
-        (0x9291, "s", 0, usec, True),
-        (0x927C, "I", 16, tuple(w & 0xFFFFFFFF for w in note), True),
-    ]
-    buf = io.BytesIO()
-    tifffile.imwrite(
-        buf,
-        np.ascontiguousarray(image, dtype=np.uint16),
-        byteorder=">",
-        photometric="minisblack",
-        software="elphel-sim",
-        metadata=None,
-        extratags=extratags,
+    usec = f"{(ns // 1000) % 1_000_000:06d}".encode("ascii") + b"\0"
+    stamp_z = stamp.encode("ascii") + b"\0"
+
+    def text(value: str) -> tuple[int, bytes]:
+        raw = value.encode("ascii") + b"\0"
+        return len(raw), raw
+
+    def ifd0(exif_at: int, strip_at: int) -> bytes:
+        return ifd_bytes(
+            [
+                (256, _LONG, 1, struct.pack(">I", width)),
+                (257, _LONG, 1, struct.pack(">I", height)),
+                (258, _SHORT, 1, struct.pack(">H", 16)),
+                (259, _SHORT, 1, struct.pack(">H", 1)),  # no compression
+                (262, _SHORT, 1, struct.pack(">H", 1)),  # minisblack
+                (0x010F, _ASCII, *text("Elphel")),
+                (0x0110, _ASCII, *text("NC393")),
+                (273, _LONG, 1, struct.pack(">I", strip_at)),
+                (277, _SHORT, 1, struct.pack(">H", 1)),
+                (278, _LONG, 1, struct.pack(">I", height)),
+                (279, _LONG, 1, struct.pack(">I", pixels.nbytes)),
+                (0x0129, _SHORT, 2, struct.pack(">HH", int(metadata["port"]), 4)),
+                (0x0131, _ASCII, *text("elphel-sim")),
+                (0x0132, _ASCII, len(stamp_z), stamp_z),
+                (EXIF_IFD, _LONG, 1, struct.pack(">I", exif_at)),
+                (0x9211, _LONG, 1, struct.pack(">I", int(metadata["frame"]) & 0xFFFFFFFF)),
+            ],
+            8,
+        )
+
+    exif_at = 8 + len(ifd0(0, 0))
+    note_bytes = struct.pack(f">{len(note)}I", *(w & 0xFFFFFFFF for w in note))
+    exposure = struct.pack(">II", int(metadata.get("EXPOS", 0)), 1_000_000)
+    exif = ifd_bytes(
+        [
+            (0x829A, _RATIONAL, 1, exposure),
+            (0x9003, _ASCII, len(stamp_z), stamp_z),
+            (0x9291, _ASCII, len(usec), usec),
+            (0x927C, _LONG, len(note), note_bytes),
+        ],
+        exif_at,
     )
-    return buf.getvalue()
+    strip_at = exif_at + len(exif)
+    return b"MM\0\x2a" + struct.pack(">I", 8) + ifd0(exif_at, strip_at) + exif + pixels.tobytes()
