@@ -11,6 +11,7 @@ serves: JP4 or JP46 through `elphel_sim.jp4.encode_jp4`, or a 16-bit TIFF for CO
 from __future__ import annotations
 
 import struct
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -57,26 +58,29 @@ class CompressorSchedule:
         self._base: dict[str, int] = dict(RAW_DEFAULTS if raw_only else BAYER_DEFAULTS)
         self._base_frame = 0
         self._changes: dict[int, dict[str, int]] = {}
+        self._lock = threading.Lock()  # parsedit writes while imgsrv threads read
 
     def set(self, frame: int, changes: Mapping[str, int]) -> dict[str, int]:
         """Schedule changes for ``frame`` and later; return those accepted (valid ones)."""
         taken = {k: v for k, v in changes.items() if valid(k, v, raw_only=self.raw_only)}
         if taken:
-            target = max(frame, self._base_frame + 1)
-            self._changes[target] = {**self._changes.get(target, {}), **taken}
+            with self._lock:
+                target = max(frame, self._base_frame + 1)
+                self._changes[target] = {**self._changes.get(target, {}), **taken}
         return taken
 
     def state_at(self, frame: int) -> dict[str, int]:
         """The compressor parameters in effect for a frame."""
-        state = dict(self._base)
-        for target in sorted(self._changes):
-            if target > frame:
-                break
-            state.update(self._changes[target])
-        old = [t for t in self._changes if t < frame - KEEP_FRAMES]
-        for target in sorted(old):
-            self._base.update(self._changes.pop(target))
-            self._base_frame = target
+        with self._lock:
+            old = [t for t in self._changes if t < frame - KEEP_FRAMES]
+            for target in sorted(old):
+                self._base.update(self._changes.pop(target))
+                self._base_frame = target
+            state = dict(self._base)
+            for target in sorted(self._changes):
+                if target > frame:
+                    break
+                state.update(self._changes[target])
         return state
 
 
