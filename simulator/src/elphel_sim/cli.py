@@ -19,6 +19,13 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--seed", type=int, default=0, help="seed of every noise source")
     up.add_argument("--camera-port", type=int, default=0, help="camera REST port (0 = free port)")
     up.add_argument("--stage-port", type=int, default=0, help="stage TCP port (0 = free port)")
+    up.add_argument(
+        "--firmware",
+        choices=("camd", "elphel"),
+        default="camd",
+        help="camd: elphel-camd's REST API (default); elphel: a stock NC393's parsedit.php "
+        "on the camera port and imgsrv on four consecutive free ports",
+    )
     up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
     return p
 
@@ -34,6 +41,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             camera_port=args.camera_port,
             stage_port=args.stage_port,
             as_json=args.json,
+            firmware=args.firmware,
         )
     except OSError as e:
         print(f"elphel-sim: {e}", file=sys.stderr)

@@ -30,6 +30,8 @@ from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
+from elphel_sim.stock.firmware import StockFirmware
+from elphel_sim.stock.server import consecutive_sockets, imgsrv_app, parsedit_app
 
 
 def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> FastAPI:
@@ -185,16 +187,37 @@ async def serve_all(served: list[Served]) -> None:
     )
 
 
-def up(*, scenario: str, seed: int, camera_port: int, stage_port: int, as_json: bool) -> int:
+def up(
+    *,
+    scenario: str,
+    seed: int,
+    camera_port: int,
+    stage_port: int,
+    as_json: bool,
+    firmware: str = "camd",
+) -> int:
+    """Serve the rig; ``firmware`` "camd" (elphel-camd's REST) or "elphel" (stock NC393)."""
     board = SimCameraBoard(build(scenario, seed=seed), seed=seed)
     camera = CameraService(board)
+    secret = new_token()
+    token: str | None = secret
+    if firmware == "elphel":  # the stock NC393: parsedit.php and imgsrv, no token
+        stock = StockFirmware(board, camera)
+        cameras = [Served(parsedit_app(stock), bind_loopback(camera_port))]
+        imgsrv = consecutive_sockets(bind_loopback)
+        cameras += [Served(imgsrv_app(stock, p), sock) for p, sock in enumerate(imgsrv)]
+        host, port = cameras[0].sock.getsockname()[:2]
+        camera_url, token = f"nc393://{host}:{port}?imgsrv={imgsrv[0].getsockname()[1]}", None
+        hint = f"elphel camera info --url {camera_url}"
+    else:
+        cameras = [Served(create_app(camera, token=secret), bind_loopback(camera_port))]
+        camera_url = cameras[0].url
+        hint = f"elphel camera info --url {camera_url} --token {token}"
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
-    token = new_token()
-    camera_served = Served(create_app(camera, token=token), bind_loopback(camera_port))
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
     announce = {
-        "camera_url": camera_served.url,
+        "camera_url": camera_url,
         "token": token,
         "stage_url": stage.tcp_url,
         "stage_pty": stage.pty_path,
@@ -206,16 +229,13 @@ def up(*, scenario: str, seed: int, camera_port: int, stage_port: int, as_json: 
         print(f"simulated rig up (scenario {scenario}, seed {seed}); Ctrl-C stops it", flush=True)
         for key, value in announce.items():
             print(f"  {key:11s} {value}", flush=True)
-        print(
-            f"  try: elphel camera info --url {camera_served.url} --token {token}",
-            flush=True,
-        )
+        print(f"  try: {hint}", flush=True)
     try:
-        asyncio.run(serve_all([camera_served, sim_served]))
+        asyncio.run(serve_all([*cameras, sim_served]))
     finally:
         stage.close()
         camera.close()
-        for s in (camera_served, sim_served):
+        for s in (*cameras, sim_served):
             s.sock.close()
     print("elphel-sim: stopped", file=sys.stderr)
     return 0
