@@ -123,12 +123,15 @@ def test_absolute_frame_is_k_frames_from_now_and_a_missed_one_is_an_error():
         ({"EXPOS": "5000"}, "an integer"),
         ({"COLOR": 3}, r"COLOR=3 .*allowed: 0 \(mono JPEG\), 2 \(JP46\), 5 \(JP4\) or 15"),
         ({"TRIG_PERIOD": 100_000}, "TRIG_PERIOD=100000 .*set on the master port 1"),
+        ({"GTAB_R": 0x0A050400}, r"GTAB_R=168100864 .*gamma 0\.13\.\.2\.55"),
     ],
 )
 def test_bad_values_are_refused_before_anything_is_written(changes, match):
     url, answer = state_read(frame=100, TRIG_MASTER=1)
-    if "COLOR" in changes:  # a stock-only parameter is read with the state
-        url, answer = url + "&COLOR", xml({**MT9P006_STATE, "TRIG_MASTER": 1, "FRAME": 100})
+    stock = [n for n in changes if n in ("COLOR", "GTAB_R")]
+    if stock:  # a stock-only parameter is read with the state
+        url = url + "".join(f"&{n}" for n in stock)
+        answer = xml({**MT9P006_STATE, "TRIG_MASTER": 1, "FRAME": 100})
     t = Transcript([sensor_read(), (url, answer)])
     with client(t) as cam, pytest.raises(CameraParameterError, match=match) as err:
         cam.set_params(changes)
@@ -216,6 +219,14 @@ def test_unreachable_host_and_parsedit_errors_are_one_line():
         (httpx.Response(200, text="Warning: no\n"), "not a parsedit.php XML answer"),
         (xml({"FRAME": 3}), "did not answer SENSOR"),
         (xml({"SENSOR": "x"}), "answered SENSOR='x', not an integer"),  # type: ignore[dict-item]
+        (
+            httpx.Response(
+                200,
+                text='<?xml version="1.0"?>\n<framepars><ERROR>"Wrong address==0, probably '
+                "misspelled constant: 'SENSR'\"</ERROR></framepars>\n",
+            ),
+            "parsedit.php error: Wrong address==0, probably misspelled constant: 'SENSR'$",
+        ),
     ]:
         t = Transcript([(f"{WEB}0&SENSOR", answer)])
         with client(t) as cam, pytest.raises(CameraClientError, match=match) as err:

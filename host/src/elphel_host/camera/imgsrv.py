@@ -32,6 +32,10 @@ def frame_number(text: str, *, url: str) -> int:
 def image_type(content_type: str | None, *, url: str) -> str:
     """The media type of an image answer, checked to be one imgsrv sends frames as."""
     kind = (content_type or "").split(";")[0].strip().lower()
+    if kind == "image/gif":
+        raise CameraClientError(
+            f"{url}: no such frame (imgsrv sent its 1x1 GIF: not taken yet or overwritten)"
+        )
     if kind not in IMAGE_TYPES:
         raise CameraClientError(
             f"{url}: imgsrv answered {kind or 'no Content-Type'!r}, not a frame; "

@@ -45,14 +45,19 @@ def parse_answer(text: str, *, url: str, names: Iterable[str]) -> dict[str, int]
     Raises
     ------
     CameraClientError
-        The answer is not parsedit's XML, a value is not an integer, or a name asked is
-        missing (an unknown parameter: the stock script leaves it out).
+        The script's error answer (``<ERROR>``, e.g. for a name it does not know), an
+        answer that is not parsedit's XML, a value that is not an integer, or a name asked
+        that the answer lacks.
     """
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
         first = text.strip().splitlines()[0][:120] if text.strip() else "an empty answer"
         raise CameraClientError(f"{url}: not a parsedit.php XML answer ({e}): {first!r}") from e
+    error = root.find("ERROR")
+    if error is not None:
+        text = " ".join((error.text or "").split()).strip('"')
+        raise CameraClientError(f"{url}: parsedit.php error: {text}")
     if root.tag != "parameters":
         raise CameraClientError(f"{url}: parsedit.php answered <{root.tag}>, not <parameters>")
     values: dict[str, int] = {}

@@ -6,14 +6,15 @@ the same sensor driver's ``normalize`` as elphel-camd. The driver is built on a 
 refuses every transfer: ``defaults``, ``normalize``, ``latency`` and ``actual_gains`` are
 pure functions of a parameter state and never touch it.
 
-Three parameters exist on the stock camera only and are checked here: ``COLOR`` (0 mono
-JPEG, 2 JP46, 5 JP4, 15 raw 16-bit TIFF), ``BITS`` (8, 16) and ``QUALITY`` (JPEG %, 1..100).
+Some parameters exist on the stock camera only and are checked here: ``COLOR`` (0 mono
+JPEG, 2 JP46, 5 JP4, 15 raw 16-bit TIFF), ``BITS`` (8, 16), ``QUALITY`` (JPEG %, 1..100)
+and the gamma words ``GTAB_R/G/GB/B`` (black level, gamma, scale).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,11 +31,20 @@ from elphel_host.errors import CameraParameterError, ReadBackError, UnsupportedE
 SENSOR_NAMES = {0x34: "MT9P006", 0x38: "MT9F002", 0x44: "LEPTON35", 0x48: "Boson640"}
 DRIVERS: dict[int, type[SensorDriver]] = {0x34: MT9P006, 0x38: MT9F002, 0x44: Lepton35}
 
-# Writable on the stock camera only: name -> allowed values, as text and as a test.
-STOCK_ONLY = {
-    "COLOR": ("0 (mono JPEG), 2 (JP46), 5 (JP4) or 15 (raw 16-bit TIFF)", {0, 2, 5, 15}),
-    "BITS": ("8 or 16", {8, 16}),
-    "QUALITY": ("1..100 (JPEG quality %)", set(range(1, 101))),
+# Writable on the stock camera only: name -> (allowed, as text; the test).
+_GTAB = (
+    "black << 24 | round(100 * gamma) << 16 | scale (0x400 = 1.0), gamma 0.13..2.55 "
+    "(e.g. 0x0A390400: black 10/256, gamma 0.57)",
+    lambda v: 0 <= v <= 0xFFFFFFFF and (v >> 16) & 0xFF >= 13,
+)
+STOCK_ONLY: dict[str, tuple[str, Callable[[int], bool]]] = {
+    "COLOR": (
+        "0 (mono JPEG), 2 (JP46), 5 (JP4) or 15 (raw 16-bit TIFF)",
+        lambda v: v in (0, 2, 5, 15),
+    ),
+    "BITS": ("8 or 16", lambda v: v in (8, 16)),
+    "QUALITY": ("1..100 (JPEG quality %)", lambda v: 1 <= v <= 100),
+    **dict.fromkeys(("GTAB_R", "GTAB_G", "GTAB_GB", "GTAB_B"), _GTAB),
 }
 # parsedit.php schedules at most this many frames ahead without blocking (its maxahead).
 MAX_AHEAD = 6
@@ -123,7 +133,7 @@ class StockModel:
                 raise _refused(name, value, "an integer")
             if name in STOCK_ONLY:
                 text, allowed = STOCK_ONLY[name]
-                if value not in allowed:
+                if not allowed(value):
                     raise _refused(name, value, text)
                 continue
             spec = PARAMS.get(name)
