@@ -54,6 +54,10 @@ class InputFormatError(ElphelError, ValueError):
     """A file or directory given as input does not have the documented format."""
 
 
+class Jp4FormatError(InputFormatError):
+    """A JP4/JP46/JPEG frame is damaged or lacks what decoding needs (Exif, MakerNote, size)."""
+
+
 class ScaleError(ElphelError, ValueError):
     """An up-sampling factor outside what the operation allows."""
 
