@@ -18,6 +18,7 @@ import tifffile
 
 from elphel_camd.frame_metadata import bayer_after_flips
 from elphel_host.camera.frames import CapturedBurst, CapturedFrame
+from elphel_host.camera.jp4 import decode_frame
 from elphel_host.errors import CameraClientError, InputFormatError
 
 _FIRST = ("frame", "timestamp_ns", "port", "sensor", "bayer")
@@ -74,8 +75,6 @@ def decoded_frame(
     params: Mapping[str, int],
 ) -> CapturedFrame:
     """Decode one imgsrv answer into a `CapturedFrame` (errors name the URL)."""
-    from elphel_host.camera.jp4 import decode_frame
-
     try:
         image, decoded = decode_frame(data, content_type)
     except InputFormatError as e:
