@@ -21,6 +21,11 @@ TRIGGER = "/trig"
 IMAGE_TYPES = ("image/jp4", "image/jp46", "image/jpeg", "image/tiff")
 
 
+def back_path(frames_back: int) -> str:
+    """The path sending the frame ``frames_back`` frames before the newest, from the buffer."""
+    return "/last" + "/prev" * frames_back + "/bimg"
+
+
 def frame_number(text: str, *, url: str) -> int:
     """The frame number of a ``/frame`` or ``/wframe`` answer (plain decimal text)."""
     body = text.strip()

@@ -21,7 +21,7 @@ import httpx
 from elphel_host.camera import imgsrv, parsedit
 from elphel_host.camera.frames import CapturedBurst, CapturedFrame
 from elphel_host.camera.nc393_address import NC393Address, parse_nc393_url
-from elphel_host.camera.nc393_frames import decoded_frame, tiff_pages
+from elphel_host.camera.nc393_frames import decoded_frame, newest_stamp, tiff_pages
 from elphel_host.camera.staging import Applied, Staging
 from elphel_host.camera.stock_model import STOCK_ONLY, Checked, StockModel, port_entry
 from elphel_host.camera.unsupported import NoEventsNoRegisters
@@ -74,7 +74,7 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
             for p in range(PORTS)
         ]
         self._models: dict[int, StockModel] = {}
-        self._newest: dict[int, tuple[int, CapturedFrame]] = {}
+        self._stamps: dict[int, tuple[int, tuple[int, int]]] = {}
         self._lock = threading.Lock()
 
     def close(self) -> None:
@@ -256,34 +256,35 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
     # -- frames ----------------------------------------------------------------------------
 
     def frame(self, port: int = 0) -> dict[str, int]:
-        """``port``, ``frame`` and ``timestamp_ns`` of the newest complete frame.
+        """``port``, ``frame`` and ``timestamp_ns`` of the newest frame in imgsrv's buffer.
 
-        imgsrv's ``/frame`` counter tells when a new frame has come; only then is the
-        newest frame fetched (``/bimg``) to read its number and time, so polling costs one
-        small request per call and one frame per new frame.
+        imgsrv's ``/frame`` counter tells when a new frame has come; only then are the
+        first KiB of the newest frame (``/bimg``, up to its Exif block) read for its
+        number and time, so polling costs one small request per call.
         """
-        newest = self._newest_frame(port)
-        return {
-            "port": port,
-            "frame": newest.frame,
-            "timestamp_ns": int(newest.metadata["timestamp_ns"]),
-        }
+        counter = self._counter(port)
+        with self._lock:
+            cached = self._stamps.get(port)
+        if cached is None or cached[0] != counter:
+            cached = (counter, self._stamp(port))
+            with self._lock:
+                self._stamps[port] = cached
+        number, stamp = cached[1]
+        return {"port": port, "frame": number, "timestamp_ns": stamp}
 
-    def _newest_frame(self, port: int) -> CapturedFrame:
+    def _counter(self, port: int) -> int:
         self._check_port(port)
         client = self._imgsrv[port]
-        counter = imgsrv.frame_number(
-            self._get(client, imgsrv.FRAME).text,
-            url=str(client.base_url).rstrip("/") + imgsrv.FRAME,
-        )
-        with self._lock:
-            cached = self._newest.get(port)
-        if cached is not None and cached[0] == counter:
-            return cached[1]
-        got = self._fetch(port, imgsrv.NEWEST)
-        with self._lock:
-            self._newest[port] = (counter, got)
-        return got
+        url = str(client.base_url).rstrip("/") + imgsrv.FRAME
+        return imgsrv.frame_number(self._get(client, imgsrv.FRAME).text, url=url)
+
+    def _stamp(self, port: int) -> tuple[int, int]:
+        client = self._imgsrv[port]
+
+        def raw(data: bytes, kind: str, url: str) -> CapturedFrame:
+            return self._decoded(port, data, kind, url, {})
+
+        return newest_stamp(client, raw)
 
     def _fetch(
         self, port: int, path: str, params: Mapping[str, int] | None = None
@@ -292,10 +293,15 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
         url = str(client.base_url).rstrip("/") + path
         response = self._get(client, path)
         kind = imgsrv.image_type(response.headers.get("content-type"), url=url)
+        return self._decoded(port, response.content, kind, url, params)
+
+    def _decoded(
+        self, port: int, data: bytes, kind: str, url: str, params: Mapping[str, int] | None
+    ) -> CapturedFrame:
         model = self.model(port)
         now = self.params(port) if params is None else params
         return decoded_frame(
-            response.content,
+            data,
             kind,
             url=url,
             port=port,
@@ -305,65 +311,57 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
         )
 
     def capture(self, port: int = 0, *, frame: int | None = None) -> CapturedFrame:
-        """The next frame (``/towp/wait/bimg``), or frame ``frame`` if it is the newest.
+        """The next frame (``/towp/wait/bimg``), or frame ``frame`` from imgsrv's buffer.
 
         The metadata are an elphel-camd capture's: what the frame's Exif and MakerNote
         record (frame, time, exposure, gains, window, flips, Bayer order), ``port`` and
         ``sensor``, and the other parameters as in effect when the frame was fetched.
-        ``frame`` may name the newest frame or one still to come (at most 14 ahead):
-        imgsrv keeps older frames, but not addressed by number (`UnsupportedError`).
+        ``frame`` may be one still to come (at most 14 ahead: waited for) or one still in
+        the buffer: reached from the newest with imgsrv's ``prev`` moves and checked by
+        its number (`UnsupportedError` once it is overwritten).
         """
         self._check_port(port)
         if frame is None:
             return self._fetch(port, imgsrv.NEXT)
-        newest = self._newest_frame(port)
-        if newest.frame == frame:
-            return newest
-        if frame < newest.frame:
-            raise UnsupportedError(
-                f"port {port}: frame {frame} is no longer the newest (frame {newest.frame} "
-                "is); a stock NC393's imgsrv serves the newest frame and those to come"
-            )
-        if frame > newest.frame + CAPTURE_AHEAD_MAX:
+        newest = self._counter(port)
+        if frame > newest + CAPTURE_AHEAD_MAX:
             raise CameraParameterError(
-                f"port {port}: frame {frame} is not taken yet (newest {newest.frame}); "
-                f"allowed: up to {newest.frame + CAPTURE_AHEAD_MAX}",
+                f"port {port}: frame {frame} is not taken yet (newest {newest}); "
+                f"allowed: up to {newest + CAPTURE_AHEAD_MAX}",
                 parameter="frame",
                 value=frame,
-                allowed=f"..{newest.frame + CAPTURE_AHEAD_MAX}",
+                allowed=f"..{newest + CAPTURE_AHEAD_MAX}",
             )
-        while True:
-            got = self._fetch(port, imgsrv.NEXT)
+        params = self.params(port)
+        while frame > newest:
+            got = self._fetch(port, imgsrv.NEXT, params)
             if got.frame == frame:
                 return got
-            if got.frame > frame:
-                raise CameraClientError(
-                    f"port {port}: frame {frame} was skipped: imgsrv's next frame was {got.frame}"
-                )
+            newest = got.frame  # past it already (slow fetches): go back for it
+        back = newest - frame
+        for _ in range(3):  # the newest may move on meanwhile; imgsrv's counter may lead
+            got = self._fetch(port, imgsrv.back_path(back), params)
+            if got.frame == frame:
+                return got
+            back += got.frame - frame
+            if back < 0:
+                break
+        raise UnsupportedError(
+            f"port {port}: frame {frame} is no longer in imgsrv's buffer (going back from the "
+            f"newest reached frame {got.frame}); fetch frames sooner, or more slowly triggered"
+        )
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
-        """``count`` consecutive frames, each ``/towp/wait/bimg``; a gap is an error.
+        """``count`` consecutive frames (from the next one or ``frame``) as one TIFF.
 
-        Raises
-        ------
-        CameraClientError
-            A frame number was skipped: fetching and decoding is slower than the frame
-            rate (lower it with FP1000SLIM, or use a trigger).
+        Frames the fetching falls behind are taken from imgsrv's buffer; one overwritten
+        before it was fetched is an `UnsupportedError` naming it.
         """
         if count < 1:
             raise ValueError(f"burst count {count!r}; allowed: 1 or more")
-        first = self.capture(port, frame=frame)
-        frames = [first]
-        params = self.params(port)
+        frames = [self.capture(port, frame=frame)]
         while len(frames) < count:
-            got = self._fetch(port, imgsrv.NEXT, params)
-            if got.frame != frames[-1].frame + 1:
-                raise CameraClientError(
-                    f"port {port}: burst broken after {len(frames)} of {count} frames: frame "
-                    f"{frames[-1].frame} then {got.frame}; fetching and decoding is slower "
-                    "than the frame rate (lower FP1000SLIM or trigger the frames)"
-                )
-            frames.append(got)
+            frames.append(self.capture(port, frame=frames[0].frame + len(frames)))
         return tiff_pages(frames)
 
     def trigger(self, port: int = 0) -> None:
