@@ -42,7 +42,8 @@ def register(sub: Any) -> None:
     set_ = cmd.add_parser(
         "set",
         parents=[common, ported],
-        help="set parameters, all or none (e.g. EXPOS=5000 GAINR=0x20000)",
+        help="set parameters (e.g. EXPOS=5000 GAINR=0x20000): all or none on elphel-camd; "
+        "on a stock NC393 checked first, written in one request, read back",
     )
     set_.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
     when = set_.add_mutually_exclusive_group()
