@@ -108,10 +108,33 @@ def test_quality_100_within_one_code_step(case: tuple) -> None:
     error = np.abs(got - linear(read, black))
     assert np.all(error <= step[code] / 2 + neighbour[code] + DN)
     assert np.median(error / step[code]) < 0.5
-    # and the decoded image is the flipped source, not the unflipped one
-    wrong = np.abs(got - linear(source_image(), black)) if flips != (0, 0) else None
-    if wrong is not None:
-        assert np.median(wrong / step[code]) > 5
+    # and the decoded image is the flipped source, in no other orientation
+    for other in FLIPPED_BAYER:
+        if other != flips:
+            wrong = np.abs(got - linear(readout(source_image(), *other), black))
+            assert np.median(wrong / step[code]) > 5, other
+
+
+@pytest.mark.parametrize("case", CASES, ids=[_ids(c) for c in CASES])
+def test_quality_90_bayer_order(case: tuple) -> None:
+    """At quality 90 too the order is exactly right: the flipped source, no other orientation."""
+    mode, gamma, black, flips = case
+    source = source_image()
+    read = readout(source, *flips)
+    data = encode_jp4(
+        read, bits=12, frame=77, timestamp_ns=T0, color_mode=mode, quality=90,
+        gamma=gamma, black=black, flips=flips,
+    )  # fmt: skip
+    image, meta = decode_jp4(data)
+    assert meta["bayer"] == FLIPPED_BAYER[flips] and meta["quality"] == 90
+    lut, step, _, _ = code_bins(gamma, black)
+    code = lut[read.astype(np.int64) * 16]
+    right = np.median(np.abs(image - linear(read, black)) / step[code])
+    assert right < 3.0
+    for other in FLIPPED_BAYER:
+        if other != flips:
+            wrong = np.abs(image - linear(readout(source, *other), black)) / step[code]
+            assert np.median(wrong) > 3 * right, other
 
 
 @pytest.mark.parametrize("mode", [5, 2])
