@@ -275,3 +275,34 @@ def test_write_query_orders_value_ahead_and_port_mask():
     query = parsedit.write_query(0, {"TRIG": 4, "TRIG_PERIOD": 50_000}, ahead=4, mask=0xF)
     assert query == "immediate&sensor_port=0&TRIG=4*4!f&TRIG_PERIOD=50000*4!f&FRAME"
     assert parsedit.read_query(2, ["SENSOR"]) == "immediate&sensor_port=2&SENSOR"
+
+
+def test_one_masked_request_changes_several_ports_each_confirmed_at_its_frame():
+    steps = [
+        sensor_read(0),
+        state_read(0, frame=100),
+        sensor_read(2),
+        state_read(2, frame=90),  # port 2 counts its own frames
+        (f"{WEB}0&TRIG=4*3!5&FRAME", xml({"TRIG": 0, "FRAME": 101})),  # one frame passed
+        state_read(0, frame=104, TRIG=4),
+        state_read(2, frame=94, TRIG=4),
+    ]
+    t = Transcript(steps)
+    with client(t) as cam:
+        applied = cam.set_params_ports({"TRIG": 4}, (2, 0))
+    t.done()
+    assert {p: a.frame for p, a in applied.items()} == {0: 104, 2: 94}
+    assert applied[2].params["TRIG"] == 4
+
+
+def test_a_masked_change_one_port_refuses_writes_nothing():
+    steps = [sensor_read(0), state_read(0, WOI_WIDTH=640), sensor_read(1), state_read(1)]
+    t = Transcript(steps)
+    with (
+        client(t) as cam,
+        pytest.raises(CameraParameterError, match=r"port 1: WOI_LEFT=1000 .*0\.\.0"),
+    ):
+        cam.set_params_ports({"WOI_LEFT": 1000}, [0, 1])
+    t.done()
+    with client(Transcript([])) as cam, pytest.raises(ValueError, match="sensor port 5"):
+        cam.set_params_ports({"TRIG": 4}, [0, 5])

@@ -19,23 +19,20 @@ from typing import Any
 import httpx
 
 from elphel_host.camera import imgsrv, parsedit
-from elphel_host.camera.frames import CapturedBurst, CapturedFrame
-from elphel_host.camera.nc393_address import NC393Address, parse_nc393_url
-from elphel_host.camera.nc393_frames import decoded_frame, newest_stamp, tiff_pages
+from elphel_host.camera.nc393_address import PORTS, NC393Address, check_port, parse_nc393_url
+from elphel_host.camera.nc393_capture import StockFrames
 from elphel_host.camera.staging import Applied, Staging
+from elphel_host.camera.stock_http import http_get
 from elphel_host.camera.stock_model import STOCK_ONLY, Checked, StockModel, port_entry
 from elphel_host.camera.unsupported import NoEventsNoRegisters
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraClientError, CameraParameterError, UnsupportedError
 
-PORTS = 4
 # Read with every parameter listing when the camera has them (the model needs the rest).
 _EXTRA = ("FP1000S", "COLOR", "BITS", "QUALITY")
-# A capture waits for at most this many frames beyond the newest (elphel-camd's limit).
-CAPTURE_AHEAD_MAX = 14
 
 
-class NC393Client(NoEventsNoRegisters, Staging, Closing):
+class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
     """A stock Elphel NC393, through its own web server and imgsrv.
 
     Parameters
@@ -84,29 +81,14 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
 
     # -- plumbing --------------------------------------------------------------------------
 
-    def _get(self, client: httpx.Client, path: str) -> httpx.Response:
-        where = str(client.base_url).rstrip("/") + path
-        try:
-            response = client.get(path)
-        except httpx.HTTPError as e:
-            raise CameraClientError(f"cannot reach the camera at {where}: {e}") from e
-        if response.status_code >= 400:
-            first = response.text.strip().splitlines()[0][:120] if response.text.strip() else ""
-            raise CameraClientError(f"{where}: HTTP {response.status_code}: {first!r}")
-        return response
-
     def _parsedit(self, query: str, names: tuple[str, ...]) -> dict[str, int]:
         path = f"{parsedit.PATH}?{query}"
-        response = self._get(self._web, path)
+        response = http_get(self._web, path)
         url = str(self._web.base_url).rstrip("/") + path
         return parsedit.parse_answer(response.text, url=url, names=names)
 
-    def _check_port(self, port: int) -> None:
-        if not (isinstance(port, int) and 0 <= port < PORTS):
-            raise ValueError(f"sensor port {port!r}; allowed: 0..{PORTS - 1}")
-
     def _sensor_code(self, port: int) -> int:
-        self._check_port(port)
+        check_port(port)
         return self._parsedit(parsedit.read_query(port, ["SENSOR"]), ("SENSOR",))["SENSOR"]
 
     def model(self, port: int = 0) -> StockModel:
@@ -164,7 +146,7 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
         ``FRAME``). ``frame`` may only name the current frame: parsedit.php keeps no
         history (`UnsupportedError` otherwise).
         """
-        self._check_port(port)
+        check_port(port)
         if names is None:
             required = (*self.model(port).state_names, "SENSOR", "FRAME")
             asked = (*required, *_EXTRA)
@@ -212,13 +194,7 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
         """
         if frame is not None and ahead is not None:
             raise ValueError("give frame or ahead, not both")
-        model = self.model(port)
-        stock = tuple(n for n in changes if n in STOCK_ONLY)
-        now = self._parsedit(
-            parsedit.read_query(port, (*model.state_names, "FRAME", *stock)),
-            (*model.state_names, "FRAME"),
-        )
-        checked = model.check(now, changes)
+        model, now, checked, stock = self._checked(port, changes)
         current = now["FRAME"]
         k = model.ahead_for(checked, current=current, frame=frame, ahead=ahead)
         query = parsedit.write_query(port, changes, ahead=k, read=("FRAME",))
@@ -231,6 +207,54 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
             )
         found = self._confirm(port, model, checked, target, stock)
         return Applied(frame=target, params=found)
+
+    def set_params_ports(
+        self,
+        changes: Mapping[str, int],
+        ports: tuple[int, ...] | list[int],
+        *,
+        ahead: int | None = None,
+    ) -> dict[int, Applied]:
+        """The same change on several ports in ONE request (``NAME=value*K!MASK``).
+
+        Each port's change is checked against its own sensor's model first: nothing is
+        written if one fails. K is ``ahead``, else the largest of the ports' earliest.
+        The answer holds the first port's FRAME, so its frame is exact; another port's is
+        its FRAME read just before, plus the frames the first port advanced meanwhile,
+        plus K (exact when the ports share one frame clock or trigger). Every port is
+        read back once its frame has begun. ``TRIG_PERIOD`` is taken by the
+        ``TRIG_MASTER`` port only (the others copy it), as with `set_params`.
+        """
+        order = sorted(set(ports))
+        if not order:
+            raise ValueError("set_params_ports(): give at least one sensor port")
+        for p in order:
+            check_port(p)
+        checked = {p: self._checked(p, changes) for p in order}
+        k = max(c[2].min_ahead for c in checked.values()) if ahead is None else ahead
+        for model, now, chk, _ in checked.values():
+            model.ahead_for(chk, current=now["FRAME"], frame=None, ahead=k)
+        first = order[0]
+        mask = sum(1 << p for p in order)
+        query = parsedit.write_query(first, changes, ahead=k, mask=mask, read=("FRAME",))
+        moved = self._parsedit(query, ("FRAME",))["FRAME"] - checked[first][1]["FRAME"]
+        out = {}
+        for p, (model, now, chk, stock) in checked.items():
+            target = now["FRAME"] + moved + k
+            out[p] = Applied(frame=target, params=self._confirm(p, model, chk, target, stock))
+        return out
+
+    def _checked(
+        self, port: int, changes: Mapping[str, int]
+    ) -> tuple[StockModel, dict[str, int], Checked, tuple[str, ...]]:
+        """The port's model, its state now (with FRAME), the checked change, its stock names."""
+        model = self.model(port)
+        stock = tuple(n for n in changes if n in STOCK_ONLY)
+        now = self._parsedit(
+            parsedit.read_query(port, (*model.state_names, "FRAME", *stock)),
+            (*model.state_names, "FRAME"),
+        )
+        return model, now, model.check(now, changes), stock
 
     def _confirm(
         self, port: int, model: StockModel, checked: Checked, target: int, stock: tuple[str, ...]
@@ -253,117 +277,6 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
         model.check_read_back(checked, got)
         return got
 
-    # -- frames ----------------------------------------------------------------------------
-
-    def frame(self, port: int = 0) -> dict[str, int]:
-        """``port``, ``frame`` and ``timestamp_ns`` of the newest frame in imgsrv's buffer.
-
-        imgsrv's ``/frame`` counter tells when a new frame has come; only then are the
-        first KiB of the newest frame (``/bimg``, up to its Exif block) read for its
-        number and time, so polling costs one small request per call.
-        """
-        counter = self._counter(port)
-        with self._lock:
-            cached = self._stamps.get(port)
-        if cached is None or cached[0] != counter:
-            cached = (counter, self._stamp(port))
-            with self._lock:
-                self._stamps[port] = cached
-        number, stamp = cached[1]
-        return {"port": port, "frame": number, "timestamp_ns": stamp}
-
-    def _counter(self, port: int) -> int:
-        self._check_port(port)
-        client = self._imgsrv[port]
-        url = str(client.base_url).rstrip("/") + imgsrv.FRAME
-        return imgsrv.frame_number(self._get(client, imgsrv.FRAME).text, url=url)
-
-    def _stamp(self, port: int) -> tuple[int, int]:
-        client = self._imgsrv[port]
-
-        def raw(data: bytes, kind: str, url: str) -> CapturedFrame:
-            return self._decoded(port, data, kind, url, {})
-
-        return newest_stamp(client, raw)
-
-    def _fetch(
-        self, port: int, path: str, params: Mapping[str, int] | None = None
-    ) -> CapturedFrame:
-        client = self._imgsrv[port]
-        url = str(client.base_url).rstrip("/") + path
-        response = self._get(client, path)
-        kind = imgsrv.image_type(response.headers.get("content-type"), url=url)
-        return self._decoded(port, response.content, kind, url, params)
-
-    def _decoded(
-        self, port: int, data: bytes, kind: str, url: str, params: Mapping[str, int] | None
-    ) -> CapturedFrame:
-        model = self.model(port)
-        now = self.params(port) if params is None else params
-        return decoded_frame(
-            data,
-            kind,
-            url=url,
-            port=port,
-            sensor=model.model,
-            bayer=model.driver.bayer,
-            params=now,
-        )
-
-    def capture(self, port: int = 0, *, frame: int | None = None) -> CapturedFrame:
-        """The next frame (``/towp/wait/bimg``), or frame ``frame`` from imgsrv's buffer.
-
-        The metadata are an elphel-camd capture's: what the frame's Exif and MakerNote
-        record (frame, time, exposure, gains, window, flips, Bayer order), ``port`` and
-        ``sensor``, and the other parameters as in effect when the frame was fetched.
-        ``frame`` may be one still to come (at most 14 ahead: waited for) or one still in
-        the buffer: reached from the newest with imgsrv's ``prev`` moves and checked by
-        its number (`UnsupportedError` once it is overwritten).
-        """
-        self._check_port(port)
-        if frame is None:
-            return self._fetch(port, imgsrv.NEXT)
-        newest = self._counter(port)
-        if frame > newest + CAPTURE_AHEAD_MAX:
-            raise CameraParameterError(
-                f"port {port}: frame {frame} is not taken yet (newest {newest}); "
-                f"allowed: up to {newest + CAPTURE_AHEAD_MAX}",
-                parameter="frame",
-                value=frame,
-                allowed=f"..{newest + CAPTURE_AHEAD_MAX}",
-            )
-        params = self.params(port)
-        while frame > newest:
-            got = self._fetch(port, imgsrv.NEXT, params)
-            if got.frame == frame:
-                return got
-            newest = got.frame  # past it already (slow fetches): go back for it
-        back = newest - frame
-        for _ in range(3):  # the newest may move on meanwhile; imgsrv's counter may lead
-            got = self._fetch(port, imgsrv.back_path(back), params)
-            if got.frame == frame:
-                return got
-            back += got.frame - frame
-            if back < 0:
-                break
-        raise UnsupportedError(
-            f"port {port}: frame {frame} is no longer in imgsrv's buffer (going back from the "
-            f"newest reached frame {got.frame}); fetch frames sooner, or more slowly triggered"
-        )
-
-    def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
-        """``count`` consecutive frames (from the next one or ``frame``) as one TIFF.
-
-        Frames the fetching falls behind are taken from imgsrv's buffer; one overwritten
-        before it was fetched is an `UnsupportedError` naming it.
-        """
-        if count < 1:
-            raise ValueError(f"burst count {count!r}; allowed: 1 or more")
-        frames = [self.capture(port, frame=frame)]
-        while len(frames) < count:
-            frames.append(self.capture(port, frame=frames[0].frame + len(frames)))
-        return tiff_pages(frames)
-
     def trigger(self, port: int = 0) -> None:
         """Fire one internal trigger (imgsrv ``/trig``); the port must be in snapshot mode.
 
@@ -372,7 +285,7 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
         CameraParameterError
             The port's TRIG lacks the snapshot bit 4.
         """
-        self._check_port(port)
+        check_port(port)
         trig = self.params(port, names=("TRIG",))["TRIG"]
         if not trig & 4:
             raise CameraParameterError(
@@ -381,4 +294,4 @@ class NC393Client(NoEventsNoRegisters, Staging, Closing):
                 value=trig,
                 allowed="4 or 20 (snapshot)",
             )
-        self._get(self._imgsrv[port], imgsrv.TRIGGER)
+        http_get(self._imgsrv[port], imgsrv.TRIGGER)

@@ -44,6 +44,15 @@ class NC393Address:
         return f"nc393://{self.host}:{self.http_port}?imgsrv={self.imgsrv_base}"
 
 
+PORTS = 4  # sensor ports of an NC393, each with its imgsrv
+
+
+def check_port(port: int) -> None:
+    """Raise ValueError unless ``port`` is a sensor port 0..3."""
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port < PORTS:
+        raise ValueError(f"sensor port {port!r}; allowed: 0..{PORTS - 1}")
+
+
 def bad_url(url: str, why: str) -> ValueError:
     return ValueError(f"camera url {url!r}: {why}; allowed: {URL_FORMS}")
 
