@@ -100,11 +100,18 @@ def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
 
     ``aliases`` are older spellings of ``--camera`` kept for scripts (``--url``).
     """
-    _add_url_option(parser, "--camera", aliases, CAMERA_URL_ENV, "camera URL")
+    _add_url_option(
+        parser,
+        "--camera",
+        aliases,
+        CAMERA_URL_ENV,
+        "camera URL: http://HOST:PORT (elphel-camd) or nc393://HOST[:PORT][?imgsrv=BASE] "
+        "(a stock NC393)",
+    )
     parser.add_argument(
         "--token",
         default=os.environ.get(CAMERA_TOKEN_ENV),
-        help=f"bearer token (env {CAMERA_TOKEN_ENV})",
+        help=f"elphel-camd's bearer token; a stock NC393 needs none (env {CAMERA_TOKEN_ENV})",
     )
 
 

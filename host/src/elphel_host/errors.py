@@ -15,6 +15,33 @@ class CameraAuthError(CameraClientError, PermissionError):
     """The daemon answered 401/403: missing or wrong token."""
 
 
+class UnsupportedError(CameraClientError, NotImplementedError):
+    """The camera's backend cannot do what was asked; the message names the feature and why."""
+
+
+class CameraParameterError(CameraClientError, ValueError):
+    """A parameter value the camera's parameter model refuses; nothing was written.
+
+    ``parameter``, ``value`` and ``allowed`` say which and why, as elphel-camd's 422 does.
+    """
+
+    def __init__(self, message: str, *, parameter: str, value: object, allowed: str) -> None:
+        super().__init__(message)
+        self.parameter = parameter
+        self.value = value
+        self.allowed = allowed
+
+
+class ReadBackError(CameraClientError):
+    """After a change was in effect the camera reported another value than the one asked."""
+
+    def __init__(self, message: str, *, parameter: str, asked: int, found: int | None) -> None:
+        super().__init__(message)
+        self.parameter = parameter
+        self.asked = asked
+        self.found = found
+
+
 class QuadCaptureError(CameraClientError):
     """A quad set could not be taken: too few sensor ports, or frames not of one trigger."""
 

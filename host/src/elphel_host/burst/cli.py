@@ -14,7 +14,7 @@ from typing import Any
 
 from elphel_host.burst.capture import BurstRunner, CaptureResult, RigEngine, load_progress
 from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, write_plan
-from elphel_host.camera.client import CameraClient
+from elphel_host.camera.backends import connect
 from elphel_host.cli_common import (
     ProgressLine,
     add_camera_options,
@@ -213,7 +213,7 @@ def run_capture(args: argparse.Namespace) -> int:
             stream = stack.enter_context(
                 FusionStream(frames=len(plan.positions_mm), scale=fuse[0], method=fuse[1])
             )
-        with StageClient(args.stage) as stage, CameraClient(args.camera, args.token) as camera:
+        with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
             positioner = Positioner(stage, StageModel.load(args.model))
             so_far = load_progress(args.out)
             if so_far is not None:

@@ -8,7 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from elphel_host.camera.client import CameraClient, CameraEvent
+from elphel_host.camera.backends import connect
+from elphel_host.camera.events import CameraEvent
+from elphel_host.camera.protocol import Camera
 from elphel_host.cli_common import (
     add_camera_options,
     add_json_option,
@@ -40,7 +42,8 @@ def register(sub: Any) -> None:
     set_ = cmd.add_parser(
         "set",
         parents=[common, ported],
-        help="set parameters, all or none (e.g. EXPOS=5000 GAINR=0x20000)",
+        help="set parameters (e.g. EXPOS=5000 GAINR=0x20000): all or none on elphel-camd; "
+        "on a stock NC393 checked first, written in one request, read back",
     )
     set_.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
     when = set_.add_mutually_exclusive_group()
@@ -80,10 +83,10 @@ def register(sub: Any) -> None:
     watch.set_defaults(func=cmd_watch, parser=watch)
 
 
-def _client(args: argparse.Namespace) -> CameraClient:
+def _client(args: argparse.Namespace) -> Camera:
     if not args.camera:
         args.parser.error("no camera URL: give --camera (or --url) or set ELPHEL_CAMERA_URL")
-    return CameraClient(args.camera, args.token)
+    return connect(args.camera, args.token)
 
 
 def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, int]:
@@ -109,9 +112,15 @@ def cmd_info(args: argparse.Namespace) -> int:
         if sensor is None:
             lines.append(f"  port {port['port']}: no sensor")
         else:
+            # A stock NC393 names its sensors by SENSOR code: no chip id, no I2C address.
+            where = (
+                f"chip id 0x{sensor['chip_id']:04x}, I2C 0x{sensor['i2c_address']:02x}"
+                if "chip_id" in sensor
+                else f"SENSOR 0x{sensor['sensor_code']:02x}"
+            )
             lines.append(
-                f"  port {port['port']}: {sensor['model']} (chip id 0x{sensor['chip_id']:04x}, "
-                f"I2C 0x{sensor['i2c_address']:02x}, {sensor['bits']}-bit, bayer {sensor['bayer']})"
+                f"  port {port['port']}: {sensor['model']} ({where}, "
+                f"{sensor['bits']}-bit, bayer {sensor['bayer']})"
             )
     emit(args, info, "\n".join(lines))
     return 0

@@ -6,11 +6,9 @@ What it decodes lives next to it: frames and multi-page bursts in
 
 from __future__ import annotations
 
-import contextlib
 import json
 import socket
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import httpx
@@ -24,6 +22,8 @@ from elphel_host.camera.frames import (
     read_tiff_pages,
 )
 from elphel_host.camera.frames import read_burst as read_burst  # re-exported: the older name
+from elphel_host.camera.staging import Applied as Applied  # re-exported: its older home
+from elphel_host.camera.staging import Staging
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraAuthError, CameraClientError
 
@@ -59,15 +59,7 @@ class CameraUnauthorizedError(CameraHTTPError, CameraAuthError):
     """401/403: no token or a wrong one."""
 
 
-@dataclass(frozen=True)
-class Applied:
-    """Answer to a parameter change: the frame at which it is in effect, and the params."""
-
-    frame: int
-    params: dict[str, int]
-
-
-class CameraClient(Closing):
+class CameraClient(Staging, Closing):
     """Talks to one camera daemon.
 
     Parameters
@@ -188,58 +180,6 @@ class CameraClient(Closing):
         """Current frame number and its start time (ns)."""
         result: dict[str, int] = self._json("GET", f"/ports/{port}/frame")
         return result
-
-    @contextlib.contextmanager
-    def staged(
-        self, changes: Mapping[str, int] | Mapping[int, Mapping[str, int]], *, port: int = 0
-    ) -> Iterator[dict[int, Applied]]:
-        """Apply settings for a block and put the previous values back on exit.
-
-        ``changes`` is a parameter dict for ``port``, or ``{port: {...}, ...}`` for several
-        ports. If a port's change fails, the ports already changed are restored before the
-        error is raised. Yields ``{port: Applied}``.
-
-        Ports are restored in reverse order, each as soon as the previous one is accepted,
-        not once it is in effect. A port in snapshot mode takes a change only at its next
-        trigger, so do not restore a common trigger in the same block as the ports that
-        wait for it: nest two blocks (trigger outside) and wait in between, as
-        ``elphel tp capture`` does.
-        """
-        per_port: dict[int, dict[str, int]] = {}
-        for key, value in changes.items():
-            if isinstance(key, int) and isinstance(value, Mapping):
-                per_port[key] = dict(value)
-            elif isinstance(key, str) and isinstance(value, int):
-                per_port.setdefault(port, {})[key] = value
-            else:
-                raise ValueError(f"staged(): {key!r}: {value!r}; give NAME=int or port: {{...}}")
-        previous: dict[int, dict[str, int]] = {}
-        applied: dict[int, Applied] = {}
-        try:
-            for p, values in per_port.items():
-                now = self.params(p)
-                previous[p] = {k: now[k] for k in values if k in now}
-                applied[p] = self.set_params(values, port=p)
-        except BaseException as e:
-            try:
-                self._restore(previous, applied)
-            except CameraClientError as restore_error:
-                e.add_note(str(restore_error))
-            raise
-        try:
-            yield applied
-        finally:
-            self._restore(previous, applied)
-
-    def _restore(self, previous: dict[int, dict[str, int]], applied: dict[int, Applied]) -> None:
-        errors = []
-        for p in reversed(list(applied)):
-            try:
-                self.set_params(previous[p], port=p)
-            except CameraClientError as e:
-                errors.append(f"port {p}: {e}")
-        if errors:
-            raise CameraClientError("could not restore staged settings: " + "; ".join(errors))
 
     # -- frames ----------------------------------------------------------------------------
 

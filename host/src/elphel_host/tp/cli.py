@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from elphel_host.camera.client import CameraClient
+from elphel_host.camera.backends import connect
 from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
@@ -140,7 +140,7 @@ def run_capture(args: argparse.Namespace) -> int:
     layout = read_layout(args.geometry) if args.geometry else None
     t0 = time.perf_counter()
     # A simulated board forms each full frame when it is fetched: allow it time.
-    with CameraClient(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+    with connect(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
         got = capture_quad(
             camera,
             args.out,

@@ -2,7 +2,7 @@
 
 Every port goes to snapshot mode (``TRIG`` 4; 20, snapshot with GRR, stays) on the
 master's trigger (the same ``TRIG_MASTER``, no delay or decimation, ``TRIG_PERIOD`` on the
-master), inside `CameraClient.staged`, so the previous settings come back afterwards,
+master), inside the camera's ``staged``, so the previous settings come back afterwards,
 even after an error; the trigger is restored last, once no port waits for it any more.
 """
 
@@ -12,7 +12,7 @@ import contextlib
 import time
 from collections.abc import Iterator, Mapping, Sequence
 
-from elphel_host.camera.client import CameraClient
+from elphel_host.camera.protocol import Camera
 from elphel_host.errors import QuadCaptureTimeout
 
 TRIG_SNAPSHOT = 4  # TRIG bit: the sensor waits for a trigger
@@ -79,7 +79,7 @@ def trigger_changes(
 
 @contextlib.contextmanager
 def on_common_trigger(
-    camera: CameraClient, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
+    camera: Camera, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
 ) -> Iterator[dict[int, int]]:
     """Every port in snapshot mode on the master's trigger; the old settings back after.
 
@@ -104,7 +104,7 @@ def on_common_trigger(
 
 
 def _wait_restored(
-    camera: CameraClient,
+    camera: Camera,
     before: Mapping[int, Mapping[str, int]],
     changed: Mapping[int, Mapping[str, int]],
     period: int,

@@ -1,0 +1,177 @@
+"""Frames from a stock NC393 as elphel-camd captures: 16-bit TIFF bytes with JSON metadata.
+
+imgsrv's answer (JP4, JP46, JPEG, or raw TIFF with COLOR 15) is decoded by
+`elphel_host.camera.jp4.decode_frame`; the metadata get the keys an elphel-camd capture
+has (``frame``, ``timestamp_ns``, ``port``, ``sensor``, ``bayer``, then the parameters),
+so burst and quad directories store identical files whichever camera took them.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import httpx
+import numpy as np
+import tifffile
+
+from elphel_camd.frame_metadata import bayer_after_flips
+from elphel_host.camera import imgsrv
+from elphel_host.camera.exif import read_exif
+from elphel_host.camera.frames import CapturedBurst, CapturedFrame
+from elphel_host.camera.jp4 import decode_frame
+from elphel_host.camera.jp4 import frame_metadata as exif_metadata
+from elphel_host.errors import CameraClientError, InputFormatError
+
+_FIRST = ("frame", "timestamp_ns", "port", "sensor", "bayer")
+
+
+def frame_metadata(
+    decoded: Mapping[str, Any],
+    *,
+    port: int,
+    sensor: str,
+    bayer: str | None,
+    params: Mapping[str, int],
+) -> dict[str, Any]:
+    """A capture's metadata: what the frame records, over the parameters read meanwhile.
+
+    The frame's own values (Exif, MakerNote) win over ``params``, which were read when the
+    frame was fetched; ``FRAME`` is the frame's number. ``bayer`` is the sensor's order
+    unflipped, used (after the flips) when the frame does not say its own (a raw TIFF).
+    """
+    for key in ("frame", "timestamp_ns"):
+        if key not in decoded:
+            raise CameraClientError(f"port {port}: the frame carries no {key}")
+    out: dict[str, Any] = {
+        "frame": int(decoded["frame"]),
+        "timestamp_ns": int(decoded["timestamp_ns"]),
+        "port": port,
+        "sensor": sensor,
+        "bayer": decoded.get("bayer"),
+    }
+    if "bayer" not in decoded:
+        flips = {k: int(decoded.get(k, params.get(k, 0))) for k in ("FLIPH", "FLIPV")}
+        out["bayer"] = bayer_after_flips(bayer, flips["FLIPH"], flips["FLIPV"])
+    out.update({k: v for k, v in params.items() if k not in _FIRST})
+    out.update({k: v for k, v in decoded.items() if k not in _FIRST})
+    out["FRAME"] = out["frame"]
+    return out
+
+
+def exif_block(head: bytes) -> bytes | None:
+    """The Exif block of a JPEG from its first bytes; None while more bytes are needed.
+
+    Walks the marker segments from the start of the file up to the APP1 Exif segment
+    (imgsrv writes it first), so a frame's number and time are known from a few KiB.
+
+    Raises
+    ------
+    InputFormatError
+        Not a JPEG, or the scan data start before any Exif block.
+    """
+    if len(head) >= 2 and head[:2] != b"\xff\xd8":
+        raise InputFormatError(f"not a JPEG: starts with {head[:4].hex()}")
+    pos = 2
+    while pos + 4 <= len(head):
+        if head[pos] != 0xFF:
+            raise InputFormatError(f"not a JPEG: byte {pos} is {head[pos]:#04x}, not a marker")
+        marker = head[pos + 1]
+        end = pos + 2 + int.from_bytes(head[pos + 2 : pos + 4], "big")
+        if marker == 0xDA:
+            raise InputFormatError("no Exif block before the scan data")
+        if end > len(head):
+            return None
+        if marker == 0xE1 and head[pos + 4 : pos + 10] == b"Exif\0\0":
+            return head[pos + 10 : end]
+        pos = end
+    return None
+
+
+def header_stamp(block: bytes, *, url: str) -> tuple[int, int]:
+    """``(frame, timestamp_ns)`` from a frame's Exif block (errors name the URL)."""
+    try:
+        meta = exif_metadata(read_exif(block), None, source="exif")
+    except InputFormatError as e:
+        raise CameraClientError(f"{url}: {e}") from e
+    if "frame" not in meta or "timestamp_ns" not in meta:
+        raise CameraClientError(f"{url}: the frame's Exif has no ImageNumber or DateTimeOriginal")
+    return int(meta["frame"]), int(meta["timestamp_ns"])
+
+
+def newest_stamp(
+    client: httpx.Client, raw: Callable[[bytes, str, str], CapturedFrame]
+) -> tuple[int, int]:
+    """``(frame, timestamp_ns)`` of imgsrv's newest frame, from its first KiB.
+
+    The answer is streamed only up to the Exif block of a JPEG frame; a raw TIFF frame
+    (its tags may be anywhere) is read whole and decoded by ``raw(data, type, url)``.
+    """
+    url = str(client.base_url).rstrip("/") + imgsrv.NEWEST
+    try:
+        with client.stream("GET", imgsrv.NEWEST) as response:
+            if response.status_code >= 400:
+                raise CameraClientError(f"{url}: HTTP {response.status_code}")
+            kind = imgsrv.image_type(response.headers.get("content-type"), url=url)
+            if kind == "image/tiff":
+                got = raw(response.read(), kind, url)
+                return got.frame, int(got.metadata["timestamp_ns"])
+            head = b""
+            for chunk in response.iter_bytes():
+                head += chunk
+                try:
+                    block = exif_block(head)
+                except InputFormatError as e:
+                    raise CameraClientError(f"{url}: {e}") from e
+                if block is not None:
+                    return header_stamp(block, url=url)
+    except httpx.HTTPError as e:
+        raise CameraClientError(f"cannot reach the camera at {url}: {e}") from e
+    raise CameraClientError(f"{url}: the frame ended before its Exif block")
+
+
+def tiff_bytes(image: np.ndarray, metadata: Mapping[str, Any]) -> bytes:
+    """One 16-bit TIFF page with the metadata as JSON in its ImageDescription."""
+    buffer = io.BytesIO()
+    tifffile.imwrite(buffer, image, description=json.dumps(dict(metadata)), metadata=None)
+    return buffer.getvalue()
+
+
+def decoded_frame(
+    data: bytes,
+    content_type: str,
+    *,
+    url: str,
+    port: int,
+    sensor: str,
+    bayer: str | None,
+    params: Mapping[str, int],
+) -> CapturedFrame:
+    """Decode one imgsrv answer into a `CapturedFrame` (errors name the URL)."""
+    try:
+        image, decoded = decode_frame(data, content_type)
+    except InputFormatError as e:
+        raise CameraClientError(f"{url}: {e}") from e
+    image = np.asarray(image, dtype=np.uint16)
+    metadata = frame_metadata(decoded, port=port, sensor=sensor, bayer=bayer, params=params)
+    return CapturedFrame(tiff=tiff_bytes(image, metadata), image=image, metadata=metadata)
+
+
+def tiff_pages(frames: Sequence[CapturedFrame]) -> CapturedBurst:
+    """Consecutive frames as one multi-page TIFF, as elphel-camd sends a burst."""
+    shapes = {f.image.shape for f in frames}
+    if len(shapes) != 1:
+        raise CameraClientError(
+            f"burst frames {frames[0].frame}..{frames[-1].frame} differ in size: "
+            f"{sorted(shapes)}; allowed: one size"
+        )
+    buffer = io.BytesIO()
+    with tifffile.TiffWriter(buffer) as tif:
+        for f in frames:
+            tif.write(f.image, description=json.dumps(f.metadata), metadata=None)
+    images = np.stack([f.image for f in frames])
+    return CapturedBurst(
+        tiff=buffer.getvalue(), images=images, metadata=[f.metadata for f in frames]
+    )
