@@ -64,8 +64,11 @@ def test_capture_decodes_the_next_frame_into_a_camd_shaped_tiff():
     assert got.image.dtype == np.uint16 and got.image.shape == (32, 64)
     image, stored = read_tiff_metadata(got.tiff)
     assert stored == meta and np.array_equal(image, got.image)
-    # exactly the decoder's linear 16-bit data (its accuracy is tests/host/jp4's)
-    assert np.array_equal(got.image, decode_frame(jp4(42).content, "image/jp4")[0])
+    # the decoder's linear data (its accuracy is tests/host/jp4's), put on the sensor's own
+    # 12-bit scale: the units of a raw frame and of an elphel-camd capture
+    linear = decode_frame(jp4(42).content, "image/jp4")[0].astype(np.float64)
+    assert np.array_equal(got.image, np.rint(linear * 4095 / 65535).astype(np.uint16))
+    assert meta["full_scale_dn"] == 4095 and got.image.max() <= 4095
 
 
 def test_a_raw_tiff_frame_takes_its_bayer_from_the_sensor_and_the_flips():

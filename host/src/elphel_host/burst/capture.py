@@ -31,7 +31,7 @@ from elphel_host.burst.io import (
     read_manifest,
     write_manifest,
 )
-from elphel_host.camera.protocol import Camera
+from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import CaptureTimeout, InputFormatError
 from elphel_host.fileio import write_atomic
 from elphel_host.stage.positioning import MoveResult, Positioner
@@ -61,7 +61,7 @@ class RigEngine:
     """The real rig: a stage `Positioner` and a camera daemon's sensor port."""
 
     positioner: Positioner
-    camera: Camera
+    camera: CameraInterface
     port: int = 0
     settle_s: float = 0.05
 

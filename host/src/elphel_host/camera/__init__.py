@@ -1,11 +1,14 @@
-"""Camera clients: one interface (`Camera`), two backends picked by the URL (`connect`).
+"""Camera clients: one interface (`CameraInterface`), two backends picked by the URL (`connect`).
 
 ``http(s)://HOST:PORT`` is elphel-camd (`CameraClient`), ``nc393://HOST[:HTTP_PORT]
-[?imgsrv=BASE]`` a stock NC393 (`elphel_host.camera.nc393.NC393Client`). Before this,
-``Camera`` was an older name of `CameraClient`; it is now the interface both keep.
+[?imgsrv=BASE]`` a stock NC393 (`elphel_host.camera.nc393.NC393Client`). ``Camera``, the
+client's name before 0.2, still gives `CameraClient` (with a DeprecationWarning).
 """
 
 from __future__ import annotations
+
+import warnings
+from typing import Any
 
 from elphel_host.camera.backends import connect
 from elphel_host.camera.client import (
@@ -16,16 +19,16 @@ from elphel_host.camera.client import (
 )
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.frames import Burst, CapturedBurst, CapturedFrame, PhotoFinish
-from elphel_host.camera.protocol import Camera as Camera
+from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import UnsupportedError
 
 __all__ = [
     "Applied",
     "Burst",
-    "Camera",
     "CameraClient",
     "CameraEvent",
     "CameraHTTPError",
+    "CameraInterface",
     "CameraUnauthorizedError",
     "CapturedBurst",
     "CapturedFrame",
@@ -33,3 +36,15 @@ __all__ = [
     "UnsupportedError",
     "connect",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # `Camera` was the client's name before 0.2; scripts that import it keep working.
+    if name == "Camera":
+        warnings.warn(
+            "elphel_host.camera.Camera is now CameraClient (or connect(url) for any backend)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return CameraClient
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

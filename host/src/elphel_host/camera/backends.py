@@ -13,10 +13,10 @@ from urllib.parse import urlsplit
 
 from elphel_host.camera.client import CameraClient
 from elphel_host.camera.nc393_address import bad_url, parse_nc393_url
-from elphel_host.camera.protocol import Camera
+from elphel_host.camera.protocol import CameraInterface
 
 
-def connect(url: str, token: str | None = None, **options: Any) -> Camera:
+def connect(url: str, token: str | None = None, **options: Any) -> CameraInterface:
     """The camera at ``url``, through the backend its scheme names.
 
     Parameters
@@ -32,7 +32,7 @@ def connect(url: str, token: str | None = None, **options: Any) -> Camera:
 
     Returns
     -------
-    Camera
+    CameraInterface
         A `CameraClient` or an `NC393Client`.
 
     Raises

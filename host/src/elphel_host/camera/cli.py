@@ -10,7 +10,7 @@ from typing import Any
 
 from elphel_host.camera.backends import connect
 from elphel_host.camera.events import CameraEvent
-from elphel_host.camera.protocol import Camera
+from elphel_host.camera.protocol import CameraInterface
 from elphel_host.cli_common import (
     add_camera_options,
     add_json_option,
@@ -83,7 +83,7 @@ def register(sub: Any) -> None:
     watch.set_defaults(func=cmd_watch, parser=watch)
 
 
-def _client(args: argparse.Namespace) -> Camera:
+def _client(args: argparse.Namespace) -> CameraInterface:
     if not args.camera:
         args.parser.error("no camera URL: give --camera (or --url) or set ELPHEL_CAMERA_URL")
     return connect(args.camera, args.token)

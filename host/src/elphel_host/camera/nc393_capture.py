@@ -95,6 +95,7 @@ class StockFrames(ABC):
             sensor=model.model,
             bayer=model.driver.bayer,
             params=now,
+            bits=model.driver.bits,
         )
 
     def capture(self, port: int = 0, *, frame: int | None = None) -> CapturedFrame:

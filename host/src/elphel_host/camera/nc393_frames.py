@@ -148,12 +148,25 @@ def decoded_frame(
     sensor: str,
     bayer: str | None,
     params: Mapping[str, int],
+    bits: int,
 ) -> CapturedFrame:
-    """Decode one imgsrv answer into a `CapturedFrame` (errors name the URL)."""
+    """Decode one imgsrv answer into a `CapturedFrame` (errors name the URL).
+
+    Compressed frames (JP4, JP46, JPEG) decode to fractions of full scale; they are put on
+    the sensor's own scale (0 .. 2**bits - 1 DN, ``bits`` of the sensor model), the scale
+    of a raw (COLOR 15) frame and of an elphel-camd capture, so a burst or quad set is in
+    the same units whichever camera and whichever COLOR took it.
+    """
     try:
         image, decoded = decode_frame(data, content_type)
     except InputFormatError as e:
         raise CameraClientError(f"{url}: {e}") from e
+    full_scale = decoded.get("full_scale_dn")
+    top = (1 << bits) - 1
+    if full_scale is not None and int(full_scale) != top:
+        scaled = np.asarray(image, dtype=np.float64) * (top / int(full_scale))
+        image = np.rint(scaled).astype(np.uint16)
+        decoded = {**decoded, "full_scale_dn": top}
     image = np.asarray(image, dtype=np.uint16)
     metadata = frame_metadata(decoded, port=port, sensor=sensor, bayer=bayer, params=params)
     return CapturedFrame(tiff=tiff_bytes(image, metadata), image=image, metadata=metadata)

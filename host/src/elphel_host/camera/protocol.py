@@ -1,4 +1,4 @@
-"""What the host needs of a camera, whichever backend serves it: the `Camera` protocol.
+"""What the host needs of a camera, whichever backend serves it: the `CameraInterface` protocol.
 
 Two backends keep it: `~elphel_host.camera.client.CameraClient` (elphel-camd over REST)
 and `~elphel_host.camera.nc393.NC393Client` (a stock NC393: parsedit.php and imgsrv).
@@ -18,7 +18,7 @@ from elphel_host.camera.frames import CapturedBurst, CapturedFrame
 from elphel_host.camera.staging import Applied
 
 
-class Camera(Protocol):
+class CameraInterface(Protocol):
     """A camera with sensor ports, frame parameters and captures (docs/camera-backends.md)."""
 
     url: str

@@ -1,7 +1,7 @@
 """Features a camera backend lacks, each raising `UnsupportedError` that names it.
 
 A stock NC393 has no event stream and no raw register access through its web server:
-`NoEventsNoRegisters` gives a backend the `Camera` methods for both, refusing plainly.
+`NoEventsNoRegisters` gives a backend the `CameraInterface` methods for both, refusing plainly.
 """
 
 from __future__ import annotations

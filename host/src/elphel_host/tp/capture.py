@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.client import CameraHTTPError, CapturedFrame
-from elphel_host.camera.protocol import Camera
+from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import QuadCaptureError, QuadCaptureTimeout
 from elphel_host.fileio import replacing_directory
 from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
@@ -61,7 +61,7 @@ class QuadCapture:
 
 
 def capture_quad(
-    camera: Camera,
+    camera: CameraInterface,
     out: str | Path,
     *,
     layout: QuadLayout | None = None,
@@ -172,7 +172,7 @@ def check_target(target: Path, *, force: bool) -> None:
 
 
 def _quad_sensors(
-    camera: Camera, info: Mapping[str, Any], layout: QuadLayout
+    camera: CameraInterface, info: Mapping[str, Any], layout: QuadLayout
 ) -> dict[int, dict[str, Any]]:
     sensors: dict[int, dict[str, Any]] = {
         int(p["port"]): p["sensor"] for p in info.get("ports", []) if p.get("sensor")
@@ -190,7 +190,7 @@ def _quad_sensors(
 
 
 def _wait_for(
-    camera: Camera, frames: Mapping[int, int], deadline: float, period: int
+    camera: CameraInterface, frames: Mapping[int, int], deadline: float, period: int
 ) -> None:
     """Poll until each port's current frame is at least ``frames[port]``."""
     poll_s = min(0.05, period / 4e8)
@@ -215,7 +215,7 @@ def _wait_for(
         time.sleep(poll_s)
 
 
-def _pick_frames(camera: Camera, ports: tuple[int, ...], period: int) -> dict[int, int]:
+def _pick_frames(camera: CameraInterface, ports: tuple[int, ...], period: int) -> dict[int, int]:
     """Frame numbers of one future trigger on every port.
 
     Ports count frames on their own; in snapshot mode a frame's timestamp is its trigger's
@@ -236,7 +236,7 @@ def _pick_frames(camera: Camera, ports: tuple[int, ...], period: int) -> dict[in
     return {p: newest + AHEAD_FRAMES + offset[p] for p in ports}
 
 
-def _fetch(camera: Camera, frames: Mapping[int, int]) -> dict[int, CapturedFrame]:
+def _fetch(camera: CameraInterface, frames: Mapping[int, int]) -> dict[int, CapturedFrame]:
     """Fetch every port's frame from the ring buffer, all at once (none is overwritten)."""
     with ThreadPoolExecutor(max_workers=len(frames), thread_name_prefix="quad-fetch") as pool:
         futures = {p: pool.submit(camera.capture, p, frame=f) for p, f in frames.items()}
@@ -280,7 +280,7 @@ def _check_set(
 
 
 def _manifest(
-    camera: Camera,
+    camera: CameraInterface,
     info: Mapping[str, Any],
     layout: QuadLayout,
     captured: Mapping[int, CapturedFrame],

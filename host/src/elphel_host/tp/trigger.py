@@ -12,7 +12,7 @@ import contextlib
 import time
 from collections.abc import Iterator, Mapping, Sequence
 
-from elphel_host.camera.protocol import Camera
+from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import QuadCaptureTimeout
 
 TRIG_SNAPSHOT = 4  # TRIG bit: the sensor waits for a trigger
@@ -79,7 +79,7 @@ def trigger_changes(
 
 @contextlib.contextmanager
 def on_common_trigger(
-    camera: Camera, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
+    camera: CameraInterface, before: Mapping[int, Mapping[str, int]], *, master: int, period: int
 ) -> Iterator[dict[int, int]]:
     """Every port in snapshot mode on the master's trigger; the old settings back after.
 
@@ -104,7 +104,7 @@ def on_common_trigger(
 
 
 def _wait_restored(
-    camera: Camera,
+    camera: CameraInterface,
     before: Mapping[int, Mapping[str, int]],
     changed: Mapping[int, Mapping[str, int]],
     period: int,
