@@ -39,7 +39,7 @@ def test_info_names_each_ports_sensor_from_its_code():
         "model": "MT9P006",
         "sensor_code": 0x34,
         "bayer": "GRBG",
-        "bits": 16,
+        "bits": 12,  # the scale its frames are decoded to, as elphel-camd reports it
         "supported": True,
     }
     assert ports[0]["frame"] == 7

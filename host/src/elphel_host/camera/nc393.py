@@ -118,8 +118,8 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
     def info(self) -> dict[str, Any]:
         """Ports and their sensors as ``SENSOR`` names them, shaped like elphel-camd's /info.
 
-        A stock camera cannot tell chip ids or I2C addresses; ``bits`` is 16, the depth of
-        the decoded frames.
+        A stock camera cannot tell chip ids or I2C addresses; ``bits`` is the sensor's depth,
+        the scale of the decoded frames.
         """
         ports = []
         for port in range(PORTS):

@@ -249,8 +249,8 @@ class StockModel:
 def port_entry(port: int, code: int, frame: int | None) -> dict[str, Any]:
     """One port of `NC393Client.info`, shaped like elphel-camd's (no chip id or address).
 
-    ``bits`` is 16, the depth of the decoded frames; ``supported`` says whether the sensor
-    has a parameter model here.
+    ``bits`` is the sensor's depth, the scale frames are decoded to (as elphel-camd
+    reports it); ``supported`` says whether the sensor has a parameter model here.
     """
     entry: dict[str, Any] = {"port": port, "sensor": None}
     if not code:
@@ -260,7 +260,7 @@ def port_entry(port: int, code: int, frame: int | None) -> dict[str, Any]:
         "model": sensor_name(code),
         "sensor_code": code,
         "bayer": None if kind is None else kind.bayer,
-        "bits": 16,
+        "bits": 16 if kind is None else kind.bits,
         "supported": kind is not None,
     }
     entry["frame"] = frame
