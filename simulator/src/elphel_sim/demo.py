@@ -37,9 +37,11 @@ class DemoError(RuntimeError):
 
 
 @contextmanager
-def simulated_rig(*, seed: int, scenario: str = "default") -> Iterator[dict[str, Any]]:
+def simulated_rig(
+    *, seed: int, scenario: str = "default", firmware: str = "camd"
+) -> Iterator[dict[str, Any]]:
     """Run `elphel-sim up --json` in a child process; yield its announcement."""
-    command = ["up", "--json", "--seed", str(seed), "--scenario", scenario]
+    command = ["up", "--json", "--seed", str(seed), "--scenario", scenario, "--firmware", firmware]
     proc = subprocess.Popen(
         [sys.executable, "-m", "elphel_sim.cli", *command],
         stdout=subprocess.PIPE,
@@ -111,6 +113,26 @@ def camera_step(rig: dict[str, Any], out: Path) -> dict[str, Any]:
             "metadata": frame.metadata,
         },
     }
+
+
+def stock_camera_step(out: Path, *, seed: int) -> dict[str, Any]:
+    """One frame from a simulated stock NC393 (parsedit.php + imgsrv, JP4), as a user takes it."""
+    step("starting a simulated stock NC393 (elphel-sim up --firmware elphel)")
+    with simulated_rig(seed=seed, firmware="elphel") as rig:
+        url = rig["camera_url"]
+        info = elphel("camera", "info", "--camera", url)
+        model = info["ports"][0]["sensor"]["model"]
+        tif, png = out / "nc393-frame.tif", out / "nc393-frame.png"
+        t0 = time.monotonic()
+        got = elphel("camera", "capture", "--camera", url, "--out", str(tif), "--png", str(png))
+        elapsed = time.monotonic() - t0
+    _, meta = read_frame_metadata(tif)
+    step(
+        f"stock NC393 at {url}: port 0 {model}; frame {meta['frame']} came as "
+        f"{meta['source'].upper()} (quality {meta['quality']}, gamma {meta['gamma'][0]}), "
+        f"decoded to linear {meta['full_scale_dn'] + 1}-level data in {elapsed:.1f} s -> {tif}"
+    )
+    return {"camera_url": url, "sensor": model, "capture": got, "metadata": meta}
 
 
 # -- stage ------------------------------------------------------------------------------------
@@ -330,6 +352,7 @@ def run(out: Path, *, seed: int) -> dict[str, Any]:
         summary["stage"] = stage_step(rig, out)
         summary["burst"] = burst_step(rig, out, summary["stage"], seed=seed)
     summary["quad"] = quad_step(out, seed=seed)
+    summary["stock_nc393"] = stock_camera_step(out, seed=seed)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     step(f"wrote {out / 'summary.json'}")
     return summary
