@@ -9,12 +9,14 @@ ports.
 from __future__ import annotations
 
 import contextlib
-from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from elphel_host.errors import CameraClientError
+
+if TYPE_CHECKING:
+    from elphel_host.camera.protocol import CameraInterface
 
 
 @dataclass(frozen=True)
@@ -25,27 +27,13 @@ class Applied:
     params: dict[str, int]
 
 
-class Staging(ABC):
-    """``staged()`` on top of a backend's ``params`` and ``set_params``."""
-
-    @abstractmethod
-    def params(self, port: int = 0, *, frame: int | None = None) -> dict[str, int]:
-        """Parameters in effect now (or for frame ``frame``)."""
-
-    @abstractmethod
-    def set_params(
-        self,
-        changes: Mapping[str, int],
-        *,
-        port: int = 0,
-        frame: int | None = None,
-        ahead: int | None = None,
-    ) -> Applied:
-        """Change parameters; the frame at which they are in effect."""
+class Staging:
+    """``staged()`` for a backend, written on its ``params`` and ``set_params``."""
 
     @contextlib.contextmanager
     def staged(
-        self, changes: Mapping[str, int] | Mapping[int, Mapping[str, int]], *, port: int = 0
+        self: CameraInterface,
+        changes: Mapping[str, int] | Mapping[int, Mapping[str, int]], *, port: int = 0
     ) -> Iterator[dict[int, Applied]]:
         """Apply settings for a block and put the previous values back on exit.
 
@@ -69,24 +57,29 @@ class Staging(ABC):
                 applied[p] = self.set_params(values, port=p)
         except BaseException as e:
             try:
-                self._restore(previous, applied)
+                _restore(self, previous, applied)
             except CameraClientError as restore_error:
                 e.add_note(str(restore_error))
             raise
         try:
             yield applied
         finally:
-            self._restore(previous, applied)
+            _restore(self, previous, applied)
 
-    def _restore(self, previous: dict[int, dict[str, int]], applied: dict[int, Applied]) -> None:
-        errors = []
-        for p in reversed(list(applied)):
-            try:
-                self.set_params(previous[p], port=p)
-            except CameraClientError as e:
-                errors.append(f"port {p}: {e}")
-        if errors:
-            raise CameraClientError("could not restore staged settings: " + "; ".join(errors))
+
+def _restore(
+    camera: CameraInterface,
+    previous: dict[int, dict[str, int]],
+    applied: dict[int, Applied],
+) -> None:
+    errors = []
+    for p in reversed(list(applied)):
+        try:
+            camera.set_params(previous[p], port=p)
+        except CameraClientError as e:
+            errors.append(f"port {p}: {e}")
+    if errors:
+        raise CameraClientError("could not restore staged settings: " + "; ".join(errors))
 
 
 def _per_port(changes: Mapping[Any, Any], port: int) -> dict[int, dict[str, int]]:

@@ -18,14 +18,8 @@ _REGISTERS = "raw sensor registers: not available through a stock NC393's parsed
 class NoEventsNoRegisters:
     """``events`` and the raw-register methods of a backend that has neither."""
 
-    def events(
-        self,
-        types: tuple[str, ...] = ("frame", "params", "error"),
-        *,
-        port: int | None = None,
-        count: int | None = None,
-    ) -> Iterator[CameraEvent]:
-        """Unsupported: a stock NC393 has no event stream."""
+    def events(self, *args: Any, **kwargs: Any) -> Iterator[CameraEvent]:
+        """Unsupported: a stock NC393 has no event stream (whatever is asked of it)."""
         _unsupported("events: a stock NC393 has no event stream (poll frame() instead)")
 
     def registers(self, port: int = 0) -> list[dict[str, Any]]:

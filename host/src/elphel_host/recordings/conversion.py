@@ -254,24 +254,29 @@ def convert(
     root.mkdir(parents=True, exist_ok=True)
     inputs = find_inputs(paths)
     failed = [Failure(p, f"{p}: {why}") for p, why in inputs.missing]
-    threads = THREADS if workers is None else workers
+    run = _Run(root, failed, THREADS if workers is None else workers, progress)
     if layout == "files":
-        return _convert_files(inputs.files, root, failed, threads, progress)
+        return _convert_files(inputs.files, run)
     grouping = quad_groups if layout == "quad" else burst_groups
     groups, rejected = grouping(inputs.files)
     failed += [Failure(p, f"{p}: {why}") for p, why in rejected]
     if layout == "quad":
-        return _convert_quads(groups, root, failed, threads, progress)
-    return _convert_bursts(groups, root, failed, threads, progress)
+        return _convert_quads(groups, run)
+    return _convert_bursts(groups, run)
 
 
-def _convert_files(
-    files: Sequence[Path],
-    root: Path,
-    failed: list[Failure],
-    threads: int,
-    progress: Progress | None,
-) -> ConvertResult:
+@dataclass(frozen=True)
+class _Run:
+    """Where a conversion writes, the failures it collects, its threads and progress."""
+
+    root: Path
+    failed: list[Failure]
+    threads: int
+    progress: Progress | None
+
+
+def _convert_files(files: Sequence[Path], run: _Run) -> ConvertResult:
+    root, failed, threads, progress = run.root, run.failed, run.threads, run.progress
     done: list[Converted] = []
     tasks: list[tuple[str, Callable[[], Any]]] = []
     owner: dict[Path, Path] = {}
@@ -292,13 +297,8 @@ def _convert_files(
     return ConvertResult(tuple(done), tuple(failed))
 
 
-def _convert_quads(
-    groups: Sequence[Group],
-    root: Path,
-    failed: list[Failure],
-    threads: int,
-    progress: Progress | None,
-) -> ConvertResult:
+def _convert_quads(groups: Sequence[Group], run: _Run) -> ConvertResult:
+    root, failed, threads, progress = run.root, run.failed, run.threads, run.progress
     done: list[Converted] = []
     tasks: list[tuple[str, Callable[[], Any]]] = []
     dirs: list[Path] = []
@@ -320,13 +320,8 @@ def _convert_quads(
     return ConvertResult(tuple(done), tuple(failed), tuple(sorted(dirs)))
 
 
-def _convert_bursts(
-    groups: Sequence[Group],
-    root: Path,
-    failed: list[Failure],
-    threads: int,
-    progress: Progress | None,
-) -> ConvertResult:
+def _convert_bursts(groups: Sequence[Group], run: _Run) -> ConvertResult:
+    root, failed, threads, progress = run.root, run.failed, run.threads, run.progress
     done: list[Converted] = []
     dirs: list[Path] = []
     tasks: list[tuple[str, Callable[[], Any]]] = []

@@ -96,6 +96,20 @@ class Group:
 NOT_NAMED = "not named <seconds>_<microseconds>_<channel> as Elphel's recorder names frames"
 
 
+def _named(
+    files: Sequence[Path],
+) -> tuple[list[tuple[Path, RecordedName]], list[tuple[Path, str]]]:
+    """The files named as the recorder names them, and the others with the reason."""
+    named, rejected = [], []
+    for path in files:
+        name = recorded_name(path)
+        if name is None:
+            rejected.append((path, NOT_NAMED))
+        else:
+            named.append((path, name))
+    return named, rejected
+
+
 def quad_groups(files: Sequence[Path]) -> tuple[list[Group], list[tuple[Path, str]]]:
     """Quad sets: frames of one timestamp on channels 0..3, cam0..cam3 in channel order.
 
@@ -103,12 +117,8 @@ def quad_groups(files: Sequence[Path]) -> tuple[list[Group], list[tuple[Path, st
     belong to none: unnamed files, a channel twice, an incomplete set.
     """
     by_instant: dict[tuple[int, int], dict[int, Path]] = {}
-    rejected: list[tuple[Path, str]] = []
-    for path in files:
-        name = recorded_name(path)
-        if name is None:
-            rejected.append((path, NOT_NAMED))
-            continue
+    named, rejected = _named(files)
+    for path, name in named:
         channels = by_instant.setdefault((name.seconds, name.microseconds), {})
         if name.channel in channels:
             rejected.append((path, f"channel {name.channel} again (also {channels[name.channel]})"))
@@ -128,12 +138,8 @@ def quad_groups(files: Sequence[Path]) -> tuple[list[Group], list[tuple[Path, st
 def burst_groups(files: Sequence[Path]) -> tuple[list[Group], list[tuple[Path, str]]]:
     """One burst per channel (directory ``channel<N>``), frames in time order."""
     by_channel: dict[int, list[tuple[int, Path]]] = {}
-    rejected: list[tuple[Path, str]] = []
-    for path in files:
-        name = recorded_name(path)
-        if name is None:
-            rejected.append((path, NOT_NAMED))
-            continue
+    named, rejected = _named(files)
+    for path, name in named:
         by_channel.setdefault(name.channel, []).append((name.timestamp_ns, path))
     groups = [
         Group(f"channel{channel}", tuple(p for _, p in sorted(frames)))
