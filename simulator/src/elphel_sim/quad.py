@@ -286,7 +286,10 @@ def write_quad_dir(
     extra: dict[str, object] | None = None,
     kernels: tuple[NDArray[np.float32], int] | None = None,
 ) -> Path:
-    """Write a quad directory (DESIGN 4.4): quad.json + cam0..3.tif (+ kernels.npy, step)."""
+    """Write a quad directory: quad.json + cam0..3.tif (+ kernels.npy, step).
+
+    The format is in docs/tile-processor.md, Files.
+    """
     if images.shape[0] != 4:
         raise ValueError(f"images must have shape (4, H, W), got {images.shape}")
     manifest = quad_format.QuadManifest(

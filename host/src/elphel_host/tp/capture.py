@@ -1,4 +1,4 @@
-"""One trigger-synchronised set from a quad camera, written as a quad directory (DESIGN 4.4).
+"""One trigger-synchronised set from a quad camera, written as a quad directory.
 
 ``elphel tp capture --camera URL --out QUAD_DIR`` then ``elphel tp QUAD_DIR --out DSI.tif``
 take a quad camera from capture to DSI. The capture:

@@ -1,9 +1,9 @@
 """DSI and ML_DATA files: the tile processor's output stacks.
 
-* DSI (DESIGN 4.5): ImageJ float32 stack, one slice per layer, tiles-Y x tiles-X, slice
-  labels naming the layers; the ImageJ "info" string holds Elphel-style XML properties
-  with the tile size, stride and geometry (reference section 9).
-* ML_DATA (reference section 9, version 1.1, 32-bit variant): per layer one image of
+* DSI (docs/tile-processor.md, Files): ImageJ float32 stack, one slice per layer,
+  tiles-Y x tiles-X, slice labels naming the layers; the ImageJ "info" string holds
+  Elphel-style XML properties with the tile size, stride and geometry.
+* ML_DATA (Elphel's version 1.1, 32-bit variant): per layer one image of
   9 x 9 pixels per tile (the centre of the 15 x 15 correlation), layers ``diagm-pair``,
   ``diago-pair``, ``hor-pairs``, ``vert-pairs`` and ``other`` (target disparity at
   tile-local index 0, ground-truth disparity at 2 and its strength at 4).
@@ -56,7 +56,7 @@ def write_dsi(
     bayer: str | None,
     extra: dict[str, Any] | None = None,
 ) -> None:
-    """Write a DSI as an ImageJ float32 stack (DESIGN 4.5).
+    """Write a DSI as an ImageJ float32 stack (docs/tile-processor.md, Files).
 
     Parameters
     ----------

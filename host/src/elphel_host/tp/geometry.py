@@ -1,6 +1,6 @@
 """Quad geometry: camera positions, pairs, and where each camera's tile lies.
 
-Disparity convention (DESIGN 4.4, reference section 7): a point seen at p by the virtual
+Disparity convention (docs/tile-processor.md, Files): a point seen at p by the virtual
 centre camera is seen by camera i at ``p - D * position_i``; positions are in units of
 the square's side, +x right, +y down. Tile (tx, ty) of the virtual camera is centred at
 ``(8tx + 4, 8ty + 4)``.

@@ -1,7 +1,7 @@
 """The quad directory format: its one reader and writer.
 
-A quad directory (DESIGN 4.4) is ``quad.json`` + four same-size 16-bit images
-``cam0.tif .. cam3.tif`` of one instant; in a quad-burst directory (DESIGN 4.7) each
+A quad directory (docs/tile-processor.md, Files) is ``quad.json`` + four same-size 16-bit images
+``cam0.tif .. cam3.tif`` of one instant; in a quad-burst directory each
 camera's ``file`` names its burst directory instead. ``quad.json`` is one frozen
 :class:`QuadManifest`: whoever writes or reads one (`elphel tp capture`, `elphel tp`, the
 simulator) goes through :meth:`QuadManifest.to_json` / :meth:`QuadManifest.from_json`.

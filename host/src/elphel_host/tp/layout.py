@@ -25,7 +25,7 @@ class QuadLayout:
     ports
         Sensor port of cameras 0..3.
     positions
-        Camera centres in units of the square's side, +x right, +y down (DESIGN 4.4).
+        Camera centres in units of the square's side, +x right, +y down.
     optics
         Optional optics record copied into quad.json (``focal_length_mm``, ...).
     """
