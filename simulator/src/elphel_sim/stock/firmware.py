@@ -36,6 +36,7 @@ FIXED = {"SENSOR_RUN": 2, "COMPRESSOR_RUN": 2, "TRIG_CONDITION": 0, "BAYER": 0}
 FIXED |= dict.fromkeys(("DCM_HOR", "DCM_VERT", "BIN_HOR", "BIN_VERT"), 1)
 KNOWN = frozenset(PARAMS) | compressor.NAMES | frozenset(FIXED)
 WAIT_TIMEOUT_S = 30.0
+ENCODED_KEPT = 8  # encoded frames kept per port: clients ask for the same frame repeatedly
 
 
 class StockFirmware:
@@ -61,6 +62,8 @@ class StockFirmware:
         self._frames = threading.Condition()
         self._newest = {port: 0 for port in self.compressors}
         self.read_pointers: dict[int, int] = {}  # imgsrv "save", shared by its clients
+        self._encoded: dict[tuple[int, int], tuple[EncodedFrame, dict[str, Any]]] = {}
+        self._encoded_lock = threading.Lock()
         board.on_frame_sync(self._frame_sync)
 
     def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
@@ -101,11 +104,25 @@ class StockFirmware:
         return max(1, newest - len(ring) + 1) if newest else 0
 
     def encoded(self, port: int, frame: int) -> tuple[EncodedFrame, dict[str, Any]]:
-        """Frame ``frame`` of a port as imgsrv serves it, and the daemon's metadata of it."""
+        """Frame ``frame`` of a port as imgsrv serves it, and the daemon's metadata of it.
+
+        A frame taken does not change, so its encoding is kept for the next request of it
+        (the newest `ENCODED_KEPT` frames of each port).
+        """
+        with self._encoded_lock:
+            kept = self._encoded.get((port, frame))
+        if kept is not None:
+            return kept
         got, metadata = self.service.capture(port, frame=frame)
         state = self.compressors[port].state_at(got.frame)
         bits = self.service.sensor(port).bits
-        return encode_frame(got.image, metadata, state, bits=bits), metadata
+        result = encode_frame(got.image, metadata, state, bits=bits), metadata
+        with self._encoded_lock:
+            self._encoded[(port, got.frame)] = result
+            mine = sorted(f for p, f in self._encoded if p == port)
+            for old in mine[:-ENCODED_KEPT]:
+                del self._encoded[(port, old)]
+        return result
 
     def trigger(self, port: int) -> bool:
         """One internal trigger (imgsrv's ``trig``); False if the port is not in snapshot mode.
