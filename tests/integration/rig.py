@@ -6,56 +6,34 @@ fixtures.
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import os
-import selectors
-import signal
 import subprocess
 import sys
-import time
 from typing import Any
 
 import pytest
 
+from elphel_sim import pytest_plugin as plugin
+from elphel_sim.cli import build_parser
+
 
 def start_rig(*extra: str) -> tuple[subprocess.Popen[str], dict[str, Any]]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "elphel_sim.cli", "up", "--json", *extra],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert proc.stdout is not None
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    deadline = time.monotonic() + 60
-    line = ""
-    while time.monotonic() < deadline and not line:
-        if sel.select(timeout=0.5):
-            line = proc.stdout.readline()
-        if proc.poll() is not None:
-            break
-    sel.close()
-    if not line:
-        stderr = stop_rig(proc)
-        pytest.fail(f"elphel-sim up printed no JSON line; stderr: {stderr}")
-    return proc, json.loads(line)
+    """Start a rig with `elphel-sim up` options; yield the process and its announcement.
+
+    The same start as the ``elphel_rig`` fixture of elphel-sim's pytest plugin (which
+    tests wanting a rig of their own use); these helpers serve the rigs shared by a
+    module or the session.
+    """
+    args = build_parser().parse_args(["up", *extra])
+    try:
+        started = plugin.start_rig(scenario=args.scenario, seed=args.seed, firmware=args.firmware)
+    except plugin.RigStartError as e:
+        pytest.fail(str(e))
+    return started.proc, dataclasses.asdict(started.rig)
 
 
-def stop_rig(proc: subprocess.Popen[str]) -> str:
-    """Stop the rig; return what it wrote on stderr."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    stderr = proc.stderr.read() if proc.stderr is not None else ""
-    for stream in (proc.stdout, proc.stderr):
-        if stream is not None:
-            stream.close()
-    return stderr
+stop_rig = plugin.stop_rig
 
 
 def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:

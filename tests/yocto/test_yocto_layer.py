@@ -8,6 +8,7 @@ import inspect
 import json
 import re
 import subprocess
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -23,6 +24,7 @@ from tests.yocto.layer import (
     INIT_TEMPLATE,
     LAYER,
     OE_PATHS,
+    REPO,
     UNIT_TEMPLATE,
     Recipe,
     camera_pyproject,
@@ -167,7 +169,37 @@ def _license_checksums(recipe: Recipe) -> list[tuple[str, str]]:
     return out
 
 
-LICENSED = [p for p in RECIPES if "LIC_FILES_CHKSUM" in Recipe.read(p).values]
+LICENSED = [
+    p for p in RECIPES if "LIC_FILES_CHKSUM" in Recipe.read(p).values and p != daemon_recipe().path
+]
+APACHE_2_0_MD5 = "3b83ef96387f14655fc854ddc3c6bd57"  # apache.org's LICENSE-2.0.txt
+
+
+def test_repository_license_is_the_unmodified_apache_2_0_text() -> None:
+    text = (REPO / "LICENSE").read_bytes()
+    assert hashlib.md5(text).hexdigest() == APACHE_2_0_MD5
+    assert text.lstrip().startswith(b"Apache License\n                           Version 2.0")
+
+
+def test_every_package_declares_the_repository_license() -> None:
+    for folder in ("host", "simulator", "target/camera"):
+        with open(REPO / folder / "pyproject.toml", "rb") as f:
+            project = tomllib.load(f)
+        assert project["project"]["license"] == "Apache-2.0", folder
+        # SPDX license expressions in [project] need setuptools 77.
+        (req,) = project["build-system"]["requires"]
+        assert req == "setuptools>=77", folder
+
+
+def test_daemon_recipe_license_checksum_matches_its_source_tree() -> None:
+    recipe = daemon_recipe()
+    assert recipe.get("LICENSE") == "Apache-2.0"
+    # LIC_FILES_CHKSUM paths are relative to S, the daemon's folder target/camera.
+    (item,) = _license_checksums(recipe)
+    name, md5 = item
+    source = REPO / "target" / "camera" / name
+    assert source.read_bytes() == (REPO / "LICENSE").read_bytes()
+    assert hashlib.md5(source.read_bytes()).hexdigest() == md5
 
 
 @pytest.mark.parametrize("path", LICENSED, ids=_ids(LICENSED))

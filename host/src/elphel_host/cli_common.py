@@ -12,6 +12,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
@@ -41,20 +42,56 @@ def add_json_option(parser: Any) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
+BAR_WIDTH = 24
+
+
+def _clock(seconds: float) -> str:
+    m, sec = divmod(round(seconds), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{sec:02d}" if h else f"{m}:{sec:02d}"
+
+
 class ProgressLine:
     """Progress of a long command on stderr: one updating line on a terminal, else a line each.
 
-    stdout stays for the result (one JSON object with --json), so progress never mixes
-    with it.
+    Given ``done`` and ``total``, the line carries the rate and the time left (and, on a
+    terminal, a bar). stdout stays for the result (one JSON object with --json), so
+    progress never mixes with it.
     """
 
-    def __init__(self, stream: TextIO | None = None) -> None:
+    def __init__(
+        self, stream: TextIO | None = None, *, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.stream = stream if stream is not None else sys.stderr
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._open = False
+        self._clock = clock
+        self._start: tuple[float, int] | None = None
 
-    def update(self, text: str) -> None:
-        """Show ``text`` as the current state (replacing the previous one on a terminal)."""
+    def rate_text(self, done: int, total: int) -> str:
+        """``"2.0/s, 0:04 left"`` since the first update (empty until something is done)."""
+        now = self._clock()
+        if self._start is None or done < self._start[1]:
+            self._start = (now, done)
+        t0, d0 = self._start
+        if now <= t0 or done <= d0:
+            return ""
+        rate = (done - d0) / (now - t0)
+        return f"{rate:.3g}/s, {_clock(max(total - done, 0) / rate)} left"
+
+    def update(self, text: str, *, done: int | None = None, total: int | None = None) -> None:
+        """Show ``text`` as the current state (replacing the previous one on a terminal).
+
+        With ``done`` of ``total`` (``text`` names the counts), the rate and the time
+        left follow it, and a terminal shows a bar before it.
+        """
+        if done is not None and total:
+            rate = self.rate_text(done, total)
+            if rate:
+                text = f"{text} ({rate})"
+            if self.tty:
+                filled = BAR_WIDTH * min(max(done, 0), total) // total
+                text = f"[{'#' * filled}{'-' * (BAR_WIDTH - filled)}] {text}"
         if self.tty:
             self.stream.write(f"\r{text}\x1b[K")
             self._open = True

@@ -10,6 +10,17 @@ from elphel_sim import __version__
 from elphel_sim.scenarios import SCENARIOS
 
 
+def tcp_port(text: str) -> int:
+    """A TCP port for argparse: 0 (a free port) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}; allowed: 0 (a free port) to 65535")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="elphel-sim", description="Simulated Elphel rig.")
     p.add_argument("--version", action="version", version=f"elphel-sim {__version__}")
@@ -17,8 +28,10 @@ def build_parser() -> argparse.ArgumentParser:
     up = sub.add_parser("up", help="serve a simulated camera board (and stage) until stopped")
     up.add_argument("--scenario", default="default", choices=sorted(SCENARIOS))
     up.add_argument("--seed", type=int, default=0, help="seed of every noise source")
-    up.add_argument("--camera-port", type=int, default=0, help="camera REST port (0 = free port)")
-    up.add_argument("--stage-port", type=int, default=0, help="stage TCP port (0 = free port)")
+    up.add_argument(
+        "--camera-port", type=tcp_port, default=0, help="camera REST port (0 = free port)"
+    )
+    up.add_argument("--stage-port", type=tcp_port, default=0, help="stage TCP port (0 = free port)")
     up.add_argument(
         "--firmware",
         choices=("camd", "elphel"),

@@ -229,7 +229,7 @@ def run_capture(args: argparse.Namespace) -> int:
 
             def progress(done: int, total: int, message: str) -> None:
                 fusion = "" if stream is None else f"; fusion: {stream.status()}"
-                line.update(f"burst: {done}/{total} {message}{fusion}")
+                line.update(f"burst: {done}/{total} {message}{fusion}", done=done, total=total)
 
             runner = BurstRunner(
                 engine,

@@ -64,7 +64,7 @@ def run_convert(args: argparse.Namespace) -> int:
     line = ProgressLine()
 
     def progress(done: int, total: int, name: str) -> None:
-        line.update(f"converting {done}/{total}: {name}")
+        line.update(f"converting {done}/{total}: {name}", done=done, total=total)
 
     try:
         result = convert(

@@ -16,6 +16,7 @@ from typing import Any
 from elphel_host.cli_common import (
     DEFAULT_STAGE_MODEL,
     STAGE_URL_ENV,
+    ProgressLine,
     add_json_option,
     add_stage_model_option,
     add_stage_option,
@@ -117,7 +118,7 @@ def _stop(args: argparse.Namespace) -> int:
 def _calibrate(args: argparse.Namespace) -> int:
     model_path = Path(args.model)
     with StageClient(_url(args)) as client:
-        pos = Positioner(client, StageModel())
+        pos = Positioner(client, StageModel(), log=ProgressLine().say("calibrate: "))
         cal = pos.calibrate(span_mm=args.span_mm, start_mm=args.start_mm, repeats=args.repeats)
     pos.model.save(model_path)
     result = {

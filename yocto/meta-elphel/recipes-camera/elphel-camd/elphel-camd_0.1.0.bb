@@ -7,8 +7,11 @@ DESCRIPTION = "elphel-camd programs image sensors over Linux I2C and serves \
 # HOMEPAGE on every recipe of third-party software).
 SECTION = "multimedia"
 CVE_PRODUCT = "elphel-camd"
-# The elphel-rig repository declares no license yet; see docs/deploy.md.
-LICENSE = "CLOSED"
+# The repository's Apache License 2.0 text, copied into the daemon's own folder
+# (target/camera/LICENSE, the same bytes as the repository's LICENSE) so the
+# daemon's source tree and its sdist carry it.
+LICENSE = "Apache-2.0"
+LIC_FILES_CHKSUM = "file://LICENSE;md5=3b83ef96387f14655fc854ddc3c6bd57"
 
 # The source is this repository's own checkout, not a download: the layer lives at
 # yocto/meta-elphel, so the repository's target/ folder is four levels above this

@@ -1,0 +1,87 @@
+"""cli_common.ProgressLine: bar, rate and time left on a terminal; plain lines elsewhere."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+
+from elphel_host.cli import main
+from elphel_host.cli_common import ProgressLine
+from tests.host.jp4.test_convert import record
+
+
+class Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_terminal_gets_a_bar_with_rate_and_time_left() -> None:
+    tty, clock = Tty(), Clock()
+    line = ProgressLine(tty, clock=clock)
+    line.update("burst: 0/10", done=0, total=10)
+    clock.t += 4.0
+    line.update("burst: 2/10", done=2, total=10)  # 0.5/s, 8 left: 16 s
+    line.end()
+    first, second = tty.getvalue().split("\x1b[K")[:2]
+    assert first == "\r[" + "-" * 24 + "] burst: 0/10"
+    assert second == "\r[" + "#" * 4 + "-" * 20 + "] burst: 2/10 (0.5/s, 0:16 left)"
+    assert tty.getvalue().endswith("\n")
+
+
+def test_a_pipe_gets_plain_lines_with_rate_and_time_left() -> None:
+    pipe, clock = io.StringIO(), Clock()
+    line = ProgressLine(pipe, clock=clock)
+    line.update("converting 1/100: a", done=1, total=100)
+    clock.t += 2.0
+    line.update("converting 5/100: b", done=5, total=100)  # 2/s, 95 left: 48 s
+    line.end()
+    assert pipe.getvalue() == "converting 1/100: a\nconverting 5/100: b (2/s, 0:48 left)\n"
+    assert "\r" not in pipe.getvalue() and "#" not in pipe.getvalue()
+
+
+def test_hours_in_the_time_left() -> None:
+    pipe, clock = io.StringIO(), Clock()
+    line = ProgressLine(pipe, clock=clock)
+    line.update("x", done=0, total=3601)
+    clock.t += 1.0
+    line.update("x", done=1, total=3601)
+    assert pipe.getvalue().splitlines()[-1] == "x (1/s, 1:00:00 left)"
+
+
+def test_json_keeps_stdout_to_the_one_object(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    record(tmp_path / "rec", 3, (0, 1))
+    args = ["jp4", "convert", str(tmp_path / "rec"), "--out", str(tmp_path / "o"), "--json"]
+    assert main(args) == 0
+    out, err = capsys.readouterr()
+    assert len(out.splitlines()) == 1 and json.loads(out)["layout"] == "files"
+    assert "converting 6/6" in err and "left)" in err  # progress with its rate, on stderr
+
+
+def test_stage_calibrate_reports_each_run_on_stderr(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from elphel_sim.stage_server import SimStage
+
+    with SimStage(seed=3, time_scale=100) as sim:
+        sim.wait_booted()
+        monkeypatch.setenv("ELPHEL_STAGE_URL", sim.tcp_url)
+        model = str(tmp_path / "model.json")
+        argv = ["stage", "calibrate", "--model", model, "--span-mm", "20", "--repeats", "2"]
+        assert main([*argv, "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert len(out.splitlines()) == 1 and "mm_per_step" in json.loads(out)
+    runs = [line for line in err.splitlines() if line.startswith("calibrate: run ")]
+    assert [r.split(":")[1] for r in runs] == [" run 1/2", " run 2/2"], err
