@@ -21,6 +21,23 @@ def _blocks(lang: str) -> dict[str, str]:
     return out
 
 
+def _pytest_in(folder: Path, *, timeout: float) -> subprocess.CompletedProcess[str]:
+    """Run pytest over ``folder`` as a fresh project: no conftest or rootdir of this repository.
+
+    The fixture comes from the installed elphel-sim's pytest11 entry point only.
+    """
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ELPHEL_")}
+    env.pop("PYTEST_ADDOPTS", None)
+    return subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(folder)],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
+
+
 def test_the_pages_capture_script_and_its_test_pass_in_a_project_of_their_own(
     tmp_path: Path,
 ) -> None:
@@ -28,18 +45,7 @@ def test_the_pages_capture_script_and_its_test_pass_in_a_project_of_their_own(
     assert set(files) == {"capture_one.py", "test_capture_one.py"}
     for name, text in files.items():
         (tmp_path / name).write_text(text)
-    # A fresh project: no conftest, no rootdir of this repository; the fixture comes
-    # from the installed elphel-sim's pytest11 entry point only.
-    env = {k: v for k, v in os.environ.items() if not k.startswith("ELPHEL_")}
-    env.pop("PYTEST_ADDOPTS", None)
-    done = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=240,
-        env=env,
-    )
+    done = _pytest_in(tmp_path, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
     assert re.search(r"\b3 passed\b", done.stdout), done.stdout
 
@@ -50,12 +56,6 @@ def test_a_bad_rig_option_fails_the_test_with_one_line(tmp_path: Path) -> None:
         "@pytest.mark.elphel_rig(scenario='nope')\n"
         "def test_x(elphel_rig):\n    pass\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = _pytest_in(tmp_path, timeout=120)
     assert done.returncode == 1, done.stdout + done.stderr
     assert "elphel_rig scenario 'nope'; allowed" in done.stdout

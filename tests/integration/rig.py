@@ -19,7 +19,7 @@ from elphel_sim.cli import build_parser
 
 
 def start_rig(*extra: str) -> tuple[subprocess.Popen[str], dict[str, Any]]:
-    """Start a rig with `elphel-sim up` options; yield the process and its announcement.
+    """Start a rig with `elphel-sim up` options; return the process and its announcement.
 
     The same start as the ``elphel_rig`` fixture of elphel-sim's pytest plugin (which
     tests wanting a rig of their own use); these helpers serve the rigs shared by a
