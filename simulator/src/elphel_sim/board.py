@@ -75,6 +75,10 @@ class SimCameraBoard:
         self._cond = threading.Condition(threading.RLock())
         self._clock: threading.Thread | None = None
         self._stop = threading.Event()
+        self._closed = False
+        # Frames a multi-frame capture holds until sent: port -> frame -> record (None
+        # until the frame is taken). They stay here after leaving the ring buffer.
+        self._pins: dict[int, dict[int, FrameRecord | None]] = {}
         for port, spec in self.ports.items():
             bus = SimI2CBus(f"port {port}")
             if spec.model in SIM_SENSORS:
@@ -131,7 +135,44 @@ class SimCameraBoard:
             strip_period_ns=round(record.strip_period_s * 1e9) if record.strips else 0,
         )
 
+    def pin_frames(self, port: int, count: int, *, frame: int | None = None) -> int:
+        """Hold ``count`` consecutive frames (from the next one or ``frame``) until released.
+
+        A held frame stays available to `capture` after it leaves the 64-frame ring, so a
+        multi-frame capture slower than the frame rate still gets every frame. Returns the
+        first frame's number; release each frame with `release_frames`.
+        """
+        if port not in self.ports:
+            raise PortError(f"port {port} does not exist; ports: {sorted(self.ports)}")
+        fpga = self.fpga.get(port)
+        if fpga is None:
+            raise CaptureUnavailableError(f"port {port}: no sensor on this simulated port")
+        with self._cond:
+            first = fpga.frame + 1 if frame is None else frame
+            ring = {r.frame: r for r in fpga.ring}
+            if first <= fpga.frame and first not in ring:
+                raise FrameNotAvailableError(
+                    f"port {port}: frame {first} is no longer in the ring buffer "
+                    f"(frames {fpga.ring[0].frame}..{fpga.frame})"
+                )
+            pins = self._pins.setdefault(port, {})
+            for n in range(first, first + count):
+                if n not in pins:
+                    pins[n] = ring.get(n)
+        return first
+
+    def release_frames(self, port: int, frames: range | list[int]) -> None:
+        """Let held frames go (frames not held are ignored)."""
+        with self._cond:
+            pins = self._pins.get(port, {})
+            for n in frames:
+                pins.pop(n, None)
+
     def close(self) -> None:
+        """Stop the clock; captures still waiting for a frame fail at once."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
         self.stop_clock()
 
     # -- time ------------------------------------------------------------------------------
@@ -182,6 +223,9 @@ class SimCameraBoard:
             )
         )
         record = fpga.ring[-1]
+        pins = self._pins.get(port)
+        if pins is not None and record.frame in pins:
+            pins[record.frame] = record
         truth = self._truth[port]
         truth[record.frame] = {
             "port": port,
@@ -227,6 +271,11 @@ class SimCameraBoard:
         deadline = time.monotonic() + timeout_s
         while True:
             with self._cond:
+                if self._closed:
+                    raise CaptureUnavailableError(f"port {port}: the board is closing")
+                held = self._pins.get(port, {}).get(frame)
+                if held is not None:
+                    return held
                 for record in fpga.ring:
                     if record.frame == frame:
                         return record

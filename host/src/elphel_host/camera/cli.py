@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.backends import connect
+from elphel_host.camera.client import PartialBurstError
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.cli_common import (
@@ -61,6 +62,11 @@ def register(sub: Any) -> None:
     cap.add_argument("--frame", type=int, help="fetch this frame from the ring buffer")
     cap.add_argument(
         "--count", type=int, default=1, help="N consecutive frames as one multi-page TIFF"
+    )
+    cap.add_argument(
+        "--keep-partial",
+        action="store_true",
+        help="a burst that breaks off: write the frames received (the command still fails)",
     )
     cap.add_argument(
         "--join",
@@ -167,7 +173,12 @@ def cmd_capture(args: argparse.Namespace) -> int:
             tiff, image, metadata = frame.tiff, frame.image, frame.metadata
             first, frames = frame.frame, [frame.frame]
         else:
-            burst = client.burst(args.count, port=args.sensor_port, frame=args.frame)
+            try:
+                burst = client.burst(args.count, port=args.sensor_port, frame=args.frame)
+            except PartialBurstError as e:
+                if not args.keep_partial or not e.partial.metadata:
+                    raise
+                return _keep_partial(args, e)
             tiff, image, metadata = burst.tiff, burst.images[0], burst.metadata[0]
             first, frames = burst.frames[0], burst.frames
             if args.join:
@@ -198,6 +209,20 @@ def cmd_capture(args: argparse.Namespace) -> int:
         what = f"photo-finish {what} joined"
     emit(args, result, f"{what} from port {args.sensor_port}: {w}x{h} {image.dtype} -> {out}")
     return 0
+
+
+def _keep_partial(args: argparse.Namespace, error: PartialBurstError) -> int:
+    """Write the frames of a broken-off burst; fail with the reason."""
+    partial = error.partial
+    first = int(partial.metadata[0]["frame"])
+    out: Path = args.out or Path(f"port{args.sensor_port}-frame{first}.tif")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(partial.tiff)
+    frames = [int(m["frame"]) for m in partial.metadata]
+    print(f"elphel: {error}; kept frames {frames[0]}..{frames[-1]} in {out}", file=sys.stderr)
+    if args.json:
+        emit(args, {"file": str(out), "frames": frames, "complete": False}, "")
+    return 1
 
 
 def _tiff_bytes(image: Any, metadata: dict[str, Any]) -> bytes:

@@ -18,6 +18,7 @@ from elphel_host.camera.frames import Burst as Burst  # re-exported: the older n
 from elphel_host.camera.frames import (
     CapturedBurst,
     CapturedFrame,
+    read_partial_tiff,
     read_tiff_metadata,
     read_tiff_pages,
 )
@@ -57,6 +58,18 @@ class CameraHTTPError(CameraClientError):
 
 class CameraUnauthorizedError(CameraHTTPError, CameraAuthError):
     """401/403: no token or a wrong one."""
+
+
+class PartialBurstError(CameraClientError):
+    """A burst broke off before its last frame; ``partial`` holds the complete pages.
+
+    ``partial.complete`` is False; its ``tiff`` is a valid multi-page TIFF of the frames
+    received (``elphel camera capture --keep-partial`` writes it).
+    """
+
+    def __init__(self, message: str, *, partial: CapturedBurst) -> None:
+        super().__init__(message)
+        self.partial = partial
 
 
 class CameraClient(Staging, Closing):
@@ -191,17 +204,45 @@ class CameraClient(Staging, Closing):
         return CapturedFrame(tiff=response.content, image=image, metadata=metadata)
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
-        """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF."""
+        """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF.
+
+        The daemon sends every frame or breaks the connection off; a burst that ends
+        early raises `PartialBurstError`, whose ``partial`` keeps the frames received.
+        """
         query: dict[str, Any] = {"count": count}
         if frame is not None:
             query["frame"] = frame
-        response = self._request("POST", f"/ports/{port}/capture", params=query)
-        images, metadata = read_tiff_pages(response.content)
-        if len(metadata) != count:
-            raise CameraClientError(
-                f"burst ended after {len(metadata)} of {count} frames (see the daemon log)"
-            )
-        return CapturedBurst(tiff=response.content, images=images, metadata=metadata)
+        path = f"/ports/{port}/capture"
+        data = bytearray()
+        broken: str | None = None
+        try:
+            with self._http.stream("POST", path, params=query) as response:
+                if response.status_code >= 400:
+                    response.read()
+                    raise self._error("POST", path, response)
+                for chunk in response.iter_bytes():
+                    data += chunk
+        except httpx.TransportError as e:
+            if not data:
+                raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
+            broken = str(e) or type(e).__name__
+        if broken is None:
+            try:
+                images, metadata = read_tiff_pages(bytes(data))
+            except (ValueError, KeyError, OSError, json.JSONDecodeError) as e:
+                broken = f"unreadable TIFF: {e}"
+            else:
+                if len(metadata) == count:
+                    return CapturedBurst(tiff=bytes(data), images=images, metadata=metadata)
+                broken = f"the TIFF has {len(metadata)} pages"
+        pages, metadata = read_partial_tiff(bytes(data))
+        partial = CapturedBurst(
+            tiff=_pages_tiff(pages, metadata), images=pages, metadata=metadata, complete=False
+        )
+        raise PartialBurstError(
+            f"burst ended after {len(metadata)} of {count} frames ({broken}; see the daemon log)",
+            partial=partial,
+        )
 
     # -- raw registers ---------------------------------------------------------------------
 
@@ -250,3 +291,16 @@ class CameraClient(Staging, Closing):
                         yield event
         except httpx.HTTPError as e:
             raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
+
+
+def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:
+    """A multi-page TIFF of pages with their JSON metadata, as the daemon lays them out."""
+    import io
+
+    import tifffile
+
+    buffer = io.BytesIO()
+    with tifffile.TiffWriter(buffer) as tif:
+        for image, meta in zip(pages, metadata, strict=True):
+            tif.write(image, description=json.dumps(meta), metadata=None)
+    return buffer.getvalue()

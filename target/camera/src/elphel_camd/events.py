@@ -140,3 +140,6 @@ class EventHub:
         for sub in subscribers:
             if sub.wants(event):
                 sub._put(event)
+
+    def close(self) -> None:
+        """End every subscription (daemon shutdown)."""
