@@ -69,6 +69,18 @@ def test_burst_slower_than_the_ring_returns_every_frame(client):
         assert list(shape) == [meta["WOI_HEIGHT"], meta["WOI_WIDTH"]] == [48, 64]
 
 
+def test_burst_outlasting_the_parameter_history_keeps_each_frames_metadata(client, monkeypatch):
+    # At full resolution a burst can take longer than the 256 frames of parameter history.
+    monkeypatch.setattr("elphel_camd.sequencer.HISTORY_FRAMES", 8)
+    c, _ = client
+    r = c.post("/api/v1/ports/0/capture", params={"count": 8}, headers=AUTH)
+    assert r.status_code == 200
+    got = pages(r.content)
+    frames = [meta["frame"] for _, meta in got]
+    assert frames == list(range(frames[0], frames[0] + 8))
+    assert all(meta["WOI_WIDTH"] == 64 and meta["EXPOS"] > 0 for _, meta in got)
+
+
 def test_burst_from_a_frame_gone_from_the_ring_is_an_error(client):
     c, camera = client
     deadline = time.monotonic() + 10

@@ -135,6 +135,12 @@ class CameraService:
         if store is not None:
             self._restore(store)
         self.capture_pool = CapturePool()
+        # Parameters of the frames a burst holds, taken when each frame starts: a held
+        # frame can be sent after the sequencer's history has forgotten it.
+        self._held_params: dict[int, dict[int, dict[str, int] | None]] = {
+            port: {} for port in self.sequencers
+        }
+        self._held_lock = threading.Lock()
         board.on_frame_sync(self._frame_sync)
 
     def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
@@ -142,6 +148,12 @@ class CameraService:
         if seq is None:
             return
         seq.on_frame_sync(frame, timestamp_ns)
+        held = self._held_params[port]
+        if frame in held:
+            params = self.params(port, frame=frame)
+            with self._held_lock:
+                if frame in held:
+                    held[frame] = params
         errors = seq.errors
         if len(errors) > self._errors_seen[port]:
             for message in errors[self._errors_seen[port] :]:
@@ -320,7 +332,10 @@ class CameraService:
         driver = self.sensor(port)
         self._check_frame(port, frame)
         got = self.board.capture(port, frame=frame)
-        params = self.params(port, frame=got.frame)
+        with self._held_lock:
+            params = self._held_params[port].get(got.frame)
+        if params is None:
+            params = self.params(port, frame=got.frame)
         metadata = frame_metadata(
             got, port=port, sensor=driver.model, bayer=driver.bayer, params=params
         )
@@ -359,14 +374,38 @@ class CameraService:
             return
         self.sensor(port)
         self._check_frame(port, frame)
-        start = pin(port, count, frame=frame)
+        start = self._hold_params(port, count, frame)
         try:
+            start = pin(port, count, frame=start)
             for k in range(count):
                 got = self.capture(port, frame=start + k)
                 yield got
                 release(port, [start + k])
+                self._release_params(port, [start + k])
         finally:
             release(port, range(start, start + count))
+            self._release_params(port, range(start, start + count))
+
+    def _hold_params(self, port: int, count: int, frame: int | None) -> int:
+        """Keep the parameters of ``count`` frames from ``frame`` (or the next one)."""
+        seq = self.sequencers[port]
+        held = self._held_params[port]
+        with seq.lock, self._held_lock:  # no frame starts in between
+            start = seq.this_frame + 1 if frame is None else frame
+            for n in range(start, start + count):
+                held.setdefault(n, None)
+        for n in range(start, min(start + count, seq.this_frame + 1)):
+            with contextlib.suppress(FrameNotAvailableError):
+                params = self.params(port, frame=n)
+                with self._held_lock:
+                    held[n] = params
+        return start
+
+    def _release_params(self, port: int, frames: range | list[int]) -> None:
+        held = self._held_params[port]
+        with self._held_lock:
+            for n in frames:
+                held.pop(n, None)
 
     # -- raw registers ---------------------------------------------------------------------
 
