@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.backends import connect
-from elphel_host.camera.client import PartialBurstError
+from elphel_host.camera.client import CameraClient, PartialBurstError
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.cli_common import (
@@ -89,10 +89,14 @@ def register(sub: Any) -> None:
     watch.set_defaults(func=cmd_watch, parser=watch)
 
 
-def _client(args: argparse.Namespace) -> CameraInterface:
+def _client(args: argparse.Namespace, *, retry_s: float = 0.0) -> CameraInterface:
+    """The camera of the command line; one-shot commands fail at once when it is down."""
     if not args.camera:
         args.parser.error("no camera URL: give --camera (or --url) or set ELPHEL_CAMERA_URL")
-    return connect(args.camera, args.token)
+    client = connect(args.camera, args.token)
+    if isinstance(client, CameraClient):
+        client.retry_s = retry_s
+    return client
 
 
 def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, int]:
@@ -252,7 +256,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
     types = tuple(t.strip() for t in args.types.split(",") if t.strip())
     collected: list[dict[str, Any]] = []
-    with _client(args) as client:
+    # A watch outlives a daemon restart: the stream reconnects for up to 30 s.
+    with _client(args, retry_s=30.0) as client:
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):
                 entry = {"type": event.type, "id": event.id, **event.data}
