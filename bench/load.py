@@ -270,17 +270,19 @@ def open_stalled(url: str) -> socket.socket:
 
 def stalled_was_dropped(sock: socket.socket) -> bool:
     """Read what the stalled stream holds: dropped if the daemon closed or reset it."""
-    sock.settimeout(2.0)
+    sock.settimeout(1.0)
+    deadline = time.monotonic() + 5.0
     try:
-        while sock.recv(1 << 16):
-            pass
+        while time.monotonic() < deadline:
+            if not sock.recv(1 << 16):
+                return True  # closed by the daemon
     except ConnectionResetError:
         return True
     except TimeoutError:
-        return False  # still open: the daemon is still sending to it
+        pass
     finally:
         sock.close()
-    return True
+    return False  # still open: the daemon is still sending to it
 
 
 async def idle_figures(url: str, repeat: int) -> dict[str, Any]:
@@ -319,8 +321,8 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
     limits = httpx.Limits(max_connections=args.clients + 10)
     # Forming a full-resolution frame takes seconds of CPU in the simulator: a few capture
     # clients keep it busy; the others exercise the request path.
-    n_full = max(1, args.clients // 25)
-    n_ring = max(1, args.clients // 25)
+    n_full = max(1, args.clients // 50)
+    n_ring = max(1, args.clients // 50)
     n_write = max(1, (args.clients - n_full - n_ring) * 2 // 5)
     n_read = max(1, args.clients - n_full - n_ring - n_write)
     listeners = [Listener() for _ in range(max(0, args.listeners - 1))]

@@ -7,6 +7,7 @@ full-resolution burst over the network does on the default scenario.
 
 import io
 import json
+import threading
 import time
 
 import pytest
@@ -79,6 +80,28 @@ def test_burst_outlasting_the_parameter_history_keeps_each_frames_metadata(clien
     frames = [meta["frame"] for _, meta in got]
     assert frames == list(range(frames[0], frames[0] + 8))
     assert all(meta["WOI_WIDTH"] == 64 and meta["EXPOS"] > 0 for _, meta in got)
+
+
+def test_concurrent_captures_of_one_frame_each_keep_its_metadata(client, monkeypatch):
+    # Two captures hold the same next frame; the first to finish must not release the
+    # other's hold (parameters of a frame long gone from the history).
+    monkeypatch.setattr("elphel_camd.sequencer.HISTORY_FRAMES", 4)
+    c, _ = client
+    answers: list = []
+
+    def capture(count: int) -> None:
+        answers.append(c.post("/api/v1/ports/0/capture", params={"count": count}, headers=AUTH))
+
+    threads = [threading.Thread(target=capture, args=(n,)) for n in (1, 3, 1, 2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert [r.status_code for r in answers] == [200] * 4, [r.text[:200] for r in answers]
+    for r in answers:
+        frames = [meta["frame"] for _, meta in pages(r.content)]
+        assert frames == list(range(frames[0], frames[0] + len(frames)))
+        assert all(meta["WOI_WIDTH"] == 64 for _, meta in pages(r.content))
 
 
 def test_burst_from_a_frame_gone_from_the_ring_is_an_error(client):

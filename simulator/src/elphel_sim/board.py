@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -76,9 +76,11 @@ class SimCameraBoard:
         self._clock: threading.Thread | None = None
         self._stop = threading.Event()
         self._closed = False
+        self._forming = threading.Lock()
         # Frames a multi-frame capture holds until sent: port -> frame -> record (None
         # until the frame is taken). They stay here after leaving the ring buffer.
         self._pins: dict[int, dict[int, FrameRecord | None]] = {}
+        self._pin_counts: dict[int, Counter[int]] = {}  # captures holding each frame
         for port, spec in self.ports.items():
             bus = SimI2CBus(f"port {port}")
             if spec.model in SIM_SENSORS:
@@ -156,17 +158,24 @@ class SimCameraBoard:
                     f"(frames {fpga.ring[0].frame}..{fpga.frame})"
                 )
             pins = self._pins.setdefault(port, {})
+            counts = self._pin_counts.setdefault(port, Counter())
             for n in range(first, first + count):
                 if n not in pins:
                     pins[n] = ring.get(n)
+                counts[n] += 1
         return first
 
     def release_frames(self, port: int, frames: range | list[int]) -> None:
-        """Let held frames go (frames not held are ignored)."""
+        """Let go of frames this caller held (a frame held by others stays held)."""
         with self._cond:
             pins = self._pins.get(port, {})
+            counts = self._pin_counts.get(port, Counter())
             for n in frames:
-                pins.pop(n, None)
+                if counts[n] > 1:
+                    counts[n] -= 1
+                else:
+                    counts.pop(n, None)
+                    pins.pop(n, None)
 
     def close(self) -> None:
         """Stop the clock; captures still waiting for a frame fail at once."""
@@ -327,9 +336,14 @@ class SimCameraBoard:
             spec = self.ports[record.port]
             form_image = self.chips[record.port].form_image
         rng = np.random.default_rng([self.seed, record.port, record.frame]) if self.noise else None
-        image = form_image(
-            record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
-        )
+        # One frame is formed at a time: forming is CPU-bound, and several at once only
+        # take the interpreter from the frame clock and the daemon's request handling.
+        with self._forming:
+            if record.image is not None:
+                return record.image
+            image = form_image(
+                record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+            )
         with self._cond:
             if record.image is None:
                 record.image = image

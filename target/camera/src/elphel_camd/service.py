@@ -14,6 +14,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Generator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -140,6 +141,7 @@ class CameraService:
         self._held_params: dict[int, dict[int, dict[str, int] | None]] = {
             port: {} for port in self.sequencers
         }
+        self._held_counts: dict[int, Counter[int]] = {port: Counter() for port in self.sequencers}
         self._held_lock = threading.Lock()
         board.on_frame_sync(self._frame_sync)
 
@@ -375,25 +377,33 @@ class CameraService:
         self.sensor(port)
         self._check_frame(port, frame)
         start = self._hold_params(port, count, frame)
+        done = start  # frames before this one are released
         try:
-            start = pin(port, count, frame=start)
+            pin(port, count, frame=start)
+        except BaseException:
+            self._release_params(port, range(start, start + count))
+            raise
+        try:
             for k in range(count):
                 got = self.capture(port, frame=start + k)
                 yield got
                 release(port, [start + k])
                 self._release_params(port, [start + k])
+                done = start + k + 1
         finally:
-            release(port, range(start, start + count))
-            self._release_params(port, range(start, start + count))
+            release(port, range(done, start + count))
+            self._release_params(port, range(done, start + count))
 
     def _hold_params(self, port: int, count: int, frame: int | None) -> int:
         """Keep the parameters of ``count`` frames from ``frame`` (or the next one)."""
         seq = self.sequencers[port]
         held = self._held_params[port]
+        counts = self._held_counts[port]
         with seq.lock, self._held_lock:  # no frame starts in between
             start = seq.this_frame + 1 if frame is None else frame
             for n in range(start, start + count):
                 held.setdefault(n, None)
+                counts[n] += 1
         for n in range(start, min(start + count, seq.this_frame + 1)):
             with contextlib.suppress(FrameNotAvailableError):
                 params = self.params(port, frame=n)
@@ -403,9 +413,14 @@ class CameraService:
 
     def _release_params(self, port: int, frames: range | list[int]) -> None:
         held = self._held_params[port]
+        counts = self._held_counts[port]
         with self._held_lock:
             for n in frames:
-                held.pop(n, None)
+                if counts[n] > 1:
+                    counts[n] -= 1
+                else:
+                    counts.pop(n, None)
+                    held.pop(n, None)
 
     # -- raw registers ---------------------------------------------------------------------
 

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from elphel_camd.api.routes.events import ABORT_EXTENSION
+from elphel_camd.api.routes.events import ABORT_EXTENSION, SEND_BUFFER_EXTENSION
 
 log = logging.getLogger(__name__)
 
@@ -69,11 +70,18 @@ class TimedH11Protocol(H11Protocol):
             # A new request: let its stream (events) abort the connection if it must.
             extensions: Any = cycle.scope.setdefault("extensions", {})
             extensions[ABORT_EXTENSION] = self.transport.abort
+            extensions[SEND_BUFFER_EXTENSION] = self._limit_send_buffer
         waiting = cycle is None or cycle.response_complete or cycle.more_body
         if waiting and not self.transport.is_closing():
             self._arm()
         else:
             self._disarm()
+
+    def _limit_send_buffer(self, nbytes: int) -> None:
+        """Fix the kernel's send buffer of this connection (no autotuning up to 4 MiB)."""
+        sock = self.transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, nbytes)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._disarm()

@@ -37,6 +37,10 @@ _FAREWELL_S = 1.0
 # The ASGI scope extension through which the server lets a stream abort its connection
 # (elphel_camd.serving); without it the connection is closed normally.
 ABORT_EXTENSION = "elphel.abort"
+# ... and fix its kernel send buffer: else the kernel grows it to megabytes for a client
+# that does not read, and the client is found to lag only minutes later.
+SEND_BUFFER_EXTENSION = "elphel.send_buffer"
+STREAM_SEND_BUFFER = 32 * 1024
 
 
 def sse(event: Event) -> bytes:
@@ -78,7 +82,11 @@ class EventStream(Response):
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         sub = self.sub
-        abort: Callable[[], None] | None = scope.get("extensions", {}).get(ABORT_EXTENSION)
+        extensions = scope.get("extensions") or {}
+        abort: Callable[[], None] | None = extensions.get(ABORT_EXTENSION)
+        limit_send_buffer = extensions.get(SEND_BUFFER_EXTENSION)
+        if limit_send_buffer is not None:
+            limit_send_buffer(STREAM_SEND_BUFFER)
         try:
             await send({"type": "http.response.start", "status": 200, "headers": self.raw_headers})
             async with anyio.create_task_group() as tg:
