@@ -52,7 +52,7 @@ RING_BACK = 3  # ring fetches ask for the frame this many before the current one
 
 
 @contextmanager
-def daemon(state: Path) -> Iterator[tuple[str, int]]:
+def daemon(state: Path, event_queue: int = 256) -> Iterator[tuple[str, int]]:
     """`elphel-camd --board sim` in its own process on loopback; yields (URL, pid)."""
     state.mkdir(parents=True, exist_ok=True)
     config = state / "config.json"
@@ -64,6 +64,7 @@ def daemon(state: Path) -> Iterator[tuple[str, int]]:
                 "board_options": {"seed": 1},
                 "access_log": False,
                 "log_level": "warning",
+                "event_queue": event_queue,
             }
         )
     )
@@ -321,8 +322,7 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
     limits = httpx.Limits(max_connections=args.clients + 10)
     # Forming a full-resolution frame takes seconds of CPU in the simulator: a few capture
     # clients keep it busy; the others exercise the request path.
-    n_full = max(1, args.clients // 50)
-    n_ring = max(1, args.clients // 50)
+    n_full = n_ring = args.captures
     n_write = max(1, (args.clients - n_full - n_ring) * 2 // 5)
     n_read = max(1, args.clients - n_full - n_ring - n_write)
     listeners = [Listener() for _ in range(max(0, args.listeners - 1))]
@@ -383,6 +383,7 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
             "listeners_reading": len(listeners),
             "listeners_stalled": 1,
             "think_ms": args.think_ms,
+            "event_queue": args.event_queue,
         },
         "idle": idle,
         "endpoints": endpoints,
@@ -439,12 +440,24 @@ def main() -> int:
     ap.add_argument("--clients", type=int, default=50, help="concurrent request clients (50)")
     ap.add_argument("--listeners", type=int, default=20, help="event listeners, one stalled")
     ap.add_argument("--think-ms", type=float, default=100.0, help="pause between requests")
+    ap.add_argument(
+        "--captures", type=int, default=1, help="clients of each capture kind (full, ring)"
+    )
+    ap.add_argument(
+        "--event-queue", type=int, default=256, help="the daemon's per-stream queue (256)"
+    )
     ap.add_argument("--idle-captures", type=int, default=2, help="idle captures timed (2)")
     args = ap.parse_args()
     if args.duration <= 0 or args.clients < 4 or args.listeners < 2:
         ap.error("--duration > 0, --clients >= 4 and --listeners >= 2")
     random.seed(1)
-    with tempfile.TemporaryDirectory() as tmp, daemon(Path(tmp) / "state") as (url, pid):
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        daemon(Path(tmp) / "state", args.event_queue) as (
+            url,
+            pid,
+        ),
+    ):
         result = asyncio.run(run_load(args, url, pid))
     print(json.dumps(result))
     return 0

@@ -78,10 +78,14 @@ class TimedH11Protocol(H11Protocol):
             self._disarm()
 
     def _limit_send_buffer(self, nbytes: int) -> None:
-        """Fix the kernel's send buffer of this connection (no autotuning up to 4 MiB)."""
+        """Fix this connection's send buffers: the kernel's and the transport's.
+
+        Without it the kernel grows a stalled client's buffer up to 4 MiB.
+        """
         sock = self.transport.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, nbytes)
+        self.transport.set_write_buffer_limits(high=nbytes)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._disarm()

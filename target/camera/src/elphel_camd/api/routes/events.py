@@ -40,7 +40,7 @@ ABORT_EXTENSION = "elphel.abort"
 # ... and fix its kernel send buffer: else the kernel grows it to megabytes for a client
 # that does not read, and the client is found to lag only minutes later.
 SEND_BUFFER_EXTENSION = "elphel.send_buffer"
-STREAM_SEND_BUFFER = 32 * 1024
+STREAM_SEND_BUFFER = 8 * 1024  # events are ~100 bytes: ample for a client that reads
 
 
 def sse(event: Event) -> bytes:
