@@ -257,7 +257,7 @@ def test_waiting_captures_do_not_slow_other_requests(service):
         threads = [threading.Thread(target=capture, daemon=True) for _ in range(45)]
         for t in threads:
             t.start()
-        assert wait_until(lambda: service.capture_pool.waiting == 45)
+        assert wait_until(lambda: service.capture_pool.waiting == 45, 30)
         start = time.monotonic()
         for _ in range(5):
             assert httpx.get(srv.url + "/api/v1/info", timeout=5).status_code == 200
