@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -75,6 +75,12 @@ class SimCameraBoard:
         self._cond = threading.Condition(threading.RLock())
         self._clock: threading.Thread | None = None
         self._stop = threading.Event()
+        self._closed = False
+        self._forming = threading.Lock()
+        # Frames a multi-frame capture holds until sent: port -> frame -> record (None
+        # until the frame is taken). They stay here after leaving the ring buffer.
+        self._pins: dict[int, dict[int, FrameRecord | None]] = {}
+        self._pin_counts: dict[int, Counter[int]] = {}  # captures holding each frame
         for port, spec in self.ports.items():
             bus = SimI2CBus(f"port {port}")
             if spec.model in SIM_SENSORS:
@@ -131,7 +137,51 @@ class SimCameraBoard:
             strip_period_ns=round(record.strip_period_s * 1e9) if record.strips else 0,
         )
 
+    def pin_frames(self, port: int, count: int, *, frame: int | None = None) -> int:
+        """Hold ``count`` consecutive frames (from the next one or ``frame``) until released.
+
+        A held frame stays available to `capture` after it leaves the 64-frame ring, so a
+        multi-frame capture slower than the frame rate still gets every frame. Returns the
+        first frame's number; release each frame with `release_frames`.
+        """
+        if port not in self.ports:
+            raise PortError(f"port {port} does not exist; ports: {sorted(self.ports)}")
+        fpga = self.fpga.get(port)
+        if fpga is None:
+            raise CaptureUnavailableError(f"port {port}: no sensor on this simulated port")
+        with self._cond:
+            first = fpga.frame + 1 if frame is None else frame
+            ring = {r.frame: r for r in fpga.ring}
+            if first <= fpga.frame and first not in ring:
+                raise FrameNotAvailableError(
+                    f"port {port}: frame {first} is no longer in the ring buffer "
+                    f"(frames {fpga.ring[0].frame}..{fpga.frame})"
+                )
+            pins = self._pins.setdefault(port, {})
+            counts = self._pin_counts.setdefault(port, Counter())
+            for n in range(first, first + count):
+                if n not in pins:
+                    pins[n] = ring.get(n)
+                counts[n] += 1
+        return first
+
+    def release_frames(self, port: int, frames: range | list[int]) -> None:
+        """Let go of frames this caller held (a frame held by others stays held)."""
+        with self._cond:
+            pins = self._pins.get(port, {})
+            counts = self._pin_counts.get(port, Counter())
+            for n in frames:
+                if counts[n] > 1:
+                    counts[n] -= 1
+                else:
+                    counts.pop(n, None)
+                    pins.pop(n, None)
+
     def close(self) -> None:
+        """Stop the clock; captures still waiting for a frame fail at once."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
         self.stop_clock()
 
     # -- time ------------------------------------------------------------------------------
@@ -182,6 +232,9 @@ class SimCameraBoard:
             )
         )
         record = fpga.ring[-1]
+        pins = self._pins.get(port)
+        if pins is not None and record.frame in pins:
+            pins[record.frame] = record
         truth = self._truth[port]
         truth[record.frame] = {
             "port": port,
@@ -227,6 +280,11 @@ class SimCameraBoard:
         deadline = time.monotonic() + timeout_s
         while True:
             with self._cond:
+                if self._closed:
+                    raise CaptureUnavailableError(f"port {port}: the board is closing")
+                held = self._pins.get(port, {}).get(frame)
+                if held is not None:
+                    return held
                 for record in fpga.ring:
                     if record.frame == frame:
                         return record
@@ -278,9 +336,14 @@ class SimCameraBoard:
             spec = self.ports[record.port]
             form_image = self.chips[record.port].form_image
         rng = np.random.default_rng([self.seed, record.port, record.frame]) if self.noise else None
-        image = form_image(
-            record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
-        )
+        # One frame is formed at a time: forming is CPU-bound, and several at once only
+        # take the interpreter from the frame clock and the daemon's request handling.
+        with self._forming:
+            if record.image is not None:
+                return record.image
+            image = form_image(
+                record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+            )
         with self._cond:
             if record.image is None:
                 record.image = image

@@ -8,22 +8,21 @@ endpoint (``sim_url``): it tells the truth the host cannot see, for tests and de
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import signal
 import socket
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import uvicorn
 from fastapi import FastAPI, HTTPException
 
 from elphel_camd.api import create_app
 from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_camd.service import CameraService
+from elphel_camd.serving import GracefulServer, server_config
 from elphel_camd.store import new_token
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.quad import QuadScene
@@ -152,14 +151,6 @@ def bind_loopback(port: int, host: str = "127.0.0.1") -> socket.socket:
     return sock
 
 
-class _Server(uvicorn.Server):
-    """A uvicorn server that leaves signal handling to the launcher (it runs several)."""
-
-    @contextlib.contextmanager
-    def capture_signals(self) -> Iterator[None]:
-        yield
-
-
 @dataclass
 class Served:
     app: FastAPI
@@ -171,9 +162,22 @@ class Served:
         return f"http://{host}:{port}"
 
 
-async def serve_all(served: list[Served]) -> None:
-    """Run every app on its socket until SIGINT or SIGTERM."""
-    servers = [_Server(uvicorn.Config(s.app, log_level="warning", lifespan="off")) for s in served]
+async def serve_all(
+    served: list[Served], *, on_shutdown: Sequence[Callable[[], None]] = ()
+) -> None:
+    """Run every app on its socket until SIGINT or SIGTERM.
+
+    Each server has the daemon's request/idle timeouts; on a signal ``on_shutdown`` runs
+    first (ending the event streams), so the rig stops within about a second.
+    """
+    servers = [
+        GracefulServer(
+            server_config(s.app, log_level="warning", access_log=False),
+            on_shutdown=on_shutdown,
+            handle_signals=False,
+        )
+        for s in served
+    ]
     loop = asyncio.get_running_loop()
 
     def stop() -> None:
@@ -231,7 +235,7 @@ def up(
             print(f"  {key:11s} {value}", flush=True)
         print(f"  try: {hint}", flush=True)
     try:
-        asyncio.run(serve_all([*cameras, sim_served]))
+        asyncio.run(serve_all([*cameras, sim_served], on_shutdown=[camera.events.close]))
     finally:
         stage.close()
         camera.close()

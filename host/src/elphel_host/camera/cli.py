@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.backends import connect
+from elphel_host.camera.client import CameraClient, PartialBurstError
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.cli_common import (
@@ -63,6 +64,11 @@ def register(sub: Any) -> None:
         "--count", type=int, default=1, help="N consecutive frames as one multi-page TIFF"
     )
     cap.add_argument(
+        "--keep-partial",
+        action="store_true",
+        help="a burst that breaks off: write the frames received (the command still fails)",
+    )
+    cap.add_argument(
         "--join",
         action="store_true",
         help="photo-finish: join the N composites into one image (rows in time order) "
@@ -83,10 +89,14 @@ def register(sub: Any) -> None:
     watch.set_defaults(func=cmd_watch, parser=watch)
 
 
-def _client(args: argparse.Namespace) -> CameraInterface:
+def _client(args: argparse.Namespace, *, retry_s: float = 0.0) -> CameraInterface:
+    """The camera of the command line; one-shot commands fail at once when it is down."""
     if not args.camera:
         args.parser.error("no camera URL: give --camera (or --url) or set ELPHEL_CAMERA_URL")
-    return connect(args.camera, args.token)
+    client = connect(args.camera, args.token)
+    if isinstance(client, CameraClient):
+        client.retry_s = retry_s
+    return client
 
 
 def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, int]:
@@ -167,7 +177,12 @@ def cmd_capture(args: argparse.Namespace) -> int:
             tiff, image, metadata = frame.tiff, frame.image, frame.metadata
             first, frames = frame.frame, [frame.frame]
         else:
-            burst = client.burst(args.count, port=args.sensor_port, frame=args.frame)
+            try:
+                burst = client.burst(args.count, port=args.sensor_port, frame=args.frame)
+            except PartialBurstError as e:
+                if not args.keep_partial or not e.partial.metadata:
+                    raise
+                return _keep_partial(args, e)
             tiff, image, metadata = burst.tiff, burst.images[0], burst.metadata[0]
             first, frames = burst.frames[0], burst.frames
             if args.join:
@@ -200,6 +215,20 @@ def cmd_capture(args: argparse.Namespace) -> int:
     return 0
 
 
+def _keep_partial(args: argparse.Namespace, error: PartialBurstError) -> int:
+    """Write the frames of a broken-off burst; fail with the reason."""
+    partial = error.partial
+    first = int(partial.metadata[0]["frame"])
+    out: Path = args.out or Path(f"port{args.sensor_port}-frame{first}.tif")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(partial.tiff)
+    frames = [int(m["frame"]) for m in partial.metadata]
+    print(f"elphel: {error}; kept frames {frames[0]}..{frames[-1]} in {out}", file=sys.stderr)
+    if args.json:
+        emit(args, {"file": str(out), "frames": frames, "complete": False}, "")
+    return 1
+
+
 def _tiff_bytes(image: Any, metadata: dict[str, Any]) -> bytes:
     """A one-page 16-bit TIFF with JSON metadata, as the daemon writes them."""
     import io
@@ -227,7 +256,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
     types = tuple(t.strip() for t in args.types.split(",") if t.strip())
     collected: list[dict[str, Any]] = []
-    with _client(args) as client:
+    # A watch outlives a daemon restart: the stream reconnects for up to 30 s.
+    with _client(args, retry_s=30.0) as client:
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):
                 entry = {"type": event.type, "id": event.id, **event.data}

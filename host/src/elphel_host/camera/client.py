@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import socket
+import time
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -18,6 +19,7 @@ from elphel_host.camera.frames import Burst as Burst  # re-exported: the older n
 from elphel_host.camera.frames import (
     CapturedBurst,
     CapturedFrame,
+    read_partial_tiff,
     read_tiff_metadata,
     read_tiff_pages,
 )
@@ -59,6 +61,18 @@ class CameraUnauthorizedError(CameraHTTPError, CameraAuthError):
     """401/403: no token or a wrong one."""
 
 
+class PartialBurstError(CameraClientError):
+    """A burst broke off before its last frame; ``partial`` holds the complete pages.
+
+    ``partial.complete`` is False; its ``tiff`` is a valid multi-page TIFF of the frames
+    received (``elphel camera capture --keep-partial`` writes it).
+    """
+
+    def __init__(self, message: str, *, partial: CapturedBurst) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
 class CameraClient(Staging, Closing):
     """Talks to one camera daemon.
 
@@ -70,6 +84,12 @@ class CameraClient(Staging, Closing):
         Bearer token for writes (capture counts as one); None for read-only use.
     timeout_s
         Per-request timeout.
+    retry_s
+        How long to keep retrying while the daemon cannot be reached (a restart): reads
+        and other idempotent requests are retried after any connection failure, PATCH
+        and capture only when the connection could not be made (so a change is never
+        applied twice); the event stream reconnects with the last event id it got. 0
+        gives up at once.
     transport
         httpx transport to use instead of the network (tests).
 
@@ -87,6 +107,7 @@ class CameraClient(Staging, Closing):
         token: str | None = None,
         *,
         timeout_s: float = 30.0,
+        retry_s: float = 10.0,
         transport: httpx.BaseTransport | None = None,
     ) -> None:
         if not url.startswith(("http://", "https://")):
@@ -94,6 +115,7 @@ class CameraClient(Staging, Closing):
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.url = url.rstrip("/")
         self.timeout_s = timeout_s
+        self.retry_s = retry_s
         if transport is None:
             # Small PATCHes go out as headers and body: without TCP_NODELAY, Nagle's
             # algorithm and the server's delayed ACK add 40 ms to each.
@@ -119,13 +141,19 @@ class CameraClient(Staging, Closing):
         return kind(message, status=response.status_code, body=body)
 
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        try:
-            response = self._http.request(method, path, **kwargs)
-        except httpx.HTTPError as e:
-            raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
-        if response.status_code >= 400:
-            raise self._error(method, path, response)
-        return response
+        backoff = Backoff(self.retry_s)
+        while True:
+            try:
+                response = self._http.request(method, path, **kwargs)
+            except httpx.TransportError as e:
+                if retryable(method, e) and backoff.wait():
+                    continue
+                raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
+            except httpx.HTTPError as e:
+                raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
+            if response.status_code >= 400:
+                raise self._error(method, path, response)
+            return response
 
     def _json(self, method: str, path: str, **kwargs: Any) -> Any:
         return self._request(method, path, **kwargs).json()
@@ -191,17 +219,50 @@ class CameraClient(Staging, Closing):
         return CapturedFrame(tiff=response.content, image=image, metadata=metadata)
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
-        """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF."""
+        """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF.
+
+        The daemon sends every frame or breaks the connection off; a burst that ends
+        early raises `PartialBurstError`, whose ``partial`` keeps the frames received.
+        """
         query: dict[str, Any] = {"count": count}
         if frame is not None:
             query["frame"] = frame
-        response = self._request("POST", f"/ports/{port}/capture", params=query)
-        images, metadata = read_tiff_pages(response.content)
-        if len(metadata) != count:
-            raise CameraClientError(
-                f"burst ended after {len(metadata)} of {count} frames (see the daemon log)"
-            )
-        return CapturedBurst(tiff=response.content, images=images, metadata=metadata)
+        path = f"/ports/{port}/capture"
+        data = bytearray()
+        broken: str | None = None
+        backoff = Backoff(self.retry_s)
+        while True:
+            try:
+                with self._http.stream("POST", path, params=query) as response:
+                    if response.status_code >= 400:
+                        response.read()
+                        raise self._error("POST", path, response)
+                    for chunk in response.iter_bytes():
+                        data += chunk
+            except httpx.TransportError as e:
+                if not data and retryable("POST", e) and backoff.wait():
+                    continue
+                if not data:
+                    raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
+                broken = str(e) or type(e).__name__
+            break
+        if broken is None:
+            try:
+                images, metadata = read_tiff_pages(bytes(data))
+            except (ValueError, KeyError, OSError, json.JSONDecodeError) as e:
+                broken = f"unreadable TIFF: {e}"
+            else:
+                if len(metadata) == count:
+                    return CapturedBurst(tiff=bytes(data), images=images, metadata=metadata)
+                broken = f"the TIFF has {len(metadata)} pages"
+        pages, metadata = read_partial_tiff(bytes(data))
+        partial = CapturedBurst(
+            tiff=_pages_tiff(pages, metadata), images=pages, metadata=metadata, complete=False
+        )
+        raise PartialBurstError(
+            f"burst ended after {len(metadata)} of {count} frames ({broken}; see the daemon log)",
+            partial=partial,
+        )
 
     # -- raw registers ---------------------------------------------------------------------
 
@@ -230,23 +291,111 @@ class CameraClient(Staging, Closing):
         *,
         port: int | None = None,
         count: int | None = None,
+        reconnect: bool = True,
+        last_id: int | None = None,
     ) -> Iterator[CameraEvent]:
-        """Follow the daemon's events; stops after ``count`` events (else when closed)."""
-        query: dict[str, Any] = {"types": ",".join(types)}
-        if port is not None:
-            query["port"] = port
-        if count is not None:
-            query["count"] = count
-        timeout = httpx.Timeout(self.timeout_s, read=None)
-        try:
-            with self._http.stream("GET", "/events", params=query, timeout=timeout) as response:
-                if response.status_code >= 400:
-                    response.read()
-                    raise self._error("GET", "/events", response)
-                parser = SSEParser()
-                for line in response.iter_lines():
-                    event = parser.feed(line)
-                    if event is not None:
+        """Follow the daemon's events; stops after ``count`` events (else when closed).
+
+        With ``reconnect`` a stream that ends or breaks (a daemon restart, a client that
+        fell behind) is opened again with ``Last-Event-ID``, so the daemon replays what
+        was missed; events it could not replay are announced by a ``dropped`` event.
+        Gives up (`CameraClientError`) after ``retry_s`` without a connection.
+        ``last_id`` resumes after that event id.
+        """
+        remaining = count
+        backoff = Backoff(self.retry_s)
+        while True:
+            query: dict[str, Any] = {"types": ",".join(types)}
+            if port is not None:
+                query["port"] = port
+            if remaining is not None:
+                query["count"] = remaining
+            headers = {} if last_id is None else {"Last-Event-ID": str(last_id)}
+            timeout = httpx.Timeout(self.timeout_s, read=None)
+            try:
+                with self._http.stream(
+                    "GET", "/events", params=query, headers=headers, timeout=timeout
+                ) as response:
+                    if response.status_code >= 400:
+                        response.read()
+                        if response.status_code == 503 and reconnect and backoff.wait():
+                            continue
+                        raise self._error("GET", "/events", response)
+                    backoff.reset()
+                    parser = SSEParser()
+                    for line in response.iter_lines():
+                        event = parser.feed(line)
+                        if event is None:
+                            continue
+                        if event.id is not None:
+                            last_id = event.id
                         yield event
-        except httpx.HTTPError as e:
-            raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
+                        if event.type != "dropped" and remaining is not None:
+                            remaining -= 1
+                            if remaining == 0:
+                                return
+            except httpx.TransportError as e:
+                if not (reconnect and backoff.wait()):
+                    raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
+                continue
+            except httpx.HTTPError as e:
+                raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
+            if not reconnect:
+                return
+            if not backoff.wait():
+                raise CameraClientError(
+                    f"event stream from {self.url} ended and could not be reopened "
+                    f"in {self.retry_s} s"
+                )
+
+
+# Methods whose repetition changes nothing more than the first did.
+IDEMPOTENT = frozenset({"GET", "HEAD", "OPTIONS", "PUT", "DELETE"})
+
+
+def retryable(method: str, error: httpx.TransportError) -> bool:
+    """Whether a request that failed so can be sent again safely.
+
+    Idempotent requests after any transport failure except a read timeout (the daemon
+    may be busy; waiting again would double the wait); others only when no connection
+    was made, i.e. the daemon never saw the request.
+    """
+    if isinstance(error, httpx.ConnectError | httpx.ConnectTimeout):
+        return True
+    return method.upper() in IDEMPOTENT and not isinstance(error, httpx.ReadTimeout)
+
+
+class Backoff:
+    """Exponential back-off (50 ms doubling to 1 s) within a budget of ``total_s``."""
+
+    def __init__(self, total_s: float) -> None:
+        self.total_s = total_s
+        self.reset()
+
+    def reset(self) -> None:
+        self.delay_s = 0.05
+        self.started: float | None = None
+
+    def wait(self) -> bool:
+        """Sleep before the next try; False (no sleep) once the budget is spent."""
+        now = time.monotonic()
+        if self.started is None:
+            self.started = now
+        if now - self.started + self.delay_s > self.total_s:
+            return False
+        time.sleep(self.delay_s)
+        self.delay_s = min(self.delay_s * 2, 1.0)
+        return True
+
+
+def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:
+    """A multi-page TIFF of pages with their JSON metadata, as the daemon lays them out."""
+    import io
+
+    import tifffile
+
+    buffer = io.BytesIO()
+    with tifffile.TiffWriter(buffer) as tif:
+        for image, meta in zip(pages, metadata, strict=True):
+            tif.write(image, description=json.dumps(meta), metadata=None)
+    return buffer.getvalue()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,11 +37,17 @@ class CapturedFrame:
 
 @dataclass(frozen=True)
 class CapturedBurst:
-    """Consecutive frames in one multi-page TIFF: images (N, H, W) and per-frame metadata."""
+    """Consecutive frames in one multi-page TIFF: images and per-frame metadata.
+
+    ``images`` is one (N, H, W) array when every page has the same shape, else a list of
+    the N pages (the window changed during the capture). ``complete`` is False for the
+    pages kept of a burst that broke off (``keep_partial``).
+    """
 
     tiff: bytes
-    images: NDArray[np.uint16]
+    images: NDArray[np.uint16] | list[NDArray[np.uint16]]
     metadata: list[dict[str, Any]]
+    complete: bool = True
 
     @property
     def frames(self) -> list[int]:
@@ -72,6 +79,8 @@ class CapturedBurst:
                     f"frames {a['frame']} and {b['frame']} are not contiguous: "
                     f"{gap / period:+.1f} strips between them"
                 )
+        if isinstance(self.images, list):
+            raise CameraClientError("the frames differ in shape: the window changed")
         starts = np.array([int(m["timestamp_ns"]) for m in self.metadata], dtype=np.int64)
         strip = np.arange(strips * height, dtype=np.int64) // height
         row_times = starts[:, None] + strip[None, :] * period
@@ -108,8 +117,13 @@ def read_tiff_metadata(data: bytes | str) -> tuple[NDArray[Any], dict[str, Any]]
     return image, metadata
 
 
-def read_tiff_pages(data: bytes) -> tuple[NDArray[Any], list[dict[str, Any]]]:
-    """Images (N, H, W) and each page's JSON metadata of a multi-page TIFF from the daemon."""
+def read_tiff_pages(
+    data: bytes,
+) -> tuple[NDArray[Any] | list[NDArray[Any]], list[dict[str, Any]]]:
+    """Images and each page's JSON metadata of a multi-page TIFF from the daemon.
+
+    The images are one (N, H, W) array if all pages have one shape, else a list of pages.
+    """
     with tifffile.TiffFile(io.BytesIO(data)) as tif:
         pages = [tif.pages[i] for i in range(len(tif.pages))]
         metadata = []
@@ -117,8 +131,57 @@ def read_tiff_pages(data: bytes) -> tuple[NDArray[Any], list[dict[str, Any]]]:
             meta = json.loads(page.description)  # type: ignore[union-attr]
             meta.pop("shape", None)
             metadata.append(meta)
-        images = np.stack([page.asarray() for page in pages])
+        arrays = [page.asarray() for page in pages]
+    if len({a.shape for a in arrays}) > 1:
+        return arrays, metadata
+    return np.stack(arrays), metadata
+
+
+def read_partial_tiff(data: bytes) -> tuple[list[NDArray[Any]], list[dict[str, Any]]]:
+    """The complete pages at the start of a TIFF that was cut off (a broken-off burst).
+
+    Pages are laid out front to back (IFD, description, pixels), so every page whose
+    pixels arrived is read; the rest is left out.
+    """
+    images: list[NDArray[Any]] = []
+    metadata: list[dict[str, Any]] = []
+    if len(data) < 8 or data[:4] != b"II*\x00":
+        return images, metadata
+    offset = int.from_bytes(data[4:8], "little")
+    while offset and offset + 2 <= len(data):
+        n = int.from_bytes(data[offset : offset + 2], "little")
+        end = offset + 2 + 12 * n + 4
+        if end > len(data):
+            break
+        tags: dict[int, tuple[int, int]] = {}
+        for i in range(n):
+            entry = data[offset + 2 + 12 * i : offset + 14 + 12 * i]
+            tag, kind, count = struct.unpack("<HHI", entry[:8])
+            value = struct.unpack("<H", entry[8:10])[0] if kind == 3 else _u32(entry[8:12])
+            tags[tag] = (count, value)
+        try:
+            width, height = tags[256][1], tags[257][1]
+            desc_count, desc_at = tags[270]
+            strip_at, nbytes = tags[273][1], tags[279][1]
+        except KeyError:
+            break
+        if strip_at + nbytes > len(data) or nbytes != width * height * 2:
+            break
+        description = data[desc_at : desc_at + desc_count].rstrip(b"\x00")
+        try:
+            meta = json.loads(description)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            break
+        meta.pop("shape", None)
+        pixels = np.frombuffer(data, dtype="<u2", count=width * height, offset=strip_at)
+        images.append(pixels.reshape(height, width).copy())
+        metadata.append(meta)
+        offset = _u32(data[end - 4 : end])
     return images, metadata
+
+
+def _u32(b: bytes) -> int:
+    return int.from_bytes(b, "little")
 
 
 # Older names, kept for scripts: the multi-page capture was ``Burst`` (a burst directory is

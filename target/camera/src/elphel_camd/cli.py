@@ -106,9 +106,8 @@ build_camera = build_service  # the old name
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    import uvicorn
-
     from elphel_camd.api import create_app
+    from elphel_camd.serving import GracefulServer, server_config
 
     args = build_parser().parse_args(argv)
     logging.basicConfig(
@@ -140,14 +139,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             read_protected=settings.read_protected,
             max_body_bytes=settings.max_body_bytes,
         )
-        config = uvicorn.Config(
-            app,
-            log_level=settings.log_level,
-            access_log=settings.access_log,
-            lifespan="off",
-        )
+        # Request/idle timeouts and a bounded number of connections; a shutdown ends
+        # the event streams first (elphel_camd.serving).
+        config = server_config(app, log_level=settings.log_level, access_log=settings.access_log)
         log.info("listening on http://%s:%d", host, port)
-        uvicorn.Server(config).run(sockets=[sock])
+        GracefulServer(config, on_shutdown=[service.events.close]).run(sockets=[sock])
     except OSError as e:
         print(
             f"elphel-camd: cannot listen on {settings.host}:{settings.port}: {e}", file=sys.stderr

@@ -1,31 +1,154 @@
-"""Route of the event stream: ``GET /events`` (server-sent events)."""
+"""Route of the event stream: ``GET /events`` (server-sent events).
+
+Each event goes out as ``id:``, ``event:`` and one JSON ``data:`` line. A client resumes
+with ``Last-Event-ID``; one that falls a queue's length behind gets a ``dropped`` event
+and the stream ends; the number of streams is bounded (503 beyond it); a daemon shutting
+down ends every stream at once.
+"""
 
 from __future__ import annotations
 
+import asyncio
 import json
-from collections.abc import AsyncIterator
-from typing import Annotated
+from collections.abc import Callable
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
-from fastapi.responses import StreamingResponse
+import anyio
+from fastapi import APIRouter, Header, Query
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.responses import Response
+from starlette.types import Receive, Scope, Send
 
 from elphel_camd.api.deps import READS, Options, Service
 from elphel_camd.api.errors import error_responses
-from elphel_camd.events import EVENT_TYPES
+from elphel_camd.events import (
+    EVENT_TYPES,
+    Event,
+    EventHub,
+    HubClosedError,
+    Subscription,
+    TooManyStreamsError,
+)
 
 router = APIRouter()
+
+# How long the last words (a ``dropped`` notice, the end of the body) may take to go out.
+_FAREWELL_S = 1.0
+# The ASGI scope extension through which the server lets a stream abort its connection
+# (elphel_camd.serving); without it the connection is closed normally.
+ABORT_EXTENSION = "elphel.abort"
+# ... and fix its kernel send buffer: else the kernel grows it to megabytes for a client
+# that does not read, and the client is found to lag only minutes later.
+SEND_BUFFER_EXTENSION = "elphel.send_buffer"
+STREAM_SEND_BUFFER = 8 * 1024  # events are ~100 bytes: ample for a client that reads
+
+
+def sse(event: Event) -> bytes:
+    data = json.dumps(event.data, separators=(",", ":"))
+    return f"id: {event.id}\nevent: {event.type}\ndata: {data}\n\n".encode()
+
+
+def dropped_notice(sub: Subscription, reason: str, last_id: int | None) -> bytes:
+    body: dict[str, Any] = {"dropped": sub.dropped or sub.missed, "reason": reason}
+    if reason == "slow":
+        body["queue"] = sub.maxlen
+    if last_id is not None:
+        body["last_id"] = last_id
+    return f"event: dropped\ndata: {json.dumps(body, separators=(',', ':'))}\n\n".encode()
+
+
+class EventStream(Response):
+    """The streaming answer of one subscription (a raw ASGI response).
+
+    Ends when ``count`` events went out, when the client leaves, when it falls behind
+    (after a ``dropped`` notice) or when the hub closes.
+    """
+
+    media_type = "text/event-stream"
+
+    def __init__(
+        self, hub: EventHub, sub: Subscription, *, keepalive_s: float, count: int | None
+    ) -> None:
+        # No Response.__init__: it would declare Content-Length: 0 for the empty body.
+        self.status_code = 200
+        self.background = None
+        self.raw_headers = [
+            (b"content-type", b"text/event-stream; charset=utf-8"),
+            (b"cache-control", b"no-cache"),
+            (b"x-accel-buffering", b"no"),
+        ]
+        self.hub, self.sub = hub, sub
+        self.keepalive_s, self.count = keepalive_s, count
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        sub = self.sub
+        extensions = scope.get("extensions") or {}
+        abort: Callable[[], None] | None = extensions.get(ABORT_EXTENSION)
+        limit_send_buffer = extensions.get(SEND_BUFFER_EXTENSION)
+        if limit_send_buffer is not None:
+            limit_send_buffer(STREAM_SEND_BUFFER)
+        try:
+            await send({"type": "http.response.start", "status": 200, "headers": self.raw_headers})
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._watch_disconnect, receive, tg.cancel_scope)
+                with anyio.CancelScope() as pump:
+                    sub.interrupt = pump.cancel
+                    await self._pump(send)
+                if sub.overflowed:
+                    with anyio.move_on_after(_FAREWELL_S) as farewell:
+                        await send(_body(dropped_notice(sub, "slow", self._sent_id)))
+                    if farewell.cancelled_caught and abort is not None:
+                        abort()  # the client does not read: no need to wait for it
+                        tg.cancel_scope.cancel()
+                        return
+                with anyio.move_on_after(_FAREWELL_S):
+                    await send({"type": "http.response.body", "body": b"", "more_body": False})
+                tg.cancel_scope.cancel()
+        finally:
+            self.hub.unsubscribe(sub)
+
+    _sent_id: int | None = None  # the last event sent
+
+    async def _pump(self, send: Send) -> None:
+        sub = self.sub
+        await send(_body(b"retry: 2000\n\n"))
+        if sub.missed:
+            await send(_body(dropped_notice(sub, "replay", None)))
+        sent = 0
+        while self.count is None or sent < self.count:
+            event = await sub.get(self.keepalive_s)
+            if sub.overflowed or sub.closed:
+                break
+            if event is None:
+                await send(_body(b": keepalive\n\n"))
+                continue
+            await send(_body(sse(event)))
+            self._sent_id = event.id
+            sent += 1
+
+    @staticmethod
+    async def _watch_disconnect(receive: Receive, scope: anyio.CancelScope) -> None:
+        while True:
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                scope.cancel()
+                return
+
+
+def _body(data: bytes) -> dict[str, Any]:
+    return {"type": "http.response.body", "body": data, "more_body": True}
 
 
 @router.get(
     "/events",
     dependencies=READS,
-    response_class=StreamingResponse,
+    response_class=Response,
     responses={
         200: {
             "content": {"text/event-stream": {"schema": {"type": "string"}}},
             "description": "server-sent events: frame, params, error (and dropped)",
         },
-        **error_responses(401, 422),
+        **error_responses(401, 422, 503),
     },
 )
 async def events(
@@ -42,36 +165,39 @@ async def events(
     count: Annotated[
         int | None, Query(ge=1, le=1_000_000, description="end after this many events")
     ] = None,
-) -> StreamingResponse:
-    """Server-sent events: ``frame``, ``params`` and ``error``, each a JSON ``data`` line.
+    last_event_id: Annotated[
+        str | None,
+        Header(
+            alias="Last-Event-ID",
+            description="resume after this event id (replayed from a short buffer)",
+        ),
+    ] = None,
+) -> Response:
+    """Server-sent events: ``frame``, ``params``, ``error``, each with an id and JSON data.
 
-    A client that falls more than the queue size behind loses the oldest events and
-    gets a ``dropped`` event with the running count; acquisition never waits for it.
+    ``Last-Event-ID`` resumes after that id (ids keep increasing across daemon restarts);
+    events the replay buffer no longer holds are announced by a ``dropped`` event with
+    ``reason: replay``. A client that falls a queue's length behind gets a ``dropped``
+    event with ``reason: slow`` and the stream ends; acquisition never waits for it.
+    503 when as many streams are open as the daemon allows.
     """
     hub = service.events
-    sub = hub.subscribe(types.split(","), port=port)
-    keepalive_s = options.keepalive_s
-
-    async def stream() -> AsyncIterator[str]:
+    resume: int | None = None
+    if last_event_id is not None and last_event_id.strip():
         try:
-            yield "retry: 2000\n\n"
-            sent = reported = 0
-            while count is None or sent < count:
-                event = await sub.get(keepalive_s)
-                if sub.dropped > reported:
-                    reported = sub.dropped
-                    yield f"event: dropped\ndata: {json.dumps({'dropped': reported})}\n\n"
-                if event is None:
-                    yield ": keepalive\n\n"
-                    continue
-                data = json.dumps(event.data, separators=(",", ":"))
-                yield f"id: {event.id}\nevent: {event.type}\ndata: {data}\n\n"
-                sent += 1
-        finally:
-            hub.unsubscribe(sub)
-
-    return StreamingResponse(
-        stream(),
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
-    )
+            resume = int(last_event_id.strip())
+        except ValueError:
+            raise StarletteHTTPException(
+                422, detail=f"Last-Event-ID {last_event_id!r}: give an event id (an integer)"
+            ) from None
+    try:
+        sub = hub.subscribe(
+            types.split(","), port=port, loop=asyncio.get_running_loop(), last_id=resume
+        )
+    except TooManyStreamsError as e:
+        raise StarletteHTTPException(
+            503, detail=f"event stream limit: {e}", headers={"Retry-After": "5"}
+        ) from e
+    except HubClosedError as e:
+        raise StarletteHTTPException(503, detail=str(e)) from e
+    return EventStream(hub, sub, keepalive_s=options.keepalive_s, count=count)

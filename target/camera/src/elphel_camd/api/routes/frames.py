@@ -1,22 +1,29 @@
 """Routes of a port's frames: ``GET /ports/{port}/frame`` and ``POST /ports/{port}/capture``.
 
 A capture answers a 16-bit TIFF whose pages carry each frame's JSON metadata; a burst
-(``count=N``) is streamed page by page as the frames come.
+(``count=N``) is streamed page by page as the frames come. Captures wait for frames in the
+service's capture pool, never in the pool that serves the other requests. A burst answers
+every frame it promised or breaks the connection: if a frame fails after the status went
+out, the body ends without its final chunk, so no client takes a short TIFF for a whole one.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Generator
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
 from fastapi.responses import JSONResponse, StreamingResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from elphel_camd.api import tiff
 from elphel_camd.api.deps import READS, WRITES, FrameQuery, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.api.models import FrameInfo
+from elphel_camd.boards.base import Frame
+from elphel_camd.service import CameraService, CaptureBusyError
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +46,10 @@ def get_frame(service: Service, port: PortPath) -> JSONResponse:
     )
 
 
+class BurstBrokenError(RuntimeError):
+    """A burst failed after its first page was sent; the connection is broken off."""
+
+
 @router.post(
     "/ports/{port}/capture",
     dependencies=WRITES,
@@ -48,7 +59,7 @@ def get_frame(service: Service, port: PortPath) -> JSONResponse:
         **error_responses(401, 404, 422, 501, 503, 504),
     },
 )
-def capture(
+async def capture(
     service: Service,
     port: PortPath,
     frame: FrameQuery = None,
@@ -57,15 +68,22 @@ def capture(
     """The next frame (or recent frame ``frame``) as a 16-bit TIFF with its metadata.
 
     With ``count=N``, N consecutive frames from there as a multi-page TIFF, sent page
-    by page as the frames come. Each page's ImageDescription is that frame's JSON
-    metadata; the first frame's number is in ``X-Frame-Number``.
+    by page as the frames come; the daemon holds the N frames until they are sent, and
+    if one still fails the connection breaks off before the end of the body (never a
+    short TIFF with a 200). Each page's ImageDescription is that frame's JSON metadata,
+    and each page has the size of its own frame (a window change during the burst
+    changes the page size, and WOI_WIDTH/WOI_HEIGHT of that page); the first frame's
+    number is in ``X-Frame-Number``. 503 when the capture wait pool is full.
     """
     frames = service.burst(port, count, frame=frame)
-    first, metadata = next(frames)  # errors before the answer starts get their status
-    headers = {"X-Frame-Number": str(first.frame), "X-Frame-Count": str(count)}
+    first = await _next(service, frames)  # errors here still get their status
+    assert first is not None
+    got, metadata = first
+    headers = {"X-Frame-Number": str(got.frame), "X-Frame-Count": str(count)}
     if count == 1:
+        frames.close()
         # Known length: no chunked encoding, and the pixels go out without a copy.
-        chunks, length = tiff.single(first.image, {"shape": list(first.image.shape), **metadata})
+        chunks, length = tiff.single(got.image, _with_shape(got, metadata))
 
         async def one_page() -> AsyncIterator[bytes | memoryview]:
             for chunk in chunks:
@@ -77,14 +95,59 @@ def capture(
             headers={**headers, "Content-Length": str(length)},
         )
 
-    def pages() -> Iterator[tuple[Any, dict[str, Any]]]:
-        yield first.image, metadata
+    async def body() -> AsyncIterator[bytes | memoryview]:
+        yield tiff.header()
+        offset, page = 8, (got, metadata)
         try:
-            for got, meta in frames:
-                yield got.image, meta
-        except Exception as e:
-            # The status is sent already: end the stream short; the client sees fewer
-            # pages than X-Frame-Count.
-            log.error("port %d: burst ended early: %s", port, e)
+            for index in range(count):
+                image = page[0].image
+                head, pixels, end = tiff.page(
+                    image, page[1], offset=offset, last=index == count - 1
+                )
+                yield head
+                yield pixels
+                pad = end - offset - len(head) - pixels.nbytes
+                if pad:
+                    yield b"\x00" * pad
+                offset = end
+                if index < count - 1:
+                    try:
+                        following = await _next(service, frames)
+                    except Exception as e:
+                        log.error(
+                            "port %d: burst broken off after %d of %d frames: %s",
+                            port,
+                            index + 1,
+                            count,
+                            e,
+                        )
+                        raise BurstBrokenError(
+                            f"port {port}: burst broken off after {index + 1} of {count} "
+                            f"frames: {e}"
+                        ) from e
+                    if following is None:
+                        raise BurstBrokenError(f"port {port}: burst ended after {index + 1}")
+                    page = following
+        finally:
+            # A frame still being waited for in its thread: the generator closes when
+            # that wait ends and it is collected (the frames it held are released then).
+            with contextlib.suppress(ValueError):
+                frames.close()
 
-    return StreamingResponse(tiff.stream(pages(), count), media_type="image/tiff", headers=headers)
+    return StreamingResponse(body(), media_type="image/tiff", headers=headers)
+
+
+Page = tuple[Frame, dict[str, Any]]
+
+
+async def _next(service: CameraService, frames: Generator[Page, None, None]) -> Page | None:
+    """The burst's next frame, waited for in the capture pool (503 if that is full)."""
+    try:
+        result = await service.capture_pool.run(lambda: next(frames, None))
+    except CaptureBusyError as e:
+        raise StarletteHTTPException(503, detail=str(e), headers={"Retry-After": "1"}) from e
+    return result
+
+
+def _with_shape(got: Frame, metadata: dict[str, Any]) -> dict[str, Any]:
+    return {"shape": list(got.image.shape), **metadata}
