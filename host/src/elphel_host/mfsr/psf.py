@@ -14,13 +14,16 @@ interleaved groups; for each group, the others' spectra are accumulated once (th
 right-hand side of the Fourier solver does not depend on the blur or the prior) and, for
 every candidate (sigma, tau), the exact regularised solution is computed and the group's
 frames are predicted; the candidate with the least mean squared prediction error over
-the groups' interior valid pixels wins. A coarse grid of sigma and tau is followed by a
-finer sigma grid around the best, and a parabola through the three best sigma values.
+the groups' interior valid pixels wins. The search: tau over its grid at sigma 0.8, sigma
+over its grid (0..1.6 HR px, steps of 0.2) at that tau, steps of 0.05 around the best,
+and a parabola through the best and its neighbours. A burst with too few frames for a
+determined fit at the output scale is searched at a smaller scale (x2) and the result
+converted to the output's HR px.
 
 Confidence: the prediction error of each sigma is compared with the best's fold by fold;
 the sigmas whose excess is within two standard errors (over the folds) of zero form the
-``interval``, and ``confidence`` is ``1 - width / 0.5`` (clipped to 0..1): 1 for an
-interval narrower than nothing, 0 for one as wide as 0.5 HR px.
+``interval``, and ``confidence`` is ``1 - width / 0.5`` (clipped to 0..1): 1 when one
+sigma of the grid stands out, 0 when an interval of 0.5 HR px fits as well.
 """
 
 from __future__ import annotations
@@ -265,15 +268,13 @@ def estimate_psf(
             cache[key] = np.array(parallel_map(lambda f: f.error(sig, lam), fl))
         return cache[key]
 
-    # coordinate search: tau at a middle sigma, sigma at that tau, tau again, then finer
-    # sigma steps around the best (each candidate's errors are kept)
+    # coordinate search: tau at a middle sigma, sigma at that tau, then finer sigma steps
+    # around the best (each candidate's errors are kept)
     def total(st: tuple[float, float]) -> float:
         return float(errs(*st).sum())
 
     taus = TAU_GRID if choose_tau else (default_tau,)
     tau = min(taus, key=lambda t: total((SIGMA_GRID[len(SIGMA_GRID) // 2], t)))
-    sig0 = min(SIGMA_GRID, key=lambda sg: total((sg, tau)))
-    tau = min(taus, key=lambda t: total((sig0, t)))
     sig0 = min(SIGMA_GRID, key=lambda sg: total((sg, tau)))
     fine = sorted(
         {round(sig0 + d, 3) for d in np.arange(-0.1, 0.101, 0.05) if sig0 + d >= 0}
