@@ -8,9 +8,9 @@ reference is the same scene seen by a sensor with S times finer pixels).
 PSNR/SSIM against the HR image with a 4*S px border cropped.
 Blurred bursts: the same scenes through an optical Gaussian blur of sigma 0.5, 0.7 and
 1.0 HR px (before the pixel integration; the method is not told), scored against the
-sharp HR image; robust estimates the blur from the burst (its estimate and the error
-are reported) and is compared with bicubic, baseline and robust without a PSF
-(``estimate_psf=False``, the method before the blur estimate) in the same run.
+sharp HR image; robust_psf (``--psf auto``) estimates the blur from the burst (its
+estimate and the error are reported) and is compared with bicubic, baseline and robust
+(the default, no PSF) in the same run; the blur-free bursts report robust_psf as well.
 The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
 (peak memory = that process's max RSS, including the frames it loads).
 
@@ -44,7 +44,7 @@ from elphel_host.mfsr.synth import area_downsample, make_burst, random_shifts, t
 IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")
 SIGMA = 0.01
 BLURS = (0.5, 0.7, 1.0)
-NO_PSF = RobustConfig(estimate_psf=False)
+AUTO_PSF = RobustConfig(estimate_psf=True)
 
 
 def load(name: str) -> np.ndarray:
@@ -145,7 +145,7 @@ def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
                 for m in (("bicubic", "baseline", "robust") if s == 2 else ("bicubic", "robust"))
             }
             if s == 2:
-                res["robust_no_psf"] = fuse_frames(frames, scale=s, method="robust", config=NO_PSF)
+                res["robust_psf"] = fuse_frames(frames, scale=s, method="robust", config=AUTO_PSF)
             r = {
                 m: {
                     "psnr_db": round(psnr(hr, v.image, data_range=rng_, border=b), 3),
@@ -158,7 +158,8 @@ def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
             r["registration_refined_rms_lr_px"] = round(
                 rms(res["robust"].info["shifts_refined"], shifts), 4
             )
-            r["psf"] = res["robust"].info.get("psf")
+            if s == 2:
+                r["psf"] = res["robust_psf"].info["psf"]
             row[f"x{s}"] = r
         # 1-D stage with the recommended tilt vs random 2-D offsets (x2, 16 frames, robust)
         for key, line in (
@@ -185,7 +186,7 @@ def blurred(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
             rng_ = float(hr.max() - hr.min()) if name == "simulator" else 1.0
             res = {m: fuse_frames(frames, scale=2, method=m) for m in ("bicubic", "baseline")}
             res["robust"] = fuse_frames(frames, scale=2, method="robust")
-            res["robust_no_psf"] = fuse_frames(frames, scale=2, method="robust", config=NO_PSF)
+            res["robust_psf"] = fuse_frames(frames, scale=2, method="robust", config=AUTO_PSF)
             r: dict[str, Any] = {
                 m: {
                     "psnr_db": round(psnr(hr, v.image, data_range=rng_, border=8), 3),
@@ -193,7 +194,7 @@ def blurred(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
                 }
                 for m, v in res.items()
             }
-            psf = res["robust"].info["psf"]
+            psf = res["robust_psf"].info["psf"]
             r["psf"] = psf
             r["psf_sigma_error_hr_px"] = round(psf["sigma_hr_px"] - blur, 4)
             row[f"sigma_{blur}"] = r
@@ -212,14 +213,18 @@ def summarise_blurred(per: dict[str, Any]) -> dict[str, Any]:
 
     err = [abs(v[k]["psf_sigma_error_hr_px"]) for v in per.values() for k in v]
     out: dict[str, Any] = {
-        "robust_gain_over_bicubic_db_mean": round(float(np.mean(gains("robust", "bicubic"))), 3),
-        "robust_gain_over_baseline_db_mean": round(float(np.mean(gains("robust", "baseline"))), 3),
-        "robust_gain_over_baseline_db_min": round(float(np.min(gains("robust", "baseline"))), 3),
-        "robust_no_psf_gain_over_bicubic_db_mean": round(
-            float(np.mean(gains("robust_no_psf", "bicubic"))), 3
+        "robust_psf_gain_over_bicubic_db_mean": round(
+            float(np.mean(gains("robust_psf", "bicubic"))), 3
         ),
-        "robust_gain_over_robust_no_psf_db_mean": round(
-            float(np.mean(gains("robust", "robust_no_psf"))), 3
+        "robust_psf_gain_over_baseline_db_mean": round(
+            float(np.mean(gains("robust_psf", "baseline"))), 3
+        ),
+        "robust_psf_gain_over_baseline_db_min": round(
+            float(np.min(gains("robust_psf", "baseline"))), 3
+        ),
+        "robust_gain_over_bicubic_db_mean": round(float(np.mean(gains("robust", "bicubic"))), 3),
+        "robust_psf_gain_over_robust_db_mean": round(
+            float(np.mean(gains("robust_psf", "robust"))), 3
         ),
         "psf_sigma_abs_error_hr_px_mean": round(float(np.mean(err)), 4),
         "psf_sigma_abs_error_hr_px_max": round(float(np.max(err)), 4),
@@ -227,17 +232,17 @@ def summarise_blurred(per: dict[str, Any]) -> dict[str, Any]:
     }
     for blur in BLURS:
         out[f"sigma_{blur}"] = {
+            "robust_psf_gain_over_bicubic_db_mean": round(
+                float(np.mean(gains("robust_psf", "bicubic", blur))), 3
+            ),
+            "robust_psf_gain_over_baseline_db_mean": round(
+                float(np.mean(gains("robust_psf", "baseline", blur))), 3
+            ),
+            "robust_psf_gain_over_baseline_db_min": round(
+                float(np.min(gains("robust_psf", "baseline", blur))), 3
+            ),
             "robust_gain_over_bicubic_db_mean": round(
                 float(np.mean(gains("robust", "bicubic", blur))), 3
-            ),
-            "robust_gain_over_baseline_db_mean": round(
-                float(np.mean(gains("robust", "baseline", blur))), 3
-            ),
-            "robust_gain_over_baseline_db_min": round(
-                float(np.min(gains("robust", "baseline", blur))), 3
-            ),
-            "robust_no_psf_gain_over_bicubic_db_mean": round(
-                float(np.mean(gains("robust_no_psf", "bicubic", blur))), 3
             ),
         }
     return out
@@ -255,10 +260,10 @@ def summarise(per: dict[str, Any]) -> dict[str, Any]:
     untilt = [v["x2"]["robust"]["psnr_db"] - v["x2_untilted_line_psnr_db"] for v in per.values()]
     reg = [v["x2"]["registration_rms_lr_px"] for v in per.values()]
     regr = [v["x2"]["registration_refined_rms_lr_px"] for v in per.values()]
-    nopsf = gains("x2", "robust", "robust_no_psf")
+    withpsf = gains("x2", "robust_psf", "robust")
     return {
-        "x2_robust_minus_robust_no_psf_db_mean": round(float(np.mean(nopsf)), 3),
-        "x2_robust_minus_robust_no_psf_db_min": round(float(np.min(nopsf)), 3),
+        "x2_robust_psf_minus_robust_db_mean": round(float(np.mean(withpsf)), 3),
+        "x2_robust_psf_minus_robust_db_min": round(float(np.min(withpsf)), 3),
         "x2_registration_rms_lr_px_ecc": round(float(np.sqrt(np.mean(np.square(reg)))), 4),
         "x2_registration_rms_lr_px_refined": round(float(np.sqrt(np.mean(np.square(regr)))), 4),
         "x2_robust_gain_over_bicubic_db_mean": round(float(np.mean(g2b)), 3),
@@ -278,11 +283,14 @@ def speed_child(path: str, method: str) -> None:
     truth = np.load(str(Path(path).with_name("shifts.npy")))
     t0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_SELF)
-    res = fuse_frames(frames, scale=2, method=method)
+    if method == "robust_psf":
+        res = fuse_frames(frames, scale=2, method="robust", config=AUTO_PSF)
+    else:
+        res = fuse_frames(frames, scale=2, method=method)
     dt = time.perf_counter() - t0
     c1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
-    if method == "robust":
+    if method.startswith("robust"):
         est = res.info["shifts_refined"]
     else:
         est = [s if s is not None else [np.nan, np.nan] for s in res.info["shifts"]]
@@ -311,7 +319,7 @@ def speed(seed: int) -> dict[str, Any]:
         np.save(p, frames)
         np.save(str(Path(d) / "shifts.npy"), shifts)
         del frames, hr, big, tex
-        for method in ("robust", "baseline"):
+        for method in ("robust", "robust_psf", "baseline"):
             cp = subprocess.run(
                 [sys.executable, __file__, "--speed-child", p, method],
                 capture_output=True,
@@ -320,6 +328,9 @@ def speed(seed: int) -> dict[str, Any]:
             )
             out[method] = json.loads(cp.stdout)
     out["speedup_vs_baseline"] = round(out["baseline"]["seconds"] / out["robust"]["seconds"], 2)
+    out["psf_speedup_vs_baseline"] = round(
+        out["baseline"]["seconds"] / out["robust_psf"]["seconds"], 2
+    )
     out["cpu_speedup_vs_baseline"] = round(
         out["baseline"]["cpu_seconds"] / out["robust"]["cpu_seconds"], 2
     )

@@ -39,8 +39,8 @@ def blurred():
 
 def test_blur_is_estimated_and_undone(blurred):
     hr, frames, shifts = blurred
-    img, info = reconstruct(frames, shifts, scale=2)
-    plain, pinfo = reconstruct(frames, shifts, scale=2, config=RobustConfig(estimate_psf=False))
+    img, info = reconstruct(frames, shifts, scale=2, config=RobustConfig(estimate_psf=True))
+    plain, pinfo = reconstruct(frames, shifts, scale=2)  # the default: no PSF
     psf = info["psf"]
     assert psf["model"] == "gaussian" and psf["source"] == "estimated"
     assert abs(psf["sigma_hr_px"] - 0.8) <= 0.1, psf
@@ -67,7 +67,8 @@ def test_estimate_needs_frames():
     _, frames = _blurred_burst(0.5, n=4)
     with pytest.raises(ValueError, match="at least 5 frames"):
         estimate_psf(frames, [(0.0, 0.0)] * 4, scale=2)
-    _, info = reconstruct(frames, [(0.0, 0.0)] * 4, scale=2)
+    cfg = RobustConfig(estimate_psf=True)
+    _, info = reconstruct(frames, [(0.0, 0.0)] * 4, scale=2, config=cfg)
     assert info["psf"]["source"] == "too few frames" and info["psf"]["sigma_hr_px"] == 0
 
 
@@ -88,12 +89,18 @@ def test_cli_psf_option(tmp_path, capsys):
     dn = [np.clip(np.rint(f * 4000), 0, 65535).astype(np.uint16) for f in frames]
     b = write_burst(tmp_path / "b", dn)
     out = str(tmp_path / "sr.tif")
-    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--json"]) == 0
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "auto", "--json"]) == 0
     auto = json.loads(capsys.readouterr().out)["psf"]
     assert auto["source"] == "estimated" and auto["model"] == "gaussian"
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "sigma=0.6", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.6
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--json"]) == 0  # default none
+    assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "none", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
+    assert (
+        main(["mfsr", str(b), "--scale", "2", "--out", out, "--blur-sigma", "0.5", "--json"]) == 0
+    )
+    assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.5
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "gauss"]) != 0
     assert "--psf 'gauss'; allowed: auto, none, sigma=S" in capsys.readouterr().err

@@ -68,10 +68,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--float", action="store_true", help="write float32 instead of 16-bit DN")
     p.add_argument(
         "--psf",
-        default="auto",
+        default="none",
         metavar="PSF",
-        help="optics blur the robust method deconvolves: auto (default: estimated from the "
-        "burst), none (the pixel aperture alone) or sigma=S (a Gaussian of S output px)",
+        help="optics blur the robust method deconvolves: none (default: the pixel aperture "
+        "alone), auto (estimated from the burst) or sigma=S (a Gaussian of S output px)",
     )
     p.add_argument(
         "--blur-sigma",
@@ -98,7 +98,7 @@ def register(subparsers: Any) -> None:
 def robust_config(psf: str, blur_sigma: float | None = None) -> RobustConfig:
     """The robust method's options for ``--psf`` (and the older ``--blur-sigma``)."""
     if blur_sigma is not None:
-        if psf != "auto":
+        if psf != "none":
             raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
         psf = f"sigma={blur_sigma}"
     try:
@@ -106,7 +106,7 @@ def robust_config(psf: str, blur_sigma: float | None = None) -> RobustConfig:
     except ValueError as e:
         raise InputFormatError(str(e)) from e
     if given is None:
-        return RobustConfig()
+        return RobustConfig(estimate_psf=True)
     return RobustConfig(blur_sigma=given.sigma, estimate_psf=False)
 
 

@@ -74,7 +74,9 @@ class RobustConfig:
     estimate_psf
         With ``blur_sigma`` 0: estimate the optics' Gaussian blur (and the prior's tau
         with it) from the burst by cross-validation (:mod:`elphel_host.mfsr.psf`) and
-        reconstruct with it; False: the pixel aperture alone (or ``blur_sigma`` as given).
+        reconstruct with it; False (default): the pixel aperture alone (or
+        ``blur_sigma`` as given). Off by default: it reads a scene's own softness as
+        blur too, which costs up to 10 dB on sharp, band-limited scenes (docs/mfsr.md).
     fit_noise
         Estimate the noise from the residuals of a weakly regularised fit of the burst
         (:func:`fit_noise`) when there are enough frames; False: from the reference frame
@@ -90,7 +92,7 @@ class RobustConfig:
     refine_window: int = 384
     noise_sigma: float | None = None
     fit_noise: bool = True
-    estimate_psf: bool = True
+    estimate_psf: bool = False
 
     def __post_init__(self) -> None:
         if self.passes < 0:
