@@ -71,7 +71,8 @@ def register(subparsers: Any) -> None:
         default="none",
         metavar="PSF",
         help="optics blur the robust method deconvolves: none (default: the pixel aperture "
-        "alone), auto (estimated from the burst) or sigma=S (a Gaussian of S output px)",
+        "alone), auto (estimated from the burst), sigma=S (a Gaussian of S output px) or "
+        "FILE.npy (a PSF on the output grid, odd sides up to 31)",
     )
     p.add_argument(
         "--blur-sigma",
@@ -107,6 +108,8 @@ def robust_config(psf: str, blur_sigma: float | None = None) -> RobustConfig:
         raise InputFormatError(str(e)) from e
     if given is None:
         return RobustConfig(estimate_psf=True)
+    if given.kernel is not None:
+        return RobustConfig(psf_kernel=given.kernel)
     return RobustConfig(blur_sigma=given.sigma, estimate_psf=False)
 
 

@@ -19,7 +19,7 @@ Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -39,7 +39,7 @@ from elphel_host.mfsr.frames import (
     estimate_noise,
     padded,
 )
-from elphel_host.mfsr.psf import MAX_SIGMA, PsfEstimate, estimate_psf
+from elphel_host.mfsr.psf import MAX_SIGMA, PsfEstimate, check_kernel, estimate_psf
 from elphel_host.mfsr.scale import check_scale
 from elphel_host.parallel import parallel_map
 
@@ -75,8 +75,12 @@ class RobustConfig:
         With ``blur_sigma`` 0: estimate the optics' Gaussian blur (and the prior's tau
         with it) from the burst by cross-validation (:mod:`elphel_host.mfsr.psf`) and
         reconstruct with it; False (default): the pixel aperture alone (or
+        ``psf_kernel``, or
         ``blur_sigma`` as given). Off by default: it reads a scene's own softness as
         blur too, which costs up to 10 dB on sharp, band-limited scenes (docs/mfsr.md).
+    psf_kernel
+        A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf.check_kernel`),
+        used in place of the Gaussian.
     fit_noise
         Estimate the noise from the residuals of a weakly regularised fit of the burst
         (:func:`fit_noise`) when there are enough frames; False: from the reference frame
@@ -93,6 +97,7 @@ class RobustConfig:
     noise_sigma: float | None = None
     fit_noise: bool = True
     estimate_psf: bool = False
+    psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.passes < 0:
@@ -103,6 +108,10 @@ class RobustConfig:
             raise ValueError(f"tau={self.tau}; allowed: > 0")
         if not 0 <= self.blur_sigma <= MAX_SIGMA:
             raise ValueError(f"blur_sigma={self.blur_sigma}; allowed: 0..{MAX_SIGMA} (HR px)")
+        if self.psf_kernel is not None:
+            object.__setattr__(self, "psf_kernel", check_kernel(self.psf_kernel, "psf_kernel"))
+            if self.blur_sigma > 0 or self.estimate_psf:
+                raise ValueError("psf_kernel: allowed only without blur_sigma and estimate_psf")
         if self.pad < 0:
             raise ValueError(f"pad={self.pad}; allowed: >= 0")
         if self.refine_window < 32:
@@ -175,6 +184,7 @@ def fit_noise(
             passes=1,
             tau=config.tau * _FIT_TAU_FACTOR,
             blur_sigma=config.blur_sigma * fit_scale / int(scale),  # in the fit's HR px
+            psf_kernel=config.psf_kernel if fit_scale == int(scale) else None,
             estimate_psf=False,
             noise_sigma=None,
             fit_noise=False,
@@ -204,6 +214,8 @@ def psf_for(
     :func:`elphel_host.mfsr.psf.estimate_psf` searches that window. Bursts too small for
     cross-validation (fewer than 5 frames) get no blur.
     """
+    if config.psf_kernel is not None:
+        return PsfEstimate("kernel", 0.0, "given", kernel=config.psf_kernel)
     if config.blur_sigma > 0:
         return PsfEstimate("gaussian", float(config.blur_sigma), "given")
     if not config.estimate_psf or len(frames) < 5:
@@ -342,7 +354,9 @@ def reconstruct(
     if pads[1] >= h or pads[3] >= w:  # reflection needs the frame to be larger than the pad
         ny, nx = h + 2 * p, w + 2 * p
         pads = (p, p, p, p)
-    model = ForwardModel((ny, nx), int(scale), int(aperture or scale), config.blur_sigma)
+    model = ForwardModel(
+        (ny, nx), int(scale), int(aperture or scale), config.blur_sigma, config.psf_kernel
+    )
     step = max(1, int(np.sqrt(ref.size / 250_000)))  # a quarter-million samples suffice
     lo, hi = np.percentile(ref[::step, ::step], [0.1, 99.9])
     span = max(float(hi - lo), 1e-6)
