@@ -14,7 +14,7 @@ estimate and the error are reported) and is compared with bicubic, baseline and 
 The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
 (peak memory = that process's max RSS, including the frames it loads).
 
-Usage: python bench/mfsr.py [--quick] [--no-speed]
+Usage: python bench/mfsr.py [--quick] [--no-speed] [--no-blur]
 """
 
 from __future__ import annotations
