@@ -6,10 +6,15 @@ sigma 0.01, all seeded; plus bursts rendered by the simulator (elphel_sim world/
 area-integrated pixels of a band-limited textured plane, camera moved sideways; the
 reference is the same scene seen by a sensor with S times finer pixels).
 PSNR/SSIM against the HR image with a 4*S px border cropped.
+Blurred bursts: the same scenes through an optical Gaussian blur of sigma 0.5, 0.7 and
+1.0 HR px (before the pixel integration; the method is not told), scored against the
+sharp HR image; robust_psf (``--psf auto``) estimates the blur from the burst (its
+estimate and the error are reported) and is compared with bicubic, baseline and robust
+(the default, no PSF) in the same run; the blur-free bursts report robust_psf as well.
 The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
 (peak memory = that process's max RSS, including the frames it loads).
 
-Usage: python bench/mfsr.py [--quick] [--no-speed]
+Usage: python bench/mfsr.py [--quick] [--no-speed] [--no-blur]
 """
 
 from __future__ import annotations
@@ -33,11 +38,13 @@ import numpy as np
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.registration import register_frames
-from elphel_host.mfsr.robust import reconstruct
-from elphel_host.mfsr.synth import make_burst, random_shifts, tilted_line_shifts
+from elphel_host.mfsr.robust import RobustConfig, reconstruct
+from elphel_host.mfsr.synth import area_downsample, make_burst, random_shifts, tilted_line_shifts
 
 IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")
 SIGMA = 0.01
+BLURS = (0.5, 0.7, 1.0)
+AUTO_PSF = RobustConfig(estimate_psf=True)
 
 
 def load(name: str) -> np.ndarray:
@@ -58,16 +65,27 @@ def rms(est: list[Any], truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(e[1:] ** 2, axis=1))))
 
 
-Maker = Callable[[np.ndarray, int, int], tuple[list[np.ndarray], np.ndarray]]
+# (shifts, scale, seed, optics blur sigma in HR px) -> (frames, sharp HR truth)
+Maker = Callable[..., tuple[list[np.ndarray], np.ndarray]]
+
+
+def gaussian_blur(img: np.ndarray, sigma: float) -> np.ndarray:
+    if sigma <= 0:
+        return img
+    out = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REFLECT_101)
+    return np.asarray(out, np.float32)
 
 
 def image_maker(name: str) -> Maker:
     """Bursts from a scikit-image sample image: bicubic shift + area down-sampling + noise."""
     hr0 = load(name)
 
-    def make(shifts: np.ndarray, s: int, seed: int) -> tuple[list[np.ndarray], np.ndarray]:
+    def make(
+        shifts: np.ndarray, s: int, seed: int, blur: float = 0.0
+    ) -> tuple[list[np.ndarray], np.ndarray]:
         hr = crop_to(hr0, s)
-        return make_burst(hr, shifts, scale=s, noise_sigma=SIGMA, seed=seed), hr
+        seen = gaussian_blur(hr, blur)
+        return make_burst(seen, shifts, scale=s, noise_sigma=SIGMA, seed=seed), hr
 
     return make
 
@@ -87,7 +105,9 @@ def simulator_maker(size: int = 192) -> Maker:
     world = World(scene=Scene(planes=[Plane(texture=tex, origin=(-3.0, -3.0, 500.0))]))
     f_mm, pitch, z = 35.0, 2.2, 500.0
 
-    def make(shifts: np.ndarray, s: int, seed: int) -> tuple[list[np.ndarray], np.ndarray]:
+    def make(
+        shifts: np.ndarray, s: int, seed: int, blur: float = 0.0
+    ) -> tuple[list[np.ndarray], np.ndarray]:
         lr = Intrinsics(focal_length_mm=f_mm, pixel_pitch_um=pitch, width=size, height=size)
         hi = Intrinsics(
             focal_length_mm=f_mm, pixel_pitch_um=pitch / s, width=size * s, height=size * s
@@ -97,7 +117,13 @@ def simulator_maker(size: int = 192) -> Maker:
         frames = []
         for dy, dx in shifts:
             pose = Pose.at((dx / px_per_mm, dy / px_per_mm, 0.0))
-            img = render_radiance(world, lr, pose)[..., 1]
+            if blur > 0:
+                # the optics blur the image before the pixels integrate it: render by
+                # S-times finer pixels, blur, then sum S x S of them into one pixel
+                fine = render_radiance(world, hi, pose)[..., 1].astype(np.float32)
+                img = area_downsample(gaussian_blur(fine, blur), s)
+            else:
+                img = render_radiance(world, lr, pose)[..., 1]
             frames.append((img + rng.normal(0, SIGMA, img.shape)).astype(np.float32))
         hr = render_radiance(world, hi, Pose.at((0.0, 0.0, 0.0)))[..., 1].astype(np.float32)
         return frames, hr
@@ -118,6 +144,8 @@ def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
                 m: fuse_frames(frames, scale=s, method=m)
                 for m in (("bicubic", "baseline", "robust") if s == 2 else ("bicubic", "robust"))
             }
+            if s == 2:
+                res["robust_psf"] = fuse_frames(frames, scale=s, method="robust", config=AUTO_PSF)
             r = {
                 m: {
                     "psnr_db": round(psnr(hr, v.image, data_range=rng_, border=b), 3),
@@ -130,6 +158,8 @@ def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
             r["registration_refined_rms_lr_px"] = round(
                 rms(res["robust"].info["shifts_refined"], shifts), 4
             )
+            if s == 2:
+                r["psf"] = res["robust_psf"].info["psf"]
             row[f"x{s}"] = r
         # 1-D stage with the recommended tilt vs random 2-D offsets (x2, 16 frames, robust)
         for key, line in (
@@ -145,6 +175,79 @@ def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
     return per
 
 
+def blurred(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
+    """x2, 16 frames, random 2-D offsets, optics blur unknown to the methods."""
+    per: dict[str, Any] = {}
+    for n_img, (name, make) in enumerate(makers.items()):
+        row: dict[str, Any] = {}
+        for blur in BLURS:
+            shifts = random_shifts(16, seed=seed + n_img, spread=2.0)
+            frames, hr = make(shifts, 2, seed + 100 + n_img, blur)
+            rng_ = float(hr.max() - hr.min()) if name == "simulator" else 1.0
+            res = {m: fuse_frames(frames, scale=2, method=m) for m in ("bicubic", "baseline")}
+            res["robust"] = fuse_frames(frames, scale=2, method="robust")
+            res["robust_psf"] = fuse_frames(frames, scale=2, method="robust", config=AUTO_PSF)
+            r: dict[str, Any] = {
+                m: {
+                    "psnr_db": round(psnr(hr, v.image, data_range=rng_, border=8), 3),
+                    "ssim": round(ssim(hr, v.image, data_range=rng_, border=8), 4),
+                }
+                for m, v in res.items()
+            }
+            psf = res["robust_psf"].info["psf"]
+            r["psf"] = psf
+            r["psf_sigma_error_hr_px"] = round(psf["sigma_hr_px"] - blur, 4)
+            row[f"sigma_{blur}"] = r
+        per[name] = row
+    return per
+
+
+def summarise_blurred(per: dict[str, Any]) -> dict[str, Any]:
+    def gains(a: str, b: str, blur: float | None = None) -> list[float]:
+        return [
+            v[k][a]["psnr_db"] - v[k][b]["psnr_db"]
+            for v in per.values()
+            for k in v
+            if blur is None or k == f"sigma_{blur}"
+        ]
+
+    err = [abs(v[k]["psf_sigma_error_hr_px"]) for v in per.values() for k in v]
+    out: dict[str, Any] = {
+        "robust_psf_gain_over_bicubic_db_mean": round(
+            float(np.mean(gains("robust_psf", "bicubic"))), 3
+        ),
+        "robust_psf_gain_over_baseline_db_mean": round(
+            float(np.mean(gains("robust_psf", "baseline"))), 3
+        ),
+        "robust_psf_gain_over_baseline_db_min": round(
+            float(np.min(gains("robust_psf", "baseline"))), 3
+        ),
+        "robust_gain_over_bicubic_db_mean": round(float(np.mean(gains("robust", "bicubic"))), 3),
+        "robust_psf_gain_over_robust_db_mean": round(
+            float(np.mean(gains("robust_psf", "robust"))), 3
+        ),
+        "psf_sigma_abs_error_hr_px_mean": round(float(np.mean(err)), 4),
+        "psf_sigma_abs_error_hr_px_max": round(float(np.max(err)), 4),
+        "psf_sigma_within_0.1_px": f"{sum(e <= 0.1 for e in err)}/{len(err)}",
+    }
+    for blur in BLURS:
+        out[f"sigma_{blur}"] = {
+            "robust_psf_gain_over_bicubic_db_mean": round(
+                float(np.mean(gains("robust_psf", "bicubic", blur))), 3
+            ),
+            "robust_psf_gain_over_baseline_db_mean": round(
+                float(np.mean(gains("robust_psf", "baseline", blur))), 3
+            ),
+            "robust_psf_gain_over_baseline_db_min": round(
+                float(np.min(gains("robust_psf", "baseline", blur))), 3
+            ),
+            "robust_gain_over_bicubic_db_mean": round(
+                float(np.mean(gains("robust", "bicubic", blur))), 3
+            ),
+        }
+    return out
+
+
 def summarise(per: dict[str, Any]) -> dict[str, Any]:
     def gains(s: str, a: str, b: str) -> list[float]:
         return [v[s][a]["psnr_db"] - v[s][b]["psnr_db"] for v in per.values()]
@@ -157,7 +260,10 @@ def summarise(per: dict[str, Any]) -> dict[str, Any]:
     untilt = [v["x2"]["robust"]["psnr_db"] - v["x2_untilted_line_psnr_db"] for v in per.values()]
     reg = [v["x2"]["registration_rms_lr_px"] for v in per.values()]
     regr = [v["x2"]["registration_refined_rms_lr_px"] for v in per.values()]
+    withpsf = gains("x2", "robust_psf", "robust")
     return {
+        "x2_robust_psf_minus_robust_db_mean": round(float(np.mean(withpsf)), 3),
+        "x2_robust_psf_minus_robust_db_min": round(float(np.min(withpsf)), 3),
         "x2_registration_rms_lr_px_ecc": round(float(np.sqrt(np.mean(np.square(reg)))), 4),
         "x2_registration_rms_lr_px_refined": round(float(np.sqrt(np.mean(np.square(regr)))), 4),
         "x2_robust_gain_over_bicubic_db_mean": round(float(np.mean(g2b)), 3),
@@ -177,11 +283,14 @@ def speed_child(path: str, method: str) -> None:
     truth = np.load(str(Path(path).with_name("shifts.npy")))
     t0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_SELF)
-    res = fuse_frames(frames, scale=2, method=method)
+    if method == "robust_psf":
+        res = fuse_frames(frames, scale=2, method="robust", config=AUTO_PSF)
+    else:
+        res = fuse_frames(frames, scale=2, method=method)
     dt = time.perf_counter() - t0
     c1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
-    if method == "robust":
+    if method.startswith("robust"):
         est = res.info["shifts_refined"]
     else:
         est = [s if s is not None else [np.nan, np.nan] for s in res.info["shifts"]]
@@ -210,7 +319,7 @@ def speed(seed: int) -> dict[str, Any]:
         np.save(p, frames)
         np.save(str(Path(d) / "shifts.npy"), shifts)
         del frames, hr, big, tex
-        for method in ("robust", "baseline"):
+        for method in ("robust", "robust_psf", "baseline"):
             cp = subprocess.run(
                 [sys.executable, __file__, "--speed-child", p, method],
                 capture_output=True,
@@ -219,6 +328,9 @@ def speed(seed: int) -> dict[str, Any]:
             )
             out[method] = json.loads(cp.stdout)
     out["speedup_vs_baseline"] = round(out["baseline"]["seconds"] / out["robust"]["seconds"], 2)
+    out["psf_speedup_vs_baseline"] = round(
+        out["baseline"]["seconds"] / out["robust_psf"]["seconds"], 2
+    )
     out["cpu_speedup_vs_baseline"] = round(
         out["baseline"]["cpu_seconds"] / out["robust"]["cpu_seconds"], 2
     )
@@ -229,6 +341,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="three images only")
     ap.add_argument("--no-speed", action="store_true")
+    ap.add_argument("--no-blur", action="store_true", help="skip the blurred bursts")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--speed-child", nargs=2, metavar=("NPY", "METHOD"), help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -256,6 +369,10 @@ def main() -> None:
         "summary": summarise(per),
         "per_image": per,
     }
+    if not a.no_blur:
+        bl = blurred(makers, a.seed)
+        result["blurred_summary"] = summarise_blurred(bl)
+        result["blurred_per_image"] = bl
     if not a.no_speed:
         result["speed"] = speed(a.seed)
     result["bench_seconds"] = round(time.perf_counter() - t0, 1)

@@ -28,6 +28,7 @@ from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.output import fused_meta, write_image
+from elphel_host.mfsr.psf import parse_psf
 from elphel_host.mfsr.robust import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import save_preview
@@ -66,11 +67,19 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--float", action="store_true", help="write float32 instead of 16-bit DN")
     p.add_argument(
+        "--psf",
+        default="none",
+        metavar="PSF",
+        help="optics blur the robust method deconvolves: none (default: the pixel aperture "
+        "alone), auto (estimated from the burst), sigma=S (a Gaussian of S output px) or "
+        "FILE.npy (a PSF on the output grid, odd sides up to 31)",
+    )
+    p.add_argument(
         "--blur-sigma",
         type=float,
-        default=0.0,
+        default=None,
         metavar="PX",
-        help="optics blur (Gaussian sigma, output px) to deconvolve (robust)",
+        help="the same as --psf sigma=PX",
     )
     p.add_argument(
         "--no-prior", action="store_true", help="ignore the stage/optics prior of the manifest"
@@ -87,13 +96,30 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
+def robust_config(psf: str, blur_sigma: float | None = None) -> RobustConfig:
+    """The robust method's options for ``--psf`` (and the older ``--blur-sigma``)."""
+    if blur_sigma is not None:
+        if psf != "none":
+            raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
+        psf = f"sigma={blur_sigma}"
+    try:
+        given = parse_psf(psf)
+    except ValueError as e:
+        raise InputFormatError(str(e)) from e
+    if given is None:
+        return RobustConfig(estimate_psf=True)
+    if given.kernel is not None:
+        return RobustConfig(psf_kernel=given.kernel)
+    return RobustConfig(blur_sigma=given.sigma, estimate_psf=False)
+
+
 def _fuse_one(
     burst_dir: str,
     scale: int,
     method: str,
     out: str,
     as_float: bool,
-    blur_sigma: float,
+    config: RobustConfig,
     use_prior: bool,
 ) -> dict[str, Any]:
     burst = read_burst(burst_dir)
@@ -102,7 +128,7 @@ def _fuse_one(
         scale=scale,
         method=method,
         use_prior=use_prior,
-        config=RobustConfig(blur_sigma=blur_sigma),
+        config=config,
     )
     meta = fused_meta(method=method, scale=scale, burst=burst_dir, bayer=burst.bayer)
     written = write_image(Path(out), res.image, as_float=as_float, meta=meta)
@@ -110,6 +136,7 @@ def _fuse_one(
 
 
 def run(args: argparse.Namespace) -> int:
+    args.robust_config = robust_config(args.psf, args.blur_sigma)
     if args.burst_dirs[0] == "compare":
         return run_compare(args)
     dirs = args.burst_dirs
@@ -120,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
             args.method,
             args.out,
             args.float,
-            args.blur_sigma,
+            args.robust_config,
             not args.no_prior,
         )
         human = (
@@ -180,7 +207,7 @@ def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
                 args.method,
                 o,
                 args.float,
-                args.blur_sigma,
+                args.robust_config,
                 not args.no_prior,
                 pure=False,
             )
@@ -218,7 +245,7 @@ def run_compare(args: argparse.Namespace) -> int:
             scale=args.scale,
             method=method,
             use_prior=not args.no_prior,
-            config=RobustConfig(blur_sigma=args.blur_sigma),
+            config=args.robust_config,
         )
         entry = write_image(
             out / f"{method}.tif",
@@ -227,6 +254,8 @@ def run_compare(args: argparse.Namespace) -> int:
             meta={"method": method, "scale": args.scale},
         )
         entry.update({"seconds": round(res.seconds, 3), "excluded": res.excluded})
+        if "psf" in res.info:
+            entry["psf"] = res.info["psf"]
         if ref is not None:
             if ref.shape != res.image.shape:
                 raise InputFormatError(

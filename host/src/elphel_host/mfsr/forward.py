@@ -32,7 +32,7 @@ system solved again.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
@@ -68,12 +68,17 @@ class ForwardModel:
         Width of the pixel's box aperture in HR px (S for a full-fill mono sensor).
     blur_sigma
         Extra Gaussian blur of the optics in HR px (0 = none).
+    kernel
+        Optional PSF of the optics on the HR grid (2-D, odd sides, centred, sum 1); its
+        centro-symmetric part is used (a real transfer function: an off-centre PSF only
+        moves the image, which registration absorbs).
     """
 
     lr_shape: tuple[int, int]
     scale: int
     aperture: int
     blur_sigma: float = 0.0
+    kernel: NDArray[np.float64] | None = field(default=None, compare=False)
 
     @property
     def hr_shape(self) -> tuple[int, int]:
@@ -219,9 +224,28 @@ class FourierSolver:
         """Per alias: aperture transfer D and gradient-prior weight L, (A, ny, nxh) each."""
         if self._factors is None:
             d = np.stack([self.hy[jy][:, None] * self.hx[jx][None, :] for jy, jx in self.offsets])
+            if self.model.kernel is not None:
+                d = d * self._kernel_transfer()
             l2 = np.stack([self.ly[jy][:, None] + self.lx[jx][None, :] for jy, jx in self.offsets])
             self._factors = (d.astype(np.float32), l2.astype(np.float32))
         return self._factors
+
+    def _kernel_transfer(self) -> F64:
+        """Real transfer of the model's kernel at every alias frequency, (A, ny, nxh)."""
+        k = np.asarray(self.model.kernel, dtype=np.float64)
+        ny, nx = self.model.lr_shape
+        Ny, Nx = self.model.hr_shape
+        ry, rx = (k.shape[0] - 1) // 2, (k.shape[1] - 1) // 2
+        dy, dx = np.arange(-ry, ry + 1), np.arange(-rx, rx + 1)
+        out = []
+        for jy, jx in self.offsets:
+            fy = (self._vy + jy * ny) / Ny
+            fx = (self._vx + jx * nx) / Nx
+            cy, sy = np.cos(2 * np.pi * np.outer(fy, dy)), np.sin(2 * np.pi * np.outer(fy, dy))
+            cx, sx = np.cos(2 * np.pi * np.outer(fx, dx)), np.sin(2 * np.pi * np.outer(fx, dx))
+            # Re sum k(d) exp(-2 pi i f.d): the centro-symmetric part's transfer
+            out.append(cy @ k @ cx.T - sy @ k @ sx.T)
+        return np.asarray(np.stack(out), dtype=np.float64)
 
     def solve(self) -> C64:
         """Solve every block; returns X_j(v), shape (A, ny, nxh), the HR spectrum by alias."""
@@ -320,8 +344,9 @@ class ModelSpectra:
         self.Z = np.empty((A, ny * nxh), np.complex64)
         self.Zy = np.empty_like(self.Z)
         self.Zx = np.empty_like(self.Z)
+        d_all = solver._block_factors()[0]
         for a, (jy, jx) in enumerate(solver.offsets):
-            z = (solver.hy[jy][:, None] * solver.hx[jx][None, :] / s2).astype(np.float32) * X[a]
+            z = (d_all[a] / np.float32(s2)) * X[a]
             wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
             wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
             self.Z[a] = z.ravel()

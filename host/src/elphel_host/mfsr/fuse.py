@@ -23,7 +23,7 @@ from elphel_host.burst.io import Burst, check_bayer
 from elphel_host.mfsr.baseline import fuse_baseline
 from elphel_host.mfsr.frames import check_frames
 from elphel_host.mfsr.registration import FrameRegistration, register_frames
-from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig, reconstruct
+from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig, psf_for, reconstruct, with_psf
 from elphel_host.mfsr.scale import check_scale
 
 F32 = NDArray[np.float32]
@@ -209,7 +209,7 @@ def fuse_registered(
         )
         info.update(rinfo)
     else:
-        planes = []
+        colours: list[tuple[list[F32], list[tuple[float, float]]]] = []
         for sites in bayer_sites(bayer).values():
             pf: list[F32] = []
             ps: list[tuple[float, float]] = []
@@ -218,9 +218,17 @@ def fuse_registered(
                 for oy, ox in sites:
                     pf.append(np.ascontiguousarray(fl[i][oy::2, ox::2]))
                     ps.append(((oy + s[0] - 0.5) / 2, (ox + s[1] - 0.5) / 2))
+            colours.append((pf, ps))
+        # one lens for the three colours: estimated on green (twice the samples)
+        psf = psf_for(*colours[1], scale=2 * scale, aperture=scale, config=config)
+        if psf.source == "estimated":
+            config = with_psf(config, psf)
+        planes = []
+        for pf, ps in colours:
             plane, rinfo = reconstruct(pf, ps, scale=2 * scale, aperture=scale, config=config)
             planes.append(plane)
             info.setdefault("noise_sigma_rgb", []).append(rinfo["noise_sigma"])
+        info["psf"] = {**psf.to_json(), "tau_used": round(config.tau, 4)}
         img = np.stack(planes, axis=-1)
     return np.asarray(img, np.float32), info
 

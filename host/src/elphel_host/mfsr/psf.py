@@ -1,0 +1,356 @@
+"""Blind estimate of the optics' blur from a registered burst, by cross-validation.
+
+Model: the optics add a Gaussian blur of ``sigma`` HR px to the pixel's box aperture (the
+forward model of :mod:`elphel_host.mfsr.forward`). Sub-pixel shifted frames of one scene
+determine the product of the blur's transfer and the image's spectrum at every alias, so
+the blur is told apart from the image by the prior: the gradient prior says what an image
+spectrum is expected to look like, and the sigma (with the prior's weight) that lets a
+reconstruction from some frames best predict the frames it has not seen is the one whose
+assumed spectrum matches the data's.
+
+Procedure, on a central window of the burst (``window`` LR px, the frames aligned and
+mirror-padded as the reconstruction does them): the frames are split into ``folds``
+interleaved groups; for each group, the others' spectra are accumulated once (the
+right-hand side of the Fourier solver does not depend on the blur or the prior) and, for
+every candidate (sigma, tau), the exact regularised solution is computed and the group's
+frames are predicted; the candidate with the least mean squared prediction error over
+the groups' interior valid pixels wins. The search: tau over its grid at sigma 0.8, sigma
+over its grid (0..1.6 HR px, steps of 0.2) at that tau, steps of 0.05 around the best,
+and a parabola through the best and its neighbours. A burst with too few frames for a
+determined fit at the output scale is searched at a smaller scale (x2) and the result
+converted to the output's HR px.
+
+Confidence: the prediction error of each sigma is compared with the best's fold by fold;
+the sigmas whose excess is within two standard errors (over the folds) of zero form the
+``interval``, and ``confidence`` is ``1 - width / 0.5`` (clipped to 0..1): 1 when one
+sigma of the grid stands out, 0 when an interval of 0.5 HR px fits as well.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.fft as sfft
+from numpy.typing import NDArray
+
+from elphel_host.mfsr.forward import ForwardModel, FourierSolver, _solve_blocks
+from elphel_host.mfsr.frames import aligned, central_window, check_frames, estimate_noise, padded
+from elphel_host.parallel import parallel_map
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+
+#: Coarse grids of the search: blur sigma (HR px) and the prior's tau (fraction of range).
+SIGMA_GRID = tuple(round(0.2 * i, 2) for i in range(9))  # 0 .. 1.6
+TAU_GRID = (0.02, 0.03, 0.04, 0.06, 0.08, 0.12)
+MAX_SIGMA = 3.0
+
+
+@dataclass(frozen=True)
+class PsfEstimate:
+    """The optics' blur used by a reconstruction.
+
+    Attributes
+    ----------
+    model
+        ``"gaussian"`` (a Gaussian of ``sigma`` HR px on top of the pixel aperture),
+        ``"kernel"`` (a given PSF on the HR grid, ``kernel``) or ``"none"`` (the pixel
+        aperture alone).
+    sigma
+        Gaussian sigma in HR px (0 for ``"none"``).
+    source
+        ``"estimated"`` (from the burst), ``"given"`` or ``"disabled"``.
+    tau
+        The prior strength chosen with it (fraction of the image range), or None when
+        the default is kept.
+    confidence
+        0..1 (see the module notes); None unless estimated.
+    interval
+        (low, high) sigmas the burst cannot tell from the estimate; None unless estimated.
+    cv_error_ratio
+        Prediction error of held-out frames with the estimate, over that without blur
+        (< 1: the blur explains the data better); None unless estimated.
+    """
+
+    model: str
+    sigma: float
+    source: str
+    tau: float | None = None
+    confidence: float | None = None
+    interval: tuple[float, float] | None = None
+    cv_error_ratio: float | None = None
+    kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "model": self.model,
+            "sigma_hr_px": round(self.sigma, 4),
+            "source": self.source,
+        }
+        if self.kernel is not None:
+            out["kernel_shape"] = list(self.kernel.shape)
+        if self.tau is not None:
+            out["tau"] = self.tau
+        if self.confidence is not None:
+            out["confidence"] = round(self.confidence, 3)
+        if self.interval is not None:
+            out["interval_hr_px"] = [round(v, 3) for v in self.interval]
+        if self.cv_error_ratio is not None:
+            out["cv_error_ratio"] = round(self.cv_error_ratio, 5)
+        return out
+
+
+NO_BLUR = PsfEstimate("none", 0.0, "disabled")
+
+
+MAX_KERNEL = 31
+
+
+def check_kernel(kernel: Any, source: str = "kernel") -> NDArray[np.float64]:
+    """A PSF on the HR grid: 2-D, odd sides up to 31, finite, sum > 0; returned with sum 1."""
+    k = np.asarray(kernel, dtype=np.float64)
+    if k.ndim != 2 or k.shape[0] % 2 == 0 or k.shape[1] % 2 == 0 or max(k.shape) > MAX_KERNEL:
+        raise ValueError(
+            f"{source}: shape {k.shape}; allowed: 2-D, odd sides up to {MAX_KERNEL} "
+            "(centred on the middle sample, HR px)"
+        )
+    if not np.all(np.isfinite(k)) or not k.sum() > 0:
+        raise ValueError(f"{source}: allowed: finite values with a positive sum")
+    return np.asarray(k / k.sum(), dtype=np.float64)
+
+
+def load_kernel(path: str | Path) -> NDArray[np.float64]:
+    """A PSF from a ``.npy`` file (see :func:`check_kernel`)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"--psf {str(path)!r}: no such file")
+    try:
+        data = np.load(p, allow_pickle=False)
+    except ValueError as e:
+        raise ValueError(f"{p}: not a .npy array ({e})") from e
+    return check_kernel(data, str(p))
+
+
+def parse_psf(text: str) -> PsfEstimate | None:
+    """``--psf`` values: ``auto`` (None: estimate), ``none``, ``sigma=S`` (HR px), FILE.npy.
+
+    Raises ValueError naming the value and what is allowed.
+    """
+    if text.strip().lower().endswith(".npy"):
+        return PsfEstimate("kernel", 0.0, "given", kernel=load_kernel(text.strip()))
+    t = text.strip().lower()
+    if t == "auto":
+        return None
+    if t == "none":
+        return NO_BLUR
+    if t.startswith("sigma="):
+        try:
+            s = float(t[len("sigma=") :])
+        except ValueError:
+            s = float("nan")
+        if not 0.0 <= s <= MAX_SIGMA:
+            raise ValueError(f"--psf {text!r}: sigma must be a number 0..{MAX_SIGMA} (HR px)")
+        return PsfEstimate("gaussian" if s > 0 else "none", s, "given")
+    raise ValueError(
+        f"--psf {text!r}; allowed: auto, none, sigma=S (S in HR px, 0..{MAX_SIGMA}) or a "
+        "PSF kernel FILE.npy"
+    )
+
+
+class _Fold:
+    """One cross-validation group: the others' right-hand side, its own frames to predict."""
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        scale: int,
+        aperture: int,
+        frac: F64,
+        frames: Sequence[F32],
+        valid: Sequence[NDArray[np.bool_]],
+        test: list[int],
+        interior: NDArray[np.bool_],
+    ) -> None:
+        train = [k for k in range(len(frames)) if k not in test]
+        self.shape, self.scale, self.aperture = shape, scale, aperture
+        self.train_shifts = [(float(frac[k, 0]), float(frac[k, 1])) for k in train]
+        acc = FourierSolver(ForwardModel(shape, scale, aperture), self.train_shifts, lam=1.0)
+        # the solver's frames are numbered 0..len(train)-1
+        acc.add_frames(list(range(len(train))), [frames[k] for k in train])
+        self.rhs = acc.rhs
+        self.test = test
+        pred = FourierSolver(
+            ForwardModel(shape, scale, aperture),
+            [(float(frac[k, 0]), float(frac[k, 1])) for k in test],
+            lam=1.0,
+        )
+        self.pred_solver = pred
+        self.targets = np.stack([frames[k] for k in test])
+        self.masks = np.stack([valid[k] & interior for k in test])
+
+    def error(self, sigma: float, lam: float) -> float:
+        """Mean squared prediction error of the held-out frames for (sigma, lam)."""
+        model = ForwardModel(self.shape, self.scale, self.aperture, sigma)
+        solver = FourierSolver(model, self.train_shifts, lam=lam)
+        s2 = np.float32(self.scale**2)
+        d, l2 = solver._block_factors()
+        mu = np.float32(lam) * s2 * l2
+        X = _solve_blocks(d, solver.G.astype(np.complex64), mu, s2 * d * self.rhs)
+        ps = self.pred_solver
+        ny, nx = self.shape
+        z = ((d / s2) * X).reshape(len(solver.offsets), -1)
+        q = (ps.C.conj() @ z).reshape(len(self.test), ny, ps.nxh)
+        for i in range(len(self.test)):
+            ry, rx = ps._ramps(i)
+            q[i] *= ry.conj()[:, None]
+            q[i] *= rx.conj()[None, :]
+        pred = sfft.irfft2(q, s=(ny, nx), axes=(-2, -1), workers=1)
+        r = (self.targets - pred)[self.masks]
+        return float(np.dot(r, r)) / max(int(r.size), 1)
+
+
+def estimate_psf(
+    frames: Sequence[F32],
+    shifts: Sequence[tuple[float, float]],
+    *,
+    scale: int,
+    aperture: int | None = None,
+    origin_shift: tuple[float, float] = (0.0, 0.0),
+    noise_sigma: float | None = None,
+    window: int = 128,
+    folds: int = 4,
+    choose_tau: bool = True,
+    default_tau: float = 0.04,
+) -> PsfEstimate:
+    """Gaussian blur of the optics (HR px) from a registered burst, by cross-validation.
+
+    Parameters
+    ----------
+    frames, shifts, scale, aperture, origin_shift
+        As for :func:`elphel_host.mfsr.robust.reconstruct` (shifts as refined there are
+        best: the estimate trusts them).
+    noise_sigma
+        Noise standard deviation (input units) that sets the prior's weight with tau;
+        None: a single frame's estimate.
+    window
+        Central window (LR px) the search runs on.
+    folds
+        Cross-validation groups (frames k with ``k % folds == g``); every training set
+        must keep at least ``scale**2`` frames.
+    choose_tau
+        Choose tau jointly with sigma (else ``default_tau`` is kept).
+
+    Returns
+    -------
+    PsfEstimate
+        ``source="estimated"``; model ``"none"`` when sigma comes out below 0.05 HR px.
+    """
+    n = len(frames)
+    check_frames(frames)
+    if len(shifts) != n:
+        raise ValueError(f"len(shifts)={len(shifts)}; allowed: {n} (one per frame)")
+    ap = int(aperture or scale)
+    folds = min(folds, n)
+    train_n = n - (n + folds - 1) // folds
+    # the largest scale s <= scale whose training sets stay determined (and whose pixel
+    # aperture is whole in its HR px); its sigma is converted to the output's HR px
+    fit_scale = next(
+        (s for s in range(int(scale), 1, -1) if train_n >= s * s and (ap * s) % scale == 0),
+        None,
+    )
+    if folds < 2 or fit_scale is None:
+        raise ValueError(
+            f"{n} frames; allowed: at least 5 frames, so that a fit at x2 without one of "
+            f"{folds} groups is determined"
+        )
+    ap_fit = ap * fit_scale // int(scale)
+    crop = central_window([np.asarray(f, np.float32) for f in frames], window)
+    wy, wx = crop[0].shape
+    ref = crop[0]
+    sh = np.asarray(shifts, np.float64) + np.asarray(origin_shift, np.float64)
+    n_int = np.rint(sh).astype(int)
+    frac = sh - n_int
+    p = min(16, wy - 1, wx - 1)
+    ny, nx = sfft.next_fast_len(wy + 2 * p), sfft.next_fast_len(wx + 2 * p)
+    pads = (p, ny - wy - p, p, nx - wx - p)
+    if pads[1] >= wy or pads[3] >= wx:
+        ny, nx = wy + 2 * p, wx + 2 * p
+        pads = (p, p, p, p)
+    fr: list[F32] = []
+    va: list[NDArray[np.bool_]] = []
+    for k in range(n):
+        f, v = aligned(crop[k], ref, (int(n_int[k, 0]), int(n_int[k, 1])))
+        fr.append(np.asarray(padded(f, pads, mode="reflect"), np.float32))
+        va.append(np.asarray(padded(v, pads, mode="zero"), bool))
+    interior = np.zeros((ny, nx), bool)
+    m = 4  # LR px kept clear of the padding's seam
+    interior[p + m : p + wy - m, p + m : p + wx - m] = True
+    groups = [[k for k in range(n) if k % folds == g] for g in range(folds)]
+    fl = [_Fold((ny, nx), fit_scale, ap_fit, frac, fr, va, g, interior) for g in groups]
+
+    lo, hi = np.percentile(ref, [0.1, 99.9])
+    span = max(float(hi - lo), 1e-6)
+    sigma_n = float(noise_sigma) if noise_sigma is not None else estimate_noise(ref)
+    sigma_n = max(sigma_n, 1e-6 * span)
+
+    cache: dict[tuple[float, float], F64] = {}
+
+    def errs(sig: float, tau: float) -> F64:
+        key = (round(sig, 4), tau)
+        if key not in cache:
+            lam = max((sigma_n / (tau * span)) ** 2, 1e-6)
+            cache[key] = np.array(parallel_map(lambda f: f.error(sig, lam), fl))
+        return cache[key]
+
+    # coordinate search: tau at a middle sigma, sigma at that tau, then finer sigma steps
+    # around the best (each candidate's errors are kept)
+    def total(st: tuple[float, float]) -> float:
+        return float(errs(*st).sum())
+
+    taus = TAU_GRID if choose_tau else (default_tau,)
+    tau = min(taus, key=lambda t: total((SIGMA_GRID[len(SIGMA_GRID) // 2], t)))
+    sig0 = min(SIGMA_GRID, key=lambda sg: total((sg, tau)))
+    fine = sorted(
+        {round(sig0 + d, 3) for d in np.arange(-0.1, 0.101, 0.05) if sig0 + d >= 0}
+        | set(SIGMA_GRID)
+    )
+    curve = {sg: errs(sg, tau) for sg in fine}
+    s_best = min(curve, key=lambda s: curve[s].sum())
+    i = fine.index(s_best)
+    sigma = float(s_best)
+    if 0 < i < len(fine) - 1:  # parabola through the best and its neighbours
+        x0, x1, x2 = fine[i - 1], fine[i], fine[i + 1]
+        y0, y1, y2 = (curve[x].sum() for x in (x0, x1, x2))
+        den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+        a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+        b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
+        if a > 0:
+            sigma = float(np.clip(-b / (2 * a), x0, x2))
+    # sigmas the folds cannot tell from the best: paired excess within 2 standard errors
+    e_best = curve[s_best]
+    within = []
+    for s in fine:
+        d = curve[s] - e_best
+        se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
+        if d.mean() <= 2 * se:
+            within.append(s)
+    interval = (float(min(within)), float(max(within)))
+    confidence = float(np.clip(1.0 - (interval[1] - interval[0]) / 0.5, 0.0, 1.0))
+    ratio = float(e_best.sum() / errs(0.0, tau).sum())
+    to_out = float(scale) / fit_scale  # fit HR px -> output HR px
+    sigma, interval = sigma * to_out, (interval[0] * to_out, interval[1] * to_out)
+    # a burst that cannot tell its blur from none (or finds less than 0.05 px) gets none
+    model = "gaussian" if sigma >= 0.05 and interval[0] > 0 else "none"
+    return PsfEstimate(
+        model,
+        sigma if model == "gaussian" else 0.0,
+        "estimated",
+        tau=tau if choose_tau else None,
+        confidence=confidence,
+        interval=interval,
+        cv_error_ratio=ratio,
+    )

@@ -1,0 +1,156 @@
+"""Blind PSF estimate (mfsr/psf.py) and its use by the robust method and the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from elphel_host.burst.io import write_burst
+from elphel_host.cli import main
+from elphel_host.mfsr.metrics import psnr
+from elphel_host.mfsr.psf import estimate_psf, parse_psf
+from elphel_host.mfsr.registration import register_frames
+from elphel_host.mfsr.robust import RobustConfig, reconstruct
+from elphel_host.mfsr.synth import make_burst, random_shifts
+
+
+def _camera() -> np.ndarray:
+    import skimage.data as sd
+
+    return (np.asarray(sd.camera(), np.float32) / 255.0)[128:384, 128:384].copy()
+
+
+def _blurred_burst(sigma: float, n: int = 16):
+    hr = _camera()
+    seen = cv2.GaussianBlur(hr, (0, 0), sigma) if sigma > 0 else hr
+    shifts = random_shifts(n, seed=11, spread=2.0)
+    return hr, make_burst(seen, shifts, scale=2, noise_sigma=0.01, seed=12)
+
+
+@pytest.fixture(scope="module")
+def blurred():
+    hr, frames = _blurred_burst(0.8)
+    regs = register_frames(frames)
+    return hr, frames, [r.shift for r in regs]
+
+
+def test_blur_is_estimated_and_undone(blurred):
+    hr, frames, shifts = blurred
+    img, info = reconstruct(frames, shifts, scale=2, config=RobustConfig(estimate_psf=True))
+    plain, pinfo = reconstruct(frames, shifts, scale=2)  # the default: no PSF
+    psf = info["psf"]
+    assert psf["model"] == "gaussian" and psf["source"] == "estimated"
+    assert abs(psf["sigma_hr_px"] - 0.8) <= 0.1, psf
+    assert 0 <= psf["confidence"] <= 1 and psf["cv_error_ratio"] < 1
+    lo, hi = psf["interval_hr_px"]
+    assert lo <= psf["sigma_hr_px"] + 1e-6 and psf["sigma_hr_px"] <= hi + 0.05
+    assert pinfo["psf"]["source"] == "disabled"
+    gain = psnr(hr, img, data_range=1.0, border=8) - psnr(hr, plain, data_range=1.0, border=8)
+    assert gain >= 1.5, gain  # measured +2.37 dB (sigma 0.859 found for 0.8)
+
+
+def test_given_sigma_is_used_without_search(blurred):
+    _, frames, shifts = blurred
+    _, info = reconstruct(frames, shifts, scale=2, config=RobustConfig(blur_sigma=0.8))
+    assert info["psf"] == {
+        "model": "gaussian",
+        "sigma_hr_px": 0.8,
+        "source": "given",
+        "tau_used": 0.04,
+    }
+
+
+def test_estimate_needs_frames():
+    _, frames = _blurred_burst(0.5, n=4)
+    with pytest.raises(ValueError, match="at least 5 frames"):
+        estimate_psf(frames, [(0.0, 0.0)] * 4, scale=2)
+    cfg = RobustConfig(estimate_psf=True)
+    _, info = reconstruct(frames, [(0.0, 0.0)] * 4, scale=2, config=cfg)
+    assert info["psf"]["source"] == "too few frames" and info["psf"]["sigma_hr_px"] == 0
+
+
+def test_parse_psf():
+    assert parse_psf("auto") is None
+    assert parse_psf("none").sigma == 0 and parse_psf("none").source == "disabled"
+    g = parse_psf("sigma=0.7")
+    assert g is not None and g.sigma == 0.7 and g.model == "gaussian" and g.source == "given"
+    for bad in ("sigma=-1", "sigma=x", "disc=2", "sigma=9"):
+        with pytest.raises(ValueError, match="--psf"):
+            parse_psf(bad)
+    with pytest.raises(ValueError, match="blur_sigma"):
+        RobustConfig(blur_sigma=-0.1)
+
+
+def test_cli_psf_option(tmp_path, capsys):
+    _, frames = _blurred_burst(0.7, n=8)
+    dn = [np.clip(np.rint(f * 4000), 0, 65535).astype(np.uint16) for f in frames]
+    b = write_burst(tmp_path / "b", dn)
+    out = str(tmp_path / "sr.tif")
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "auto", "--json"]) == 0
+    auto = json.loads(capsys.readouterr().out)["psf"]
+    assert auto["source"] == "estimated" and auto["model"] == "gaussian"
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "sigma=0.6", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.6
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--json"]) == 0  # default none
+    assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "none", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
+    assert (
+        main(["mfsr", str(b), "--scale", "2", "--out", out, "--blur-sigma", "0.5", "--json"]) == 0
+    )
+    assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.5
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "gauss"]) != 0
+    assert "--psf 'gauss'; allowed: auto, none, sigma=S" in capsys.readouterr().err
+
+
+def _gauss_kernel(sigma: float, r: int = 4) -> np.ndarray:
+    d = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (d / sigma) ** 2)
+    return np.outer(g, g) / np.outer(g, g).sum()
+
+
+def test_kernel_psf_matches_gaussian_model(blurred):
+    hr, frames, shifts = blurred
+    by_sigma, _ = reconstruct(frames, shifts, scale=2, config=RobustConfig(blur_sigma=0.8))
+    by_kernel, info = reconstruct(
+        frames, shifts, scale=2, config=RobustConfig(psf_kernel=_gauss_kernel(0.8))
+    )
+    assert info["psf"]["model"] == "kernel" and info["psf"]["kernel_shape"] == [9, 9]
+    # a sampled Gaussian is not the continuous one, but nearly
+    assert psnr(by_sigma, by_kernel, data_range=1.0, border=8) > 40
+    plain, _ = reconstruct(frames, shifts, scale=2)
+    k_gain = psnr(hr, by_kernel, data_range=1.0, border=8) - psnr(
+        hr, plain, data_range=1.0, border=8
+    )
+    assert k_gain >= 1.5, k_gain
+
+
+def test_kernel_checks(tmp_path):
+    for bad in (np.ones((4, 5)), np.ones((33, 33)), -np.ones((3, 3)), np.ones(5)):
+        with pytest.raises(ValueError, match="psf_kernel"):
+            RobustConfig(psf_kernel=bad)
+    with pytest.raises(ValueError, match="only without blur_sigma"):
+        RobustConfig(psf_kernel=np.ones((3, 3)), blur_sigma=0.5)
+    cfg = RobustConfig(psf_kernel=2 * np.ones((3, 3)))
+    assert cfg.psf_kernel is not None and abs(cfg.psf_kernel.sum() - 1) < 1e-12
+    with pytest.raises(ValueError, match="no such file"):
+        parse_psf(str(tmp_path / "missing.npy"))
+
+
+def test_cli_kernel_file(tmp_path, capsys):
+    _, frames = _blurred_burst(0.7, n=8)
+    dn = [np.clip(np.rint(f * 4000), 0, 65535).astype(np.uint16) for f in frames]
+    b = write_burst(tmp_path / "b", dn)
+    k = tmp_path / "psf.npy"
+    np.save(k, _gauss_kernel(0.7, 3))
+    out = str(tmp_path / "sr.tif")
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", str(k), "--json"]) == 0
+    psf = json.loads(capsys.readouterr().out)["psf"]
+    assert psf["model"] == "kernel" and psf["kernel_shape"] == [7, 7] and psf["source"] == "given"
+    bad = tmp_path / "bad.npy"
+    np.save(bad, np.ones((4, 4)))
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", str(bad)]) != 0
+    assert "odd sides up to 31" in capsys.readouterr().err
