@@ -57,3 +57,18 @@ def test_camera_commands_say_what_a_newcomer_needs(elphel_rig, capsys) -> None:
     code, _, err = run(capsys, "camera", "watch", "--sensor-port", "5", *cam)
     assert code == 1 and "port 5 does not exist; ports: 0" in err
     assert time.monotonic() - t0 < 5.0
+
+    # `burst plan --camera` plans for the sensor the camera has (a Bayer MT9P006 here).
+    optics = ["--scale", "2", "--focal-length-mm", "4.5", "--distance-mm", "1000"]
+    code, out, _ = run(capsys, "burst", "plan", *optics, *cam, "--json")
+    assert code == 0
+    read = json.loads(out)
+    assert read["sensor"] == {"model": "MT9P006", "pixel_pitch_um": 2.2, "bayer": "GRBG", "port": 0}
+    code, out, _ = run(capsys, "burst", "plan", *optics, "--pixel-pitch-um", "2.2", "--bayer",
+                       "--json")
+    assert code == 0
+    by_hand = json.loads(out)
+    assert read["bayer"] is True and read["tilt_deg"] == by_hand["tilt_deg"]
+    assert read["positions_mm"] == by_hand["positions_mm"]
+    code, _, err = run(capsys, "burst", "plan", *optics, *cam, "--pixel-pitch-um", "1.4")
+    assert code == 1 and "has 2.2 um pixels" in err
