@@ -175,9 +175,9 @@ class ElphelCameraDevice(CameraDevice):
             try:
                 frames = self._fetch(count, self._first_frame())
             except CameraHTTPError as e:
-                # The frame went by while the daemon formed it (its parameter history
-                # is 256 frames; the simulator's first frame after start takes seconds
-                # to render at up to 100 fps): the next frames are fine, so ask once more.
+                # The frame asked for went by before the daemon could send it (its ring
+                # buffer and parameter history are bounded; a slow first render in the
+                # simulator can outlast them): the next frames are fine, so ask once more.
                 if e.body.get("error") != "frame_not_available":
                     raise
                 frames = self._fetch(count, None)
