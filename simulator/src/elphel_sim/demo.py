@@ -277,6 +277,7 @@ def read_frame_metadata(path: Path) -> tuple[Any, dict[str, Any]]:
 # -- quad / tile processor --------------------------------------------------------------------
 
 STRENGTH_SHOWN = 0.15  # DSI tiles weaker than this are shown as having no texture
+MIN_DEPTH_DISPARITY_PX = 0.25
 
 
 def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
@@ -324,30 +325,29 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
     rms_all = float(np.sqrt(np.mean(err[textured] ** 2)))
     shown = np.where(strength > STRENGTH_SHOWN, disparity, np.nan)
     weak = f"no texture (strength < {STRENGTH_SHOWN})"
-    bar = {"lo": -0.5, "hi": 6.0, "unit": "px"}
+    bar = {"lo": -0.5, "hi": 6.0, "unit": "px", "cell": 2}
     save_map_picture(shown, out / "disparity.png", title="disparity (DSI)", no_value=weak, **bar)
     save_map_picture(
         true_disparity, out / "disparity-truth.png", title="true disparity (simulator)", **bar
     )
     # Depth of a tile: Z = f * B / (D * pitch), B the square's side (optics of quad.json).
+    # Below MIN_DEPTH_DISPARITY_PX the depth is beyond a km and dominated by the error.
     optics = scene["optics"]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth = (
-            optics["focal_length_mm"]
-            * optics["baseline_mm"]
-            / (shown * optics["pixel_pitch_um"] / 1000.0)
-        )
-    depth = np.where(shown > 0.05, depth, np.nan)  # at D -> 0 the depth is unbounded
-    finite = depth[np.isfinite(depth)]
-    far = float(np.percentile(finite, 98)) if finite.size else 10_000.0
+    near = np.where(shown > MIN_DEPTH_DISPARITY_PX, shown, np.nan)
+    depth_m = optics["focal_length_mm"] * optics["baseline_mm"] / (
+        near * optics["pixel_pitch_um"] / 1000.0
+    ) / 1000.0
+    finite = depth_m[np.isfinite(depth_m)]
+    far = float(np.percentile(finite, 99)) if finite.size else 1000.0
     save_map_picture(
-        depth,
+        depth_m,
         out / "depth.png",
         lo=0.0,
         hi=far,
-        unit="mm",
+        unit="m",
         title="depth from the DSI",
-        no_value=f"{weak} or disparity < 0.05 px",
+        no_value=f"{weak} or disparity < {MIN_DEPTH_DISPARITY_PX} px (too far)",
+        cell=2,
     )
     step(
         f"quad: DSI {result['tiles_x']}x{result['tiles_y']} tiles in {result['seconds']:.2f} s; "
