@@ -28,8 +28,6 @@ from elphel_host.camera.stock_model import StockModel
 from elphel_host.errors import CameraClientError, CameraParameterError, UnsupportedError
 
 _RANGE = re.compile(r"(-?\d+)\.\.(-?\d+)")
-# Frames fetched per request during a sequence of known length (consecutive frames).
-BURST_CHUNK = 4
 _WINDOW = ("WOI_LEFT", "WOI_TOP", "WOI_WIDTH", "WOI_HEIGHT")
 
 
@@ -168,31 +166,28 @@ class ElphelCameraDevice(CameraDevice):
         n: int | None,
         get_buffer: Callable[[Sequence[int], DTypeLike], np.ndarray],
     ) -> Iterator[Mapping]:
-        """Consecutive frames of the port (bursts of `BURST_CHUNK`), or one at a time."""
+        """Consecutive frames of the port: the first, then each next one by its number.
+
+        Frame N+1 is asked for by number (``capture?frame=N+1``): the daemon waits for it
+        or takes it from its ring buffer, so no frame is skipped while one is being sent.
+        """
         done = 0
+        wanted = self._first_frame()
         while n is None or done < n:
-            count = 1 if n is None else min(BURST_CHUNK, n - done)
             try:
-                frames = self._fetch(count, self._first_frame())
+                frame = self.client.capture(self.port, frame=wanted)
             except CameraHTTPError as e:
                 # The frame asked for went by before the daemon could send it (its ring
                 # buffer and parameter history are bounded; a slow first render in the
-                # simulator can outlast them): the next frames are fine, so ask once more.
+                # simulator can outlast them): go on from the next frame.
                 if e.body.get("error") != "frame_not_available":
                     raise
-                frames = self._fetch(count, None)
-            for image, metadata in frames:
-                buffer = get_buffer(image.shape, np.uint16)
-                buffer[:] = image
-                done += 1
-                yield self._metadata(metadata)
-
-    def _fetch(self, count: int, first: int | None) -> list[tuple[np.ndarray, dict[str, Any]]]:
-        if count == 1:
-            frame = self.client.capture(self.port, frame=first)
-            return [(frame.image, frame.metadata)]
-        burst = self.client.burst(count, port=self.port, frame=first)
-        return list(zip(burst.images, burst.metadata, strict=True))
+                frame = self.client.capture(self.port)
+            buffer = get_buffer(frame.image.shape, np.uint16)
+            buffer[:] = frame.image
+            done += 1
+            wanted = frame.frame + 1
+            yield self._metadata(frame.metadata)
 
     def _first_frame(self) -> int | None:
         """The frame to start from: the first with the last change in effect, if still ahead.
