@@ -78,7 +78,10 @@ class _ReportingClient:
         um = self._client.read_caliper_um()
         if self.target_um is not None:
             if self._start_um is None:
+                # Where the move starts: nothing to show yet (and a move refused before
+                # it starts leaves only its one-line error on stderr).
                 self._start_um = um
+                return um
             total = max(abs(self.target_um - self._start_um), 1)
             done = max(0, total - abs(self.target_um - um))
             self._line.update(
