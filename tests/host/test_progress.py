@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,13 @@ import pytest
 from elphel_host.cli import main
 from elphel_host.cli_common import ProgressLine
 from tests.host.jp4.test_convert import record
+
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+REMAINING_STYLE = "\x1b[90m"  # rich's bar.back colour
+
+
+def strip_ansi(text: str) -> str:
+    return ANSI.sub("", text)
 
 
 class Tty(io.StringIO):
@@ -34,8 +42,12 @@ def test_terminal_gets_a_bar_with_rate_and_time_left() -> None:
     line.update("burst: 2/10", done=2, total=10)  # 0.5/s, 8 left: 16 s
     line.end()
     first, second = tty.getvalue().split("\x1b[K")[:2]
-    assert first == "\r[" + "-" * 24 + "] burst: 0/10"
-    assert second == "\r[" + "#" * 4 + "-" * 20 + "] burst: 2/10 (0.5/s, 0:16 left)"
+    # rich draws the bar: 24 cells, the done part in one colour, the rest in another.
+    assert strip_ansi(first) == "\r" + "━" * 24 + " burst: 0/10"
+    assert strip_ansi(second) == "\r━━━━╸" + "━" * 19 + " burst: 2/10 (0.5/s, 0:16 left)"
+    done_part, _rest = second.split(REMAINING_STYLE, 1)
+    assert strip_ansi(done_part) == "\r━━━━╸"  # 2/10 of 24 cells: 4.8
+    assert first.startswith("\r" + REMAINING_STYLE)  # nothing done yet
     assert tty.getvalue().endswith("\n")
 
 
@@ -85,3 +97,23 @@ def test_stage_calibrate_reports_each_run_on_stderr(
     assert len(out.splitlines()) == 1 and "mm_per_step" in json.loads(out)
     runs = [line for line in err.splitlines() if line.startswith("calibrate: run ")]
     assert [r.split(":")[1] for r in runs] == [" run 1/2", " run 2/2"], err
+
+
+def test_stage_move_shows_the_caliper_on_the_way(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from elphel_sim.stage_server import SimStage
+
+    with SimStage(seed=4, time_scale=100) as sim:
+        sim.wait_booted()
+        monkeypatch.setenv("ELPHEL_STAGE_URL", sim.tcp_url)
+        assert main(["stage", "home", "--json"]) == 0
+        capsys.readouterr()
+        model = str(tmp_path / "model.json")
+        assert main(["stage", "move", "12.5", "--model", model, "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert len(out.splitlines()) == 1 and json.loads(out)["target_mm"] == 12.5
+    lines = [line for line in err.splitlines() if line.startswith("stage: caliper ")]
+    assert len(lines) >= 3, err  # one line per reading: not a terminal, so no bar
+    assert all(line.count("target 12.500 mm") == 1 for line in lines)
+    assert "left)" in lines[-1] and "\r" not in err and "━" not in err

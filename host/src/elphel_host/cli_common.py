@@ -9,6 +9,7 @@ working; they set the same value.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import sys
@@ -54,9 +55,9 @@ def _clock(seconds: float) -> str:
 class ProgressLine:
     """Progress of a long command on stderr: one updating line on a terminal, else a line each.
 
-    Given ``done`` and ``total``, the line carries the rate and the time left (and, on a
-    terminal, a bar). stdout stays for the result (one JSON object with --json), so
-    progress never mixes with it.
+    Given ``done`` and ``total``, the line carries the rate and the time left; on a
+    terminal, rich draws a bar before it. stdout stays for the result (one JSON object
+    with --json), so progress never mixes with it.
     """
 
     def __init__(
@@ -79,6 +80,21 @@ class ProgressLine:
         rate = (done - d0) / (now - t0)
         return f"{rate:.3g}/s, {_clock(max(total - done, 0) / rate)} left"
 
+    def _bar(self, done: int, total: int) -> str:
+        """The progress bar of rich, ``BAR_WIDTH`` cells, as terminal text (colours included)."""
+        from rich.console import Console
+        from rich.progress_bar import ProgressBar
+
+        console = Console(
+            file=io.StringIO(), force_terminal=True, color_system="standard", width=BAR_WIDTH
+        )
+        with console.capture() as captured:
+            console.print(
+                ProgressBar(total=total, completed=min(max(done, 0), total), width=BAR_WIDTH),
+                end="",
+            )
+        return captured.get()
+
     def update(self, text: str, *, done: int | None = None, total: int | None = None) -> None:
         """Show ``text`` as the current state (replacing the previous one on a terminal).
 
@@ -90,8 +106,7 @@ class ProgressLine:
             if rate:
                 text = f"{text} ({rate})"
             if self.tty:
-                filled = BAR_WIDTH * min(max(done, 0), total) // total
-                text = f"[{'#' * filled}{'-' * (BAR_WIDTH - filled)}] {text}"
+                text = f"{self._bar(done, total)} {text}"
         if self.tty:
             self.stream.write(f"\r{text}\x1b[K")
             self._open = True

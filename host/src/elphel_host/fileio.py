@@ -68,6 +68,13 @@ def replacing(
                 tmp.unlink()
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and putting it back at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def replacing_directory(path: str | Path) -> Iterator[Path]:
     """Yield a new empty directory beside ``path``; on success it replaces ``path`` by a rename.
@@ -81,6 +88,9 @@ def replacing_directory(path: str | Path) -> Iterator[Path]:
     parent = target.absolute().parent
     parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
+    # mkdtemp makes the directory 0700; the result is an ordinary directory the lab
+    # shares, so it gets the mode mkdir would give it under the process's umask.
+    os.chmod(tmp, 0o777 & ~_umask())
     aside: Path | None = None
     try:
         yield tmp

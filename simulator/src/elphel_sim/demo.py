@@ -25,11 +25,10 @@ from typing import Any
 
 import httpx
 import numpy as np
-from PIL import Image
 
 from elphel_host.camera import CameraClient
-from elphel_host.preview import save_preview
-from elphel_sim.demo_report import burst_crops, colour_map, reference_image
+from elphel_host.preview import save_map_picture, save_preview
+from elphel_sim.demo_report import burst_crops, reference_image
 
 
 class DemoError(RuntimeError):
@@ -97,7 +96,9 @@ def camera_step(rig: dict[str, Any], out: Path) -> dict[str, Any]:
         elapsed = time.monotonic() - t0
     tif = out / "frame.tif"
     tif.write_bytes(frame.tiff)
-    png = save_preview(frame.image, out / "frame.png", bayer=frame.metadata.get("bayer"))
+    bayer = frame.metadata.get("bayer")
+    png = save_preview(frame.image, out / "frame.png", bayer=bayer)
+    save_preview(frame.image, out / "frame-mosaic.png", bayer=bayer, mosaic=True)
     h, w = frame.image.shape
     step(f"captured frame {frame.frame}: {w}x{h} {frame.image.dtype} in {elapsed:.1f} s -> {tif}")
     return {
@@ -275,6 +276,10 @@ def read_frame_metadata(path: Path) -> tuple[Any, dict[str, Any]]:
 
 # -- quad / tile processor --------------------------------------------------------------------
 
+STRENGTH_SHOWN = 0.15  # DSI tiles weaker than this are shown as having no texture
+MIN_DEPTH_DISPARITY_PX = 0.25
+
+
 def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
     """The quad camera of the simulator: one synchronised set captured, then its DSI."""
     from elphel_host.tp.io import read_dsi
@@ -318,11 +323,32 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
             }
     textured = interior & textured_tiles
     rms_all = float(np.sqrt(np.mean(err[textured] ** 2)))
-    shown = np.where(strength > 0.15, disparity, np.nan)
-    picture = colour_map(shown, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
-    Image.fromarray(picture).save(out / "disparity.png")
-    truth_picture = colour_map(true_disparity, -0.5, 6.0).repeat(8, axis=0).repeat(8, axis=1)
-    Image.fromarray(truth_picture).save(out / "disparity-truth.png")
+    shown = np.where(strength > STRENGTH_SHOWN, disparity, np.nan)
+    weak = f"no texture (strength < {STRENGTH_SHOWN})"
+    bar = {"lo": -0.5, "hi": 6.0, "unit": "px", "cell": 2}
+    save_map_picture(shown, out / "disparity.png", title="disparity (DSI)", no_value=weak, **bar)
+    save_map_picture(
+        true_disparity, out / "disparity-truth.png", title="true disparity (simulator)", **bar
+    )
+    # Depth of a tile: Z = f * B / (D * pitch), B the square's side (optics of quad.json).
+    # Below MIN_DEPTH_DISPARITY_PX the depth is beyond a km and dominated by the error.
+    optics = scene["optics"]
+    near = np.where(shown > MIN_DEPTH_DISPARITY_PX, shown, np.nan)
+    depth_m = optics["focal_length_mm"] * optics["baseline_mm"] / (
+        near * optics["pixel_pitch_um"] / 1000.0
+    ) / 1000.0
+    finite = depth_m[np.isfinite(depth_m)]
+    far = float(np.percentile(finite, 99)) if finite.size else 1000.0
+    save_map_picture(
+        depth_m,
+        out / "depth.png",
+        lo=0.0,
+        hi=far,
+        unit="m",
+        title="depth from the DSI",
+        no_value=f"{weak} or disparity < {MIN_DEPTH_DISPARITY_PX} px (too far)",
+        cell=2,
+    )
     step(
         f"quad: DSI {result['tiles_x']}x{result['tiles_y']} tiles in {result['seconds']:.2f} s; "
         f"RMS error {rms_all:.3f} px over {int(textured.sum())} textured tiles -> {dsi_path}"
@@ -333,6 +359,7 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
         "dsi": str(dsi_path),
         "picture": str(out / "disparity.png"),
         "truth_picture": str(out / "disparity-truth.png"),
+        "depth_picture": str(out / "depth.png"),
         "seconds": result["seconds"],
         "rms_error_px": round(rms_all, 4),
         "regions": regions,

@@ -126,18 +126,8 @@ def burst_crops(compare_dir: Path, reference: Path, path: Path) -> Path:
     return comparison_picture(panels, path)
 
 
-_ANCHORS = np.array(
-    [[48, 18, 59], [31, 120, 180], [32, 178, 120], [240, 200, 40], [220, 50, 30]], dtype=float
-)
-
-
 def colour_map(values: NDArray[np.floating], lo: float, hi: float) -> NDArray[np.uint8]:
     """Map values to RGB along a dark-blue -> green -> yellow -> red ramp; NaN -> grey."""
-    t = np.clip((values - lo) / (hi - lo), 0, 1)
-    pos = np.nan_to_num(t) * (len(_ANCHORS) - 1)
-    rgb = np.stack(
-        [np.interp(pos, np.arange(len(_ANCHORS)), _ANCHORS[:, c]) for c in range(3)], axis=-1
-    )
-    rgb[~np.isfinite(values)] = 90
-    out: NDArray[np.uint8] = rgb.astype(np.uint8)
-    return out
+    from elphel_host.preview import colour_map as host_colour_map
+
+    return host_colour_map(values, lo, hi)

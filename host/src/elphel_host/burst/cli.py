@@ -8,14 +8,16 @@ parses the options, builds the rig from them and renders progress and results.
 from __future__ import annotations
 
 import argparse
+import os
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 from elphel_host.burst.capture import BurstRunner, CaptureResult, RigEngine, load_progress
-from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, write_plan
+from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, sensor_geometry, write_plan
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import (
+    CAMERA_TOKEN_ENV,
     ProgressLine,
     add_camera_options,
     add_json_option,
@@ -25,7 +27,7 @@ from elphel_host.cli_common import (
     emit,
     fail,
 )
-from elphel_host.errors import FusionError, ScaleError
+from elphel_host.errors import FusionError, InputFormatError, ScaleError
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.positioning import Positioner, StageModel
@@ -52,7 +54,23 @@ def _add_plan_parser(sub: Any) -> None:
     )
     pl.add_argument("--scale", type=int, required=True, metavar="S")
     pl.add_argument("--focal-length-mm", type=float, required=True, metavar="F")
-    pl.add_argument("--pixel-pitch-um", type=float, required=True, metavar="P")
+    pl.add_argument(
+        "--pixel-pitch-um",
+        type=float,
+        metavar="P",
+        help="sensor pixel pitch (required unless --camera gives it)",
+    )
+    pl.add_argument(
+        "--camera",
+        metavar="URL",
+        help="read the sensor's pixel pitch and mosaic (Bayer or mono) from this camera",
+    )
+    pl.add_argument(
+        "--token",
+        default=os.environ.get(CAMERA_TOKEN_ENV),
+        help=f"the camera's token, if it asks for one (env {CAMERA_TOKEN_ENV})",
+    )
+    add_sensor_port_option(pl, help="the camera's sensor port read with --camera (default 0)")
     pl.add_argument(
         "--distance-mm",
         type=float,
@@ -72,20 +90,47 @@ def _add_plan_parser(sub: Any) -> None:
     )
     pl.add_argument("--out", metavar="plan.json", help="save the plan as JSON")
     add_json_option(pl)
-    pl.set_defaults(func=run_plan)
+    pl.set_defaults(func=run_plan, parser=pl)
+
+
+def _plan_sensor(args: argparse.Namespace) -> tuple[float, bool, dict[str, Any] | None]:
+    """Pixel pitch and Bayer-ness: from the options, or read from --camera."""
+    if args.camera is None:
+        if args.pixel_pitch_um is None:
+            args.parser.error("give --pixel-pitch-um, or --camera URL to read it from the sensor")
+        return args.pixel_pitch_um, args.bayer, None
+    with connect(args.camera, args.token) as camera:
+        geometry = sensor_geometry(camera.info(), args.sensor_port)
+    if args.pixel_pitch_um is not None and args.pixel_pitch_um != geometry.pixel_pitch_um:
+        raise InputFormatError(
+            f"--pixel-pitch-um {args.pixel_pitch_um} but the camera's {geometry.model} has "
+            f"{geometry.pixel_pitch_um} um pixels; give one or the other"
+        )
+    if args.bayer and geometry.bayer is None:
+        raise InputFormatError(f"--bayer but the camera's {geometry.model} is a mono sensor")
+    sensor = {
+        "model": geometry.model,
+        "pixel_pitch_um": geometry.pixel_pitch_um,
+        "bayer": geometry.bayer,
+        "port": args.sensor_port,
+    }
+    return geometry.pixel_pitch_um, geometry.bayer is not None, sensor
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    pitch, bayer, sensor = _plan_sensor(args)
     plan = plan_burst(
         scale=args.scale,
         focal_length_mm=args.focal_length_mm,
-        pixel_pitch_um=args.pixel_pitch_um,
+        pixel_pitch_um=pitch,
         distance_mm=args.distance_mm,
         mm_per_step=args.mm_per_step,
         frames=args.frames,
-        bayer=args.bayer,
+        bayer=bayer,
     )
     result = plan.to_json()
+    if sensor is not None:
+        result["sensor"] = sensor
     if args.out:
         write_plan(args.out, plan)
         result["out"] = str(args.out)

@@ -36,6 +36,47 @@ from elphel_host.mfsr.scale import MAX_SCALE, check_scale
 MIN_PLAN_SCALE = 2
 
 
+@dataclass(frozen=True)
+class SensorGeometry:
+    """What a plan needs to know of a camera's sensor: its pixel pitch and mosaic."""
+
+    model: str
+    pixel_pitch_um: float
+    bayer: str | None  # "GRBG" etc., None for a mono sensor
+
+
+def sensor_geometry(info: Mapping[str, Any], port: int = 0) -> SensorGeometry:
+    """The sensor of ``port`` in a camera's ``info()`` (elphel-camd or a stock NC393).
+
+    The pixel pitch is elphel-camd's datasheet figure for the model the camera reports.
+
+    Raises
+    ------
+    InputFormatError
+        No sensor on that port, or a model without a known pitch.
+    """
+    from elphel_camd.sensors import lepton35, mt9f002_registers, mt9p006_registers
+
+    pitches = {
+        "MT9P006": mt9p006_registers.PIXEL_PITCH_UM,
+        "MT9F002": mt9f002_registers.PIXEL_PITCH_UM,
+        "LEPTON35": lepton35.PIXEL_PITCH_UM,
+    }
+    ports = {int(p["port"]): p for p in info.get("ports", [])}
+    sensor = (ports.get(port) or {}).get("sensor")
+    if not sensor:
+        have = ", ".join(str(p) for p, e in sorted(ports.items()) if e.get("sensor"))
+        raise InputFormatError(f"the camera has no sensor on port {port}; sensors on: {have}")
+    model = str(sensor["model"])
+    pitch = pitches.get(model.upper().replace(" ", "").replace(".", ""))
+    if pitch is None:
+        raise InputFormatError(
+            f"sensor {model} on port {port}: its pixel pitch is not known here; "
+            f"give --pixel-pitch-um (known: {', '.join(sorted(pitches))})"
+        )
+    return SensorGeometry(model=model, pixel_pitch_um=float(pitch), bayer=sensor.get("bayer"))
+
+
 def _number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 

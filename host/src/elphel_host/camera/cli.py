@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from elphel_host.camera.backends import connect
-from elphel_host.camera.client import CameraClient, PartialBurstError
+from elphel_host.camera.client import (
+    CameraClient,
+    CameraHTTPError,
+    CameraUnauthorizedError,
+    PartialBurstError,
+)
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.cli_common import (
@@ -18,6 +26,7 @@ from elphel_host.cli_common import (
     add_sensor_port_option,
     emit,
 )
+from elphel_host.errors import CameraAuthError, CameraClientError, CameraParameterError
 
 
 def register(sub: Any) -> None:
@@ -27,13 +36,20 @@ def register(sub: Any) -> None:
     ported = argparse.ArgumentParser(add_help=False)
     add_sensor_port_option(ported)
 
-    p = sub.add_parser("camera", help="camera daemon: info, get, set, capture, watch")
+    p = sub.add_parser("camera", help="camera daemon: info, params, get, set, capture, watch")
     cmd = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     info = cmd.add_parser(
         "info", parents=[common], help="board, daemon version, ports and their sensors"
     )
     info.set_defaults(func=cmd_info, parser=info)
+
+    params = cmd.add_parser(
+        "params",
+        parents=[common, ported],
+        help="every frame parameter: current value, unit, the range that applies now, meaning",
+    )
+    params.set_defaults(func=cmd_params, parser=params)
 
     get = cmd.add_parser("get", parents=[common, ported], help="print frame parameters")
     get.add_argument("names", nargs="*", metavar="NAME", help="parameters (default: all)")
@@ -43,7 +59,8 @@ def register(sub: Any) -> None:
     set_ = cmd.add_parser(
         "set",
         parents=[common, ported],
-        help="set parameters (e.g. EXPOS=5000 GAINR=0x20000): all or none on elphel-camd; "
+        help="set parameters (e.g. EXPOS=5000 GAINR=0x20000; names in any case, "
+        "`elphel camera params` lists them): all or none on elphel-camd; "
         "on a stock NC393 checked first, written in one request, read back",
     )
     set_.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
@@ -99,6 +116,59 @@ def _client(args: argparse.Namespace, *, retry_s: float = 0.0) -> CameraInterfac
     return client
 
 
+def _said_plainly(func: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """Turn the daemon's refusals into what the user needs to hear.
+
+    A 401 with a token given means the token is wrong (the daemon says only that the
+    request needs one); a refused value says *why* (must be even, out of range, ...).
+    """
+
+    @functools.wraps(func)
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return func(args)
+        except CameraUnauthorizedError as e:
+            if getattr(args, "token", None):
+                raise CameraAuthError(
+                    f"wrong token: the camera at {args.camera} refused it (HTTP {e.status}); "
+                    "check --token or ELPHEL_CAMERA_TOKEN (elphel-sim up prints it)"
+                ) from e
+            raise CameraAuthError(
+                f"the camera at {args.camera} needs its token: give --token or set "
+                "ELPHEL_CAMERA_TOKEN"
+            ) from e
+        except CameraHTTPError as e:
+            if e.status == 422 and e.parameter and e.allowed is not None:
+                raise CameraParameterError(
+                    f"{refusal(e.parameter, e.value, e.allowed)}; HTTP {e.status}",
+                    parameter=e.parameter,
+                    value=e.value,
+                    allowed=e.allowed,
+                ) from e
+            raise
+
+    return run
+
+
+_RANGE = re.compile(r"^(-?\d+)\.\.(-?\d+)")
+
+
+def refusal(name: str, value: Any, allowed: str) -> str:
+    """``WOI_WIDTH=641 refused: must be even (allowed: 2..2592 (even))``."""
+    reason = "not allowed"
+    found = _RANGE.match(allowed)
+    if isinstance(value, int) and not isinstance(value, bool):
+        if found and not int(found.group(1)) <= value <= int(found.group(2)):
+            reason = f"out of range {found.group(1)}..{found.group(2)}"
+        elif "even" in allowed and value % 2:
+            reason = "must be even"
+        elif "multiple of" in allowed:
+            reason = "must be " + allowed[allowed.index("a multiple of") :]
+    elif not isinstance(value, int):
+        reason = "not an integer"
+    return f"{name}={value!r} refused: {reason} (allowed: {allowed})"
+
+
 def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dict[str, int]:
     out: dict[str, int] = {}
     for item in items:
@@ -106,12 +176,14 @@ def _parse_assignments(parser: argparse.ArgumentParser, items: list[str]) -> dic
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = int(text.strip(), 0)
+            # Elphel's names are upper case; `expos=5000` means EXPOS.
+            out[name.strip().upper()] = int(text.strip(), 0)
         except ValueError:
             parser.error(f"{item!r}: give NAME=VALUE with an integer value (0x.. for hex)")
     return out
 
 
+@_said_plainly
 def cmd_info(args: argparse.Namespace) -> int:
 
     with _client(args) as client:
@@ -136,11 +208,45 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+@_said_plainly
+def cmd_params(args: argparse.Namespace) -> int:
+    from elphel_host.camera.param_table import daemon_schema, param_rows, table_schema
+
+    with _client(args) as client:
+        info = client.info()
+        ports = {p["port"]: p for p in info["ports"]}
+        if args.sensor_port not in ports:
+            have = ", ".join(str(p) for p in sorted(ports))
+            raise CameraClientError(f"port {args.sensor_port} does not exist; ports: {have}")
+        sensor = ports[args.sensor_port]["sensor"] or {}
+        values = client.params(args.sensor_port)
+    schema = daemon_schema(args.camera) if info.get("daemon") == "elphel-camd" else table_schema()
+    rows = param_rows(
+        schema, values, sensor_code=sensor.get("sensor_code"), port=args.sensor_port
+    )
+    width = max(len(r.name) for r in rows)
+    lines = [
+        f"{r.name:<{width}}  {'' if r.value is None else r.value:>10}  {r.unit:<8} "
+        f"{r.range:<22} {r.description}"
+        for r in rows
+    ]
+    header = f"port {args.sensor_port}: {sensor.get('model', 'no sensor')}; NAME VALUE UNIT RANGE"
+    result = {
+        "port": args.sensor_port,
+        "sensor": sensor.get("model"),
+        "params": [r.to_json() for r in rows],
+    }
+    emit(args, result, "\n".join([header, *lines]))
+    return 0
+
+
+@_said_plainly
 def cmd_get(args: argparse.Namespace) -> int:
 
     with _client(args) as client:
         params = client.params(args.sensor_port, frame=args.frame)
     if args.names:
+        args.names = [n.upper() for n in args.names]
         missing = [n for n in args.names if n not in params]
         if missing:
             args.parser.error(
@@ -151,6 +257,7 @@ def cmd_get(args: argparse.Namespace) -> int:
     return 0
 
 
+@_said_plainly
 def cmd_set(args: argparse.Namespace) -> int:
 
     changes = _parse_assignments(args.parser, args.assignments)
@@ -166,6 +273,7 @@ def cmd_set(args: argparse.Namespace) -> int:
     return 0
 
 
+@_said_plainly
 def cmd_capture(args: argparse.Namespace) -> int:
     from elphel_host.preview import save_preview
 
@@ -252,12 +360,21 @@ def _event_line(event: CameraEvent) -> str:
     return f"{event.type:6s} {json.dumps(data, sort_keys=True)}"
 
 
+@_said_plainly
 def cmd_watch(args: argparse.Namespace) -> int:
 
     types = tuple(t.strip() for t in args.types.split(",") if t.strip())
     collected: list[dict[str, Any]] = []
     # A watch outlives a daemon restart: the stream reconnects for up to 30 s.
     with _client(args, retry_s=30.0) as client:
+        if args.sensor_port is not None:
+            # The event stream would wait for events of a port that never sends any.
+            ports = sorted(p["port"] for p in client.info()["ports"])
+            if args.sensor_port not in ports:
+                raise CameraClientError(
+                    f"port {args.sensor_port} does not exist; ports: "
+                    + ", ".join(map(str, ports))
+                )
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):
                 entry = {"type": event.type, "id": event.id, **event.data}

@@ -58,17 +58,57 @@ def _status(args: argparse.Namespace) -> int:
     return 0
 
 
+class _ReportingClient:
+    """The stage client as a move sees it, showing each caliper reading as progress.
+
+    Progress is the distance covered towards the target (µm), from the readings the
+    move takes anyway; nothing extra is asked of the stage.
+    """
+
+    def __init__(self, client: StageClient, line: ProgressLine) -> None:
+        self._client = client
+        self._line = line
+        self.target_um: int | None = None
+        self._start_um: int | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._client, name)
+
+    def read_caliper_um(self) -> int:
+        um = self._client.read_caliper_um()
+        if self.target_um is not None:
+            if self._start_um is None:
+                # Where the move starts: nothing to show yet (and a move refused before
+                # it starts leaves only its one-line error on stderr).
+                self._start_um = um
+                return um
+            total = max(abs(self.target_um - self._start_um), 1)
+            done = max(0, total - abs(self.target_um - um))
+            self._line.update(
+                f"stage: caliper {um / 1000:.3f} mm, target {self.target_um / 1000:.3f} mm",
+                done=done,
+                total=total,
+            )
+        return um
+
+
 def _move(args: argparse.Namespace) -> int:
     model_path = Path(args.model)
+    line = ProgressLine()
     with StageClient(_url(args)) as client:
-        pos = Positioner(client, StageModel.load(model_path))
+        reporting = _ReportingClient(client, line)
+        pos = Positioner(reporting, StageModel.load(model_path))  # type: ignore[arg-type]
         target = args.position_mm
         if args.relative:
             target += pos.read_mm()
-        if args.open_loop:
-            r = pos.move_open_loop(target)
-        else:
-            r = pos.move_closed_loop(target, tolerance_mm=args.tolerance_mm)
+        reporting.target_um = round(target * 1000)
+        try:
+            if args.open_loop:
+                r = pos.move_open_loop(target)
+            else:
+                r = pos.move_closed_loop(target, tolerance_mm=args.tolerance_mm)
+        finally:
+            line.end()
     result = {
         "target_mm": r.target_mm,
         "caliper_mm": r.caliper_mm,

@@ -29,7 +29,10 @@ log = logging.getLogger(__name__)
 
 # Writes can target the current frame + 1 .. + 14 (16 hardware frame pages, Elphel).
 MAX_AHEAD = 14
-HISTORY_FRAMES = 256
+# Parameters of past frames kept for their metadata. A frame is looked up after it was
+# formed: the simulator renders a full frame in seconds while a small window runs at
+# 100-200 fps, so 256 frames were gone by then ("no longer kept"). A state is ~25 ints.
+HISTORY_FRAMES = 4096
 
 # Called for functions the board handles (trigger sequencer, photo-finish) with the state.
 BoardProgram = Callable[[str, Mapping[str, int]], None]
