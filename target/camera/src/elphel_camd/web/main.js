@@ -36,13 +36,24 @@ $("token-form").addEventListener("submit", (ev) => {
   setToken($("token").value.trim());
   $("token").value = "";
   tokenChanged();
-  restart();
+  reconnect();
 });
 $("token-clear").addEventListener("click", () => {
   setToken("");
   tokenChanged();
-  restart();
+  reconnect();
 });
+
+// A new token: reads that needed one may work now. The form stays as it is (a message
+// next to a field stays readable); streams are reopened with the new token.
+function reconnect() {
+  if (!state.info || !state.schema) {
+    restart();
+    return;
+  }
+  if (!state.quad) liveView(state.port);
+  eventLog();
+}
 
 // -- live view ----------------------------------------------------------------------------
 
@@ -57,35 +68,46 @@ async function liveView(port) {
   state.stream = controller;
   const img = $("live");
   img.dataset.port = String(port);
+  // Reopened after a failure (a daemon restart, a frame that did not come) until the
+  // view is closed or the port changes; a missing token waits for the token instead.
+  while (state.stream === controller) {
+    try {
+      await streamInto(img, port, controller.signal);
+    } catch (e) {
+      if (e.name === "AbortError") return;
+      showError($("view-error"), e);
+      if (e instanceof NeedsToken) return;
+    }
+    await new Promise((r) => setTimeout(r, 2000));
+  }
+}
+
+async function streamInto(img, port, signal) {
+  const answer = await request(`/ports/${port}/preview.mjpeg`, {
+    query: { scale: "1/4", fps: "10" },
+    signal,
+  });
+  $("view-error").textContent = "";
   let shown = 0;
   const started = performance.now();
-  try {
-    const answer = await request(`/ports/${port}/preview.mjpeg`, {
-      query: { scale: "1/4", fps: "10" },
-      signal: controller.signal,
-    });
-    $("view-error").textContent = "";
-    for await (const part of multipart(answer)) {
-      const url = URL.createObjectURL(new Blob([part.body], { type: "image/jpeg" }));
-      const old = img.src;
-      img.src = url;
-      if (old.startsWith("blob:")) URL.revokeObjectURL(old);
-      const frame = Number(part.headers["x-frame-number"]);
-      img.dataset.frame = String(frame);
-      img.dataset.timestampNs = part.headers["x-timestamp-ns"];
-      img.dataset.width = part.headers["x-image-width"];
-      img.dataset.height = part.headers["x-image-height"];
-      shown += 1;
-      $("live-frame").textContent = String(frame);
-      $("live-time").textContent = timeOf(part.headers["x-timestamp-ns"]);
-      $("live-fps").textContent = (shown / ((performance.now() - started) / 1000)).toFixed(1);
-      $("live-size").textContent = `${img.dataset.width}×${img.dataset.height}`;
-      thermal(part.headers);
-      form.reached(frame);
-      state.frame = frame;
-    }
-  } catch (e) {
-    if (e.name !== "AbortError") showError($("view-error"), e);
+  for await (const part of multipart(answer)) {
+    const url = URL.createObjectURL(new Blob([part.body], { type: "image/jpeg" }));
+    const old = img.src;
+    img.src = url;
+    if (old.startsWith("blob:")) URL.revokeObjectURL(old);
+    const frame = Number(part.headers["x-frame-number"]);
+    img.dataset.frame = String(frame);
+    img.dataset.timestampNs = part.headers["x-timestamp-ns"];
+    img.dataset.width = part.headers["x-image-width"];
+    img.dataset.height = part.headers["x-image-height"];
+    shown += 1;
+    $("live-frame").textContent = String(frame);
+    $("live-time").textContent = timeOf(part.headers["x-timestamp-ns"]);
+    $("live-fps").textContent = (shown / ((performance.now() - started) / 1000)).toFixed(1);
+    $("live-size").textContent = `${img.dataset.width}×${img.dataset.height}`;
+    thermal(part.headers);
+    form.reached(frame);
+    state.frame = frame;
   }
 }
 

@@ -27,7 +27,8 @@ from elphel_camd import preview
 from elphel_camd.api.deps import READS, FrameQuery, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.api.models import Problem
-from elphel_camd.errors import CameraError, ParameterRangeError
+from elphel_camd.boards.base import Frame
+from elphel_camd.errors import CameraError, FrameNotAvailableError, ParameterRangeError
 from elphel_camd.sensors.lepton35 import Lepton35
 from elphel_camd.service import CameraService
 
@@ -38,6 +39,7 @@ router = APIRouter()
 MAX_STREAMS = 4  # MJPEG streams served at once (all ports together)
 MAX_FPS = 30.0
 _CACHE_SIZE = 16
+_NEXT_FRAME_TRIES = 3
 _THERMAL_TTL_S = 2.0  # how long a Lepton's TLinear setting read over CCI is reused
 _SCALES = {"1": 1, "1/2": 2, "0.5": 2, "1/4": 4, "0.25": 4, "1/8": 8, "0.125": 8}
 _SCALE_ALLOWED = "1, 1/2, 1/4 or 1/8 (also 0.5, 0.25, 0.125)"
@@ -139,6 +141,21 @@ _cache = PreviewCache()
 _slots = StreamSlots()
 
 
+def _capture(service: CameraService, port: int, frame: int | None) -> tuple[Frame, dict[str, Any]]:
+    """A frame with its metadata; the next one again if the next one went stale.
+
+    A frame that takes long to form (a large window on a slow image path) can outlive
+    the parameter history kept for it; a live view then simply shows the one after.
+    """
+    for attempt in range(_NEXT_FRAME_TRIES):
+        try:
+            return service.capture(port, frame=frame)
+        except FrameNotAvailableError:
+            if frame is not None or attempt == _NEXT_FRAME_TRIES - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
 def render(
     service: CameraService,
     port: int,
@@ -151,7 +168,7 @@ def render(
 ) -> Rendered:
     """The preview of the next frame of a port (or of recent frame ``frame``)."""
     driver = service.sensor(port)
-    got, metadata = service.capture(port, frame=frame)
+    got, metadata = _capture(service, port, frame)
     thermal = None
     if isinstance(driver, Lepton35):
         on, k = _cache.thermal(service, port, driver)
@@ -351,7 +368,7 @@ def get_histogram(service: Service, port: PortPath, frame: FrameQuery = None) ->
     exposed), ``clipped_low`` pixels at 0.
     """
     driver = service.sensor(port)
-    got, metadata = service.capture(port, frame=frame)
+    got, metadata = _capture(service, port, frame)
     counts = preview.histogram(got.image, bayer=metadata["bayer"], bits=driver.bits)
     return JSONResponse(
         {"port": port, "frame": got.frame, "timestamp_ns": got.timestamp_ns, **counts}
