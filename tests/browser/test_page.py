@@ -222,9 +222,22 @@ def test_without_a_token_the_controls_need_it_and_with_it_they_work(browser, def
 
 @pytest.fixture(scope="module")
 def quad_rig() -> Iterator[Any]:
+    """The quad scenario on one common trigger at 5 Hz (port 0 the master), small windows.
+
+    The trigger starts first: a port in snapshot mode without a trigger takes no frames.
+    """
     for rig in rig_of("quad"):
+        auth = {"Authorization": f"Bearer {rig.token}"}
+
+        def patch(port: int, changes: dict[str, int]) -> None:
+            url = f"{rig.camera_url}/api/v1/ports/{port}/params"
+            httpx.patch(url, json=changes, headers=auth, timeout=30).raise_for_status()
+
         for port in range(4):
             small_window(rig, port)
+        patch(0, {"TRIG_MASTER": 0, "TRIG_PERIOD": 20_000_000})
+        for port in range(4):
+            patch(port, {"TRIG": 4, "TRIG_MASTER": 0})
         yield rig
 
 

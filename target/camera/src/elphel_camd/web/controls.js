@@ -144,19 +144,19 @@ export class ParamForm {
           ? `${b.parameter}=${JSON.stringify(b.value)} refused; allowed: ${b.allowed}`
           : b.detail;
       } else error.textContent = String(e);
-      this.show(this.values); // back to the values in effect
+      this.show(this.values, { force: true }); // back to the values in effect (the message quotes the refused one)
     }
   }
 
   // Show parameter values (raw API units) in the controls, except the one being edited.
-  show(values) {
+  show(values, { force = false } = {}) {
     this.values = { ...this.values, ...values };
     if (!this.schema) return;
     for (const [name, raw] of Object.entries(values)) {
       const spec = this.schema.params[name];
       if (!spec) continue;
       for (const input of this.host.querySelectorAll(`[name="${name}"]`)) {
-        if (input === document.activeElement && input.type === "number") continue;
+        if (!force && input === document.activeElement && input.type === "number") continue;
         if (input.type === "checkbox") input.checked = Boolean(raw);
         else if (input.dataset.role === "slider") input.value = String(toSlider(spec, raw));
         else input.value = input.tagName === "SELECT" ? String(raw) : tidy(shown(spec, raw));

@@ -333,8 +333,17 @@ async function quadLoop() {
   state.quad = run;
   while (state.quad === run) {
     try {
+      // The ports' current frames, read until they agree on one trigger (a read can
+      // straddle a trigger); then the previews of exactly those frames.
+      let frames;
+      for (let attempt = 0; attempt < 4; attempt++) {
+        frames = await Promise.all(ports.map((port) => json(`/ports/${port}/frame`)));
+        if (new Set(frames.map((f) => f.timestamp_ns)).size === 1) break;
+      }
       const answers = await Promise.all(
-        ports.map((port) => request(`/ports/${port}/preview`, { query: { scale: "1/8" } })),
+        ports.map((port, k) =>
+          request(`/ports/${port}/preview`, { query: { scale: "1/8", frame: String(frames[k].frame) } }),
+        ),
       );
       const shots = await Promise.all(answers.map(async (a) => ({ headers: a.headers, blob: await a.blob() })));
       if (state.quad !== run) break;
