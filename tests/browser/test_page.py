@@ -83,22 +83,27 @@ def test_exposure_slider_sets_expos_and_shows_the_frame_it_took_effect(opened, d
     assert abs(before - wanted_us) > 100
     slider = page.locator("input[type=range][name=EXPOS]")
     slider.focus()
-    slider.evaluate(
-        "(el, v) => { el.value = String(v); el.dispatchEvent(new Event('input', {bubbles: true}));"
-        " el.dispatchEvent(new Event('change', {bubbles: true})); }",
-        position,
-    )
+    with page.expect_response(lambda r: r.request.method == "PATCH") as patched:
+        slider.evaluate(
+            "(el, v) => { el.value = String(v);"
+            " el.dispatchEvent(new Event('input', {bubbles: true}));"
+            " el.dispatchEvent(new Event('change', {bubbles: true})); }",
+            position,
+        )
+    answer = patched.value.json()
+    assert patched.value.request.post_data_json == {"EXPOS": wanted_us}
     effect = page.locator("[data-effect-for=EXPOS]")
     page.wait_for_function(
         "() => document.querySelector('[data-effect-for=EXPOS]').dataset.inEffect === 'true'",
         timeout=30_000,
     )
     at = int(effect.get_attribute("data-frame") or -1)
+    assert at == answer["frame"]
     assert f"in effect from frame {at}" in effect.inner_text()
-    params = rest(default_rig, f"/ports/0/params?frame={at}")
+    params = rest(default_rig, "/ports/0/params")
     row_us = params["EXPOS"] / params["VEXPOS"]
     assert abs(params["EXPOS"] - wanted_us) <= row_us  # EXPOS is rounded to whole rows
-    assert rest(default_rig, "/ports/0/params")["EXPOS"] == params["EXPOS"]
+    assert params["EXPOS"] == answer["params"]["EXPOS"]
     assert opened.frame() >= at
     # The field shows the value read back, in ms.
     field = page.locator("input[type=number][name=EXPOS]")
@@ -132,13 +137,12 @@ def test_dragging_on_the_view_sets_the_snapped_window_and_the_view_changes_shape
     assert abs(after["WOI_HEIGHT"] - 0.37 * before["WOI_HEIGHT"]) <= 4
     assert abs(after["WOI_LEFT"] - (before["WOI_LEFT"] + 0.10 * before["WOI_WIDTH"])) <= 4
     assert abs(after["WOI_TOP"] - (before["WOI_TOP"] + 0.20 * before["WOI_HEIGHT"])) <= 4
-    # The live view takes the new shape.
+    # The live view takes the new shape (a quarter of the new window).
+    w, h = after["WOI_WIDTH"] // 4, after["WOI_HEIGHT"] // 4
     page.wait_for_function(
-        f"() => document.querySelector('#live').naturalWidth === {after['WOI_WIDTH'] // 4}",
-        timeout=30_000,
+        f"() => live.naturalWidth === {w} && live.naturalHeight === {h}", timeout=30_000
     )
-    natural = page.evaluate("() => [live.naturalWidth, live.naturalHeight]")
-    assert natural == [after["WOI_WIDTH"] // 4, after["WOI_HEIGHT"] // 4]
+    assert page.get_attribute("#live", "data-width") == str(after["WOI_WIDTH"])
     small_window(default_rig, 0)
 
 
@@ -267,6 +271,8 @@ def test_the_quad_overview_shows_four_views_of_one_trigger(browser, quad_rig):
 
 def test_the_lepton_view_is_false_colour_with_a_celsius_scale(browser):
     for rig in rig_of("mixed"):
+        small_window(rig, 0)  # the Bayer ports' full frames take seconds to simulate
+        small_window(rig, 1)
         o = Opened(browser, rig, token=rig.token)
         try:
             page = o.page
