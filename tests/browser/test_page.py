@@ -137,8 +137,11 @@ def test_dragging_on_the_view_sets_the_snapped_window_and_the_view_changes_shape
     assert abs(after["WOI_HEIGHT"] - 0.37 * before["WOI_HEIGHT"]) <= 4
     assert abs(after["WOI_LEFT"] - (before["WOI_LEFT"] + 0.10 * before["WOI_WIDTH"])) <= 4
     assert abs(after["WOI_TOP"] - (before["WOI_TOP"] + 0.20 * before["WOI_HEIGHT"])) <= 4
-    # The live view takes the new shape (a quarter of the new window).
-    w, h = after["WOI_WIDTH"] // 4, after["WOI_HEIGHT"] // 4
+    # The live view takes the new shape (at the scale the page chose for it).
+    page.wait_for_timeout(500)
+    factor = int(page.get_attribute("#live", "data-scale") or 0)
+    assert factor in (1, 2, 4, 8)
+    w, h = after["WOI_WIDTH"] // factor, after["WOI_HEIGHT"] // factor
     page.wait_for_function(
         f"() => live.naturalWidth === {w} && live.naturalHeight === {h}", timeout=30_000
     )
@@ -233,7 +236,7 @@ def quad_rig() -> Iterator[Any]:
     for rig in rig_of("quad"):
         auth = {"Authorization": f"Bearer {rig.token}"}
 
-        def patch(port: int, changes: dict[str, int]) -> None:
+        def patch(port: int, changes: dict[str, int], rig: Any = rig, auth: Any = auth) -> None:
             url = f"{rig.camera_url}/api/v1/ports/{port}/params"
             httpx.patch(url, json=changes, headers=auth, timeout=30).raise_for_status()
 
@@ -261,9 +264,10 @@ def test_the_quad_overview_shows_four_views_of_one_trigger(browser, quad_rig):
         assert [p for p, _ in stamps] == ["0", "1", "2", "3"]
         assert len({t for _, t in stamps}) == 1
         for port in range(4):
-            assert page.locator(f"#quad-grid img[data-port='{port}']").evaluate(
-                "e => e.naturalWidth"
-            ) == 40
+            assert (
+                page.locator(f"#quad-grid img[data-port='{port}']").evaluate("e => e.naturalWidth")
+                == 320 // 8
+            )
         page.screenshot(path=str(DOCS_IMG / "browser-quad.png"), full_page=True)
     finally:
         o.close()

@@ -82,9 +82,18 @@ async function liveView(port) {
   }
 }
 
+// The largest reduction that keeps the preview at least 640 px wide (1/8 at most).
+function scaleFor(width) {
+  let factor = 1;
+  while (factor < 8 && width / (factor * 2) >= 640) factor *= 2;
+  return factor;
+}
+
 async function streamInto(img, port, signal) {
+  const factor = scaleFor(state.params.WOI_WIDTH || 640);
+  img.dataset.scale = String(factor);
   const answer = await request(`/ports/${port}/preview.mjpeg`, {
-    query: { scale: "1/4", fps: "10" },
+    query: { scale: `1/${factor}`, fps: "10" },
     signal,
   });
   $("view-error").textContent = "";
@@ -239,6 +248,7 @@ async function setWindow(woi) {
     const answer = await json(`/ports/${state.port}/params`, { method: "PATCH", body: woi });
     state.params = answer.params;
     form.show(answer.params);
+    if (!state.quad) liveView(state.port); // the preview's scale follows the window
     $("woi-values").textContent = `${woi.WOI_WIDTH}×${woi.WOI_HEIGHT} at (${woi.WOI_LEFT}, ${woi.WOI_TOP}), frame ${answer.frame}`;
     $("woi-values").dataset.frame = String(answer.frame);
   } catch (e) {

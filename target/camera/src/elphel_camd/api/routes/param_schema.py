@@ -18,8 +18,10 @@ from fastapi.responses import JSONResponse
 from elphel_camd.api.deps import READS, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.params import PARAMS, TRIG_VALUES
+from elphel_camd.sensors import lepton35
 from elphel_camd.sensors.aptina import AptinaSensor
 from elphel_camd.sensors.base import SensorDriver
+from elphel_camd.sensors.lepton35 import Lepton35
 
 router = APIRouter()
 
@@ -55,6 +57,10 @@ def _limits(driver: SensorDriver, state: dict[str, int]) -> dict[str, tuple[int,
         row_s = driver.row_time_s(state["WOI_WIDTH"])
         out["VEXPOS"] = (1, driver.exposure_rows_max)
         out["EXPOS"] = (1, math.floor(driver.exposure_rows_max * row_s * 1e6))
+    elif isinstance(driver, Lepton35):
+        out.update(WOI_LEFT=(0, 0), WOI_TOP=(0, 0), WOI_WIDTH=(lepton35.WIDTH, lepton35.WIDTH))
+        out["WOI_HEIGHT"] = (lepton35.HEIGHT, lepton35.HEIGHT_TELEMETRY)
+        out["TRIG"] = (0, 0)
     return out
 
 

@@ -41,7 +41,7 @@ MAX_FPS = 30.0
 _CACHE_SIZE = 16
 _NEXT_FRAME_TRIES = 3
 _THERMAL_TTL_S = 2.0  # how long a Lepton's TLinear setting read over CCI is reused
-_SCALES = {"1": 1, "1/2": 2, "0.5": 2, "1/4": 4, "0.25": 4, "1/8": 8, "0.125": 8}
+_SCALES = {"1": 1, "1/1": 1, "1/2": 2, "0.5": 2, "1/4": 4, "0.25": 4, "1/8": 8, "0.125": 8}
 _SCALE_ALLOWED = "1, 1/2, 1/4 or 1/8 (also 0.5, 0.25, 0.125)"
 BOUNDARY = "frame"
 
