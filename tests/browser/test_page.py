@@ -76,7 +76,7 @@ def test_page_loads_without_console_errors_or_outside_requests(browser, default_
 def test_exposure_slider_sets_expos_and_shows_the_frame_it_took_effect(opened, default_rig):
     page = opened.page
     schema = rest(default_rig, "/ports/0/params/schema")["params"]["EXPOS"]
-    position = 420
+    position = 540  # about 7 ms: a well-exposed picture for the screenshot
     lo, hi = math.log(max(schema["minimum"], 1)), math.log(schema["maximum"])
     wanted_us = round(math.exp(lo + position / 1000 * (hi - lo)))
     before = rest(default_rig, "/ports/0/params")["EXPOS"]
