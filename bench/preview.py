@@ -74,6 +74,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0)
     args = parser.parse_args()
 
+    load = os.getloadavg()[0]  # other work on the machine (the figures depend on it)
     board = SimCameraBoard(build("default", seed=1), seed=1)
     camera = CameraService(board)
     camera.set_params(0, {"WOI_WIDTH": WIDTH, "WOI_HEIGHT": HEIGHT, "WOI_TOP": 4})
@@ -149,6 +150,7 @@ def main() -> None:
                 "frame": [WIDTH, HEIGHT],
                 "preview": [WIDTH // FACTOR, HEIGHT // FACTOR],
                 "cpus": os.cpu_count(),
+                "load_average_1min": round(load, 1),
                 "seconds": round(elapsed, 2),
                 "previews": len(total_ms),
                 "fps": round(fps, 1),

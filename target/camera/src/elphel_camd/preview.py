@@ -97,12 +97,17 @@ def _cell_sums(image: NDArray[np.uint16], cell: int, *, bits: int = 16) -> NDArr
     # 16-bit sums where they cannot overflow (12-bit pixels, up to 16 per sum): half the
     # memory traffic of 32-bit ones.
     wide = bits + 2 * (cell - 1).bit_length() > 16
-    acc: NDArray[Any] = rows[:, 0].astype(np.uint32 if wide else np.uint16)
-    for k in range(1, cell):
+    dtype = np.uint32 if wide else np.uint16
+    acc: NDArray[Any] = (
+        np.add(rows[:, 0], rows[:, 1], dtype=dtype) if cell > 1 else rows[:, 0].astype(dtype)
+    )
+    for k in range(2, cell):
         acc += rows[:, k]
     cols = acc.reshape(h, 2, w, cell, 2)
-    out: NDArray[Any] = cols[:, :, :, 0, :].copy()
-    for k in range(1, cell):
+    out: NDArray[Any] = (
+        np.add(cols[:, :, :, 0, :], cols[:, :, :, 1, :]) if cell > 1 else cols[:, :, :, 0, :]
+    )
+    for k in range(2, cell):
         out += cols[:, :, :, k, :]
     return out
 
