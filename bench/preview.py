@@ -4,9 +4,9 @@ A 2592 x 1936 Bayer port (the simulated MT9P006, 12 bits) is previewed at 1/4 sc
 (648 x 484 JPEG) the way `GET /ports/{port}/preview` makes it: binned demosaic, grey-world
 white balance, gamma, JPEG. It runs for --seconds on distinct frames (the frames the
 simulator formed, each also shifted by a few pixels, so no two previews share pixels),
-while two other clients keep the same daemon busy over loopback HTTP (each: a parameter
-read, a frame number and a histogram of a full frame, then 0.25 s pause), as a second page
-and a monitoring script would.
+while two other clients (in another process) keep the same daemon busy over loopback
+HTTP (each: a parameter read, a frame number and a histogram of a full frame, then a
+0.25 s pause), as a second page and a monitoring script would.
 
 Peers, measured in the same run on the same frames:
 
@@ -26,6 +26,8 @@ import json
 import os
 import socket
 import statistics
+import subprocess
+import sys
 import threading
 import time
 from typing import Any
@@ -59,14 +61,26 @@ def serve(app: Any) -> tuple[uvicorn.Server, str, threading.Thread]:
     return server, f"http://127.0.0.1:{sock.getsockname()[1]}", thread
 
 
-def other_client(url: str, frame: int, stop: threading.Event, counts: list[int]) -> None:
+# The other clients run in their own process, as they would on other machines: only the
+# daemon's own work (serving them) shares this process with the previews.
+OTHER_CLIENTS = """
+import sys, threading, time, httpx
+url, frame, seconds, pause = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
+done = []
+def run():
     with httpx.Client(base_url=url, timeout=60) as c:
-        while not stop.is_set():
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
             c.get("/api/v1/ports/0/params").raise_for_status()
             c.get("/api/v1/ports/0/frame").raise_for_status()
             c.get("/api/v1/ports/0/histogram", params={"frame": frame}).raise_for_status()
-            counts.append(3)
-            stop.wait(PAUSE_S)
+            done.append(3)
+            time.sleep(pause)
+threads = [threading.Thread(target=run) for _ in range(2)]
+for t in threads: t.start()
+for t in threads: t.join()
+print(sum(done))
+"""
 
 
 def main() -> None:
@@ -106,13 +120,19 @@ def main() -> None:
             r.raise_for_status()
             endpoint_size = [int(r.headers["x-image-width"]), len(r.content)]
 
-        stop, served = threading.Event(), []
-        clients = [
-            threading.Thread(target=other_client, args=(url, frames[0][0], stop, served))
-            for _ in range(2)
-        ]
-        for t in clients:
-            t.start()
+        others = subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                OTHER_CLIENTS,
+                url,
+                str(frames[0][0]),
+                str(args.seconds),
+                str(PAUSE_S),
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         variants = [
             (np.roll(image, (2 * dy, 2 * dx), axis=(0, 1)), bayer)
             for _, image, bayer in frames
@@ -133,9 +153,10 @@ def main() -> None:
             encode_ms.append((t2 - t1) * 1e3)
             sizes.append(len(jpeg))
         elapsed = time.perf_counter() - started
-        stop.set()
-        for t in clients:
-            t.join()
+        out, _ = others.communicate(timeout=120)
+        if others.returncode:
+            raise RuntimeError(f"the other clients failed ({others.returncode})")
+        served = int(out.strip())
     finally:
         server.should_exit = True
         thread.join()
@@ -164,8 +185,8 @@ def main() -> None:
                 "encode_vs_fetch": round(encode / fetch, 3),
                 "form_ms": round(statistics.median(form_ms), 1),
                 "encode_vs_form": round(encode / statistics.median(form_ms), 4),
-                "other_client_requests": sum(served),
-                "other_client_rps": round(sum(served) / elapsed, 1),
+                "other_client_requests": served,
+                "other_client_rps": round(served / elapsed, 1),
                 "endpoint_preview": endpoint_size,
             }
         )
