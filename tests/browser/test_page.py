@@ -171,6 +171,29 @@ def test_a_bad_value_shows_the_daemons_error_with_the_range_and_changes_nothing(
     }
 
 
+def test_a_change_at_frame_plus_k_is_scheduled_k_frames_ahead(opened, default_rig):
+    page = opened.page
+    page.check("input[name=when][value=ahead]")
+    page.fill("#ahead", "6")
+    field = page.locator("input[type=number][name=GAINB]")
+    field.fill("1.5")
+    with page.expect_response(lambda r: r.request.method == "PATCH") as patched:
+        field.press("Enter")
+    assert "ahead=6" in patched.value.url
+    answer = patched.value.json()
+    # Scheduled, not yet in effect: the frame before still has the old gain.
+    assert rest(default_rig, f"/ports/0/params?frame={answer['frame'] - 1}")["GAINB"] == 0x10000
+    assert rest(default_rig, f"/ports/0/params?frame={answer['frame']}")["GAINB"] == 0x18000
+    effect = page.locator("[data-effect-for=GAINB]")
+    page.wait_for_function(
+        "() => document.querySelector('[data-effect-for=GAINB]').dataset.inEffect === 'true'",
+        timeout=30_000,
+    )
+    assert f"in effect from frame {answer['frame']}" in effect.inner_text()
+    assert rest(default_rig, "/ports/0/params")["GAINB"] == 0x18000
+    page.check("input[name=when][value=now]")
+
+
 def test_the_live_view_advances_at_the_streams_rate(opened, default_rig):
     page = opened.page
     seen = []
