@@ -65,6 +65,8 @@ def test_api_conforms_to_its_schema():
         def run(case, on_port_0):
             if on_port_0 and case.path_parameters and "port" in case.path_parameters:
                 case.path_parameters["port"] = 0  # the port with a sensor, most of the time
+            if case.path.endswith("/preview.mjpeg"):  # a live stream ends only by count
+                case.query = {**(case.query or {}), "count": 1}
             if case.query and isinstance(case.query.get("count"), int):
                 case.query["count"] = min(case.query["count"], 3)  # bursts render every frame
             case.call_and_validate(headers={"Authorization": f"Bearer {TOKEN}"}, checks=CHECKS)

@@ -84,6 +84,7 @@ RDEPENDS:${PN} = "\
     python3-json \
     python3-logging \
     python3-numpy \
+    python3-pillow \
     python3-pydantic \
     python3-pydantic-settings \
     python3-smbus2 \

@@ -16,7 +16,8 @@ from elphel_camd import __version__
 from elphel_camd.api.deps import ApiOptions
 from elphel_camd.api.errors import add_error_handlers
 from elphel_camd.api.middleware import BodyLimit
-from elphel_camd.api.routes import ROUTERS
+from elphel_camd.api.routes import ROUTERS, page, param_schema
+from elphel_camd.api.routes import preview as preview_routes
 from elphel_camd.service import CameraService
 
 API = "/api/v1"
@@ -61,4 +62,9 @@ def create_app(
     add_error_handlers(app)
     for router in ROUTERS:
         app.include_router(router, prefix=API)
+    # The browser page: its API (previews, the parameter description), / and /web/.
+    app.include_router(param_schema.router, prefix=API)
+    app.include_router(preview_routes.router, prefix=API)
+    app.include_router(page.router)
+    app.mount("/web", page.static_files(), name="web")
     return app
