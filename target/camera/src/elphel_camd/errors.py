@@ -39,6 +39,18 @@ class ParameterRangeError(CameraError, ValueError):
         self.allowed = allowed
 
 
+class RegisterNotFoundError(ParameterRangeError, LookupError):
+    """A register address the port's sensor does not have (names the ones it has)."""
+
+
+class StateWriteError(CameraError, OSError):
+    """The state directory cannot be written (disk full, read-only): the change was refused.
+
+    Names the file and the operating system's reason; the settings in effect and on disk
+    are the last ones saved.
+    """
+
+
 class FrameScheduleError(CameraError, ValueError):
     """A change was requested for a frame that cannot take it."""
 

@@ -25,7 +25,9 @@ from elphel_camd.errors import (
     I2CError,
     ParameterRangeError,
     PortError,
+    RegisterNotFoundError,
     SensorNotFoundError,
+    StateWriteError,
     UnsupportedError,
 )
 from elphel_camd.events import EventHub
@@ -249,18 +251,25 @@ class CameraService:
                 others = [s for p, s in self.sequencers.items() if p != port]
                 for other in others:  # check first: all ports or none
                     other.check(common)
-            target = seq.request(changes, frame=frame, ahead=ahead)
-            if common:
-                for other in others:
-                    other.request(common)
-            if not self.scheduled:
-                seq.flush()
-            snapshots = []
-            for p in ports:
-                self._versions[p] += 1
-                snapshots.append((p, self._versions[p], self._persistent(p)))
-        for p, version, params in snapshots:
-            self._save(p, version, params)
+            # All or nothing, saving included: a change that cannot be saved (disk full,
+            # read-only state directory) is taken back and refused.
+            before = {p: self.sequencers[p].schedule() for p in ports}
+            try:
+                target = seq.request(changes, frame=frame, ahead=ahead)
+                if common:
+                    for other in others:
+                        other.request(common)
+                if not self.scheduled:
+                    seq.flush()
+                for p in ports:
+                    self._versions[p] += 1
+                    self._save(p, self._versions[p], self._persistent(p))
+            except StateWriteError:
+                for p in ports:
+                    self.sequencers[p].restore_schedule(before[p])
+                if not self.scheduled:
+                    seq.flush()  # the board was programmed at once: program it back
+                raise
         self.events.publish("params", {"port": port, "frame": target, "changes": dict(changes)})
         return target
 
@@ -306,7 +315,7 @@ class CameraService:
         register = table.at(address)
         if register is None:
             known = ", ".join(f"0x{r.address:02x}" for r in table)
-            raise ParameterRangeError(
+            raise RegisterNotFoundError(
                 "address", f"0x{address:x}", f"a {table.model} register address: {known}"
             )
         return register
