@@ -134,7 +134,8 @@ class ParamStore:
     the disk within `flush_interval_s` (``sync_each=True`` flushes before `save`
     returns) and, once a journal passes `compact_bytes`, writes its last state as the new
     snapshot (atomically) and replaces the journal by one holding only the newest line
-    (also atomically), so the journal stays near `compact_bytes` under steady writes too.
+    (also atomically), so the journal stays near `compact_bytes` under steady writes too:
+    a save that finds it past twice that compacts before it returns.
     A save that cannot be written (disk full, read-only directory) raises
     `StateWriteError` and leaves the files as they were.
 
@@ -203,8 +204,12 @@ class ParamStore:
                 ) from e
             self._last[port] = text
         if self.sync_each:
-            if os.fstat(fd).st_size > self.compact_bytes:
+            if size + len(line) > self.compact_bytes:
                 self._compact(port)
+        elif size + len(line) > 2 * self.compact_bytes:
+            # Writes faster than the flusher compacts: this one compacts (milliseconds,
+            # once per compact_bytes), so the journal never grows past twice its bound.
+            self._compact(port)
         else:
             with self._wake:
                 self._dirty.add(port)

@@ -14,6 +14,7 @@ named as strings (``"NaN"``, ``"Infinity"``): JSON has no such numbers.
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -21,7 +22,6 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Match
 
 from elphel_camd.api.models import Problem, schema_allowed
 from elphel_camd.errors import (
@@ -152,15 +152,14 @@ def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
 
 
 def allowed_methods(request: Request) -> list[str]:
-    """Every method the app's routes answer on the request's path (for ``Allow``)."""
+    """Every method the API's schema declares on the request's path (for ``Allow``)."""
     methods: set[str] = set()
-    for route in request.app.router.routes:
-        match, _ = route.matches({**request.scope, "method": "GET"})
-        if match is not Match.NONE:
-            route_methods = getattr(route, "methods", None) or set()
-            methods.update(route_methods)
-            if "GET" in route_methods:
-                methods.add("HEAD")
+    for template, item in request.app.openapi().get("paths", {}).items():
+        pattern = re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(template))
+        if re.fullmatch(pattern, request.url.path):
+            methods.update(m.upper() for m in item)
+    if "GET" in methods:
+        methods.add("HEAD")
     return sorted(methods)
 
 
