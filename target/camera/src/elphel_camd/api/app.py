@@ -132,9 +132,15 @@ def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
     """
     schema.setdefault("components", {}).setdefault("schemas", {})
     schema["components"]["schemas"].setdefault("Problem", Problem.model_json_schema())
+    invalid = {
+        "description": "invalid by the schema: names the parameter, the value and what is allowed",
+        "content": {"application/json": {"schema": _PROBLEM_REF}},
+    }
     for path, item in schema.get("paths", {}).items():
         for method, operation in item.items():
             responses = operation.setdefault("responses", {})
+            if operation.get("parameters") or operation.get("requestBody"):
+                responses["422"] = invalid  # the API's problem body, not FastAPI's own
             if public_reads and method in _READ_METHODS:
                 operation.pop("security", None)
                 responses.pop("401", None)
@@ -142,6 +148,14 @@ def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
                 ok = responses.get("200", {}).get("content", {}).get("text/event-stream")
                 if ok is not None:
                     ok["schema"] = EVENT_SCHEMA
+    schemas = schema["components"]["schemas"]
+    if not any(
+        "HTTPValidationError" in str(op)
+        for item in schema["paths"].values()
+        for op in item.values()
+    ):
+        schemas.pop("HTTPValidationError", None)
+        schemas.pop("ValidationError", None)
     return schema
 
 

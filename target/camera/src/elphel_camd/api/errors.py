@@ -165,6 +165,19 @@ def allowed_methods(request: Request) -> list[str]:
 
 def _on_http(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
+    if exc.status_code == 400 and request.method in ("PATCH", "PUT", "POST"):
+        # FastAPI's answer to a body it cannot decode (not UTF-8): invalid input, like
+        # a body that is not JSON.
+        return JSONResponse(
+            status_code=422,
+            content={
+                "detail": f"the request body cannot be read: {exc.detail}",
+                "error": "parameter_range",
+                "parameter": "body",
+                "value": None,
+                "allowed": "a JSON object (UTF-8)",
+            },
+        )
     headers = dict(exc.headers or {})
     if exc.status_code == 405:
         # Starlette names the methods of the first route that matched the path only; a

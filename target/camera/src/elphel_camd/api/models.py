@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, create_model
 
 from elphel_camd.events import EVENT_TYPES
 from elphel_camd.params import PARAMS, TRIG_VALUES, ParamSpec
@@ -54,18 +54,28 @@ def _field(spec: ParamSpec) -> Any:
     )
 
 
+def whole_number(value: Any) -> Any:
+    """A float that is a whole number (6396.0: an integer to JSON Schema) as an int."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+Integer = Annotated[int, BeforeValidator(whole_number)]
+
+
 def _enum_type(allowed: tuple[int, ...]) -> Any:
     def check(value: int) -> int:
         if value not in allowed:
             raise ValueError(f"not one of {', '.join(map(str, allowed))}")
         return value
 
-    return Annotated[int, AfterValidator(check)]
+    return Annotated[int, BeforeValidator(whole_number), AfterValidator(check)]
 
 
 def _params_model(name: str, specs: list[ParamSpec], doc: str) -> type[BaseModel]:
     fields: dict[str, Any] = {
-        spec.name: (_enum_type(ENUMS[spec.name]) if spec.name in ENUMS else int, _field(spec))
+        spec.name: (_enum_type(ENUMS[spec.name]) if spec.name in ENUMS else Integer, _field(spec))
         for spec in specs
     }
     config = ConfigDict(extra="forbid", json_schema_extra=_drop_defaults)
@@ -206,7 +216,7 @@ class RegisterWrite(BaseModel):
 
     model_config = STRICT
 
-    value: int = Field(strict=True, ge=0, le=0xFFFF)
+    value: Integer = Field(strict=True, ge=0, le=0xFFFF)
 
 
 class RegisterEntry(BaseModel):
