@@ -135,7 +135,7 @@ def read_config_file(path: Path) -> dict[str, Any]:
     """The JSON object of a config file (ConfigError if unreadable or not an object)."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ConfigError(f"cannot read config {path}: {e}") from e
     if not isinstance(data, dict):
         raise ConfigError(f"config {path}: a JSON object is needed, not {type(data).__name__}")
