@@ -395,3 +395,68 @@ def test_token_rotate_writes_a_new_file_0600(tmp_path, capsys):
     assert capsys.readouterr().out == ""
     assert path.read_text().strip() not in ("", first)
     assert not list(Path(tmp_path).glob(".*.tmp"))
+
+
+# -- I2C fault in the middle of a multi-parameter PATCH ----------------------------------------
+
+
+class ImmediateBoard:
+    """The simulated chips on a board without frame syncs: a PATCH writes them at once."""
+
+    name = "immediate"
+    capabilities = frozenset()
+
+    def __init__(self, sim: SimCameraBoard) -> None:
+        self.sim = sim
+
+    def buses(self):
+        return self.sim.buses()
+
+    def on_frame_sync(self, callback) -> None:
+        pass
+
+    def program(self, port, function, state) -> None:
+        pass
+
+    def capture(self, port, *, frame=None):
+        raise AssertionError("not used")
+
+    def close(self) -> None:
+        self.sim.close()
+
+
+def test_i2c_fault_mid_patch_changes_nothing_and_names_port_address_register():
+    sim = SimCameraBoard(build("default", seed=4), seed=4, noise=False)
+    camera = CameraService(ImmediateBoard(sim))
+    chip = sim.chips[0]
+    bus = sim.bus(0)
+    try:
+        with TestClient(create_app(camera, token=TOKEN)) as c:
+            before = c.get("/api/v1/ports/0/params", headers=AUTH).json()
+            registers = dict(chip.values)
+            real = bus.i2c_rdwr
+            calls = {"n": 0}
+
+            def flaky(*msgs):
+                calls["n"] += 1
+                if calls["n"] == 4:  # some registers written already
+                    bus.sim_nak(2)  # both attempts of one transfer
+                return real(*msgs)
+
+            bus.i2c_rdwr = flaky
+            change = {**SMALL, "EXPOS": 2000, "GAINR": 0x20000, "FLIPH": 1}
+            r = c.patch("/api/v1/ports/0/params", json=change, headers=AUTH)
+            bus.i2c_rdwr = real
+            assert r.status_code == 503, r.text
+            body = r.json()
+            assert body["error"] == "i2c" and body["port"] == 0 and body["address"] == 0x48
+            assert isinstance(body["register"], int)
+            assert "port 0" in body["detail"] and "0x48" in body["detail"]
+            assert "nothing was changed" in body["detail"]
+            assert c.get("/api/v1/ports/0/params", headers=AUTH).json() == before
+            assert dict(chip.values) == registers
+            # The bus works again: the same change goes through whole.
+            r = c.patch("/api/v1/ports/0/params", json=change, headers=AUTH)
+            assert r.status_code == 200 and r.json()["params"]["FLIPH"] == 1
+    finally:
+        camera.close()

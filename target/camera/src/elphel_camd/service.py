@@ -25,6 +25,7 @@ from elphel_camd.errors import (
     I2CError,
     ParameterRangeError,
     PortError,
+    PortI2CError,
     RegisterNotFoundError,
     SensorNotFoundError,
     StateWriteError,
@@ -264,11 +265,18 @@ class CameraService:
                 for p in ports:
                     self._versions[p] += 1
                     self._save(p, self._versions[p], self._persistent(p))
-            except StateWriteError:
+            except (StateWriteError, I2CError) as e:
+                # All or nothing: take the change back; a board programmed at once (no
+                # frame syncs) gets the previous state written again.
                 for p in ports:
                     self.sequencers[p].restore_schedule(before[p])
                 if not self.scheduled:
-                    seq.flush()  # the board was programmed at once: program it back
+                    try:
+                        seq.flush()
+                    except I2CError as again:
+                        log.error("port %d: previous state not written back: %s", port, again)
+                if isinstance(e, I2CError):
+                    raise PortI2CError(port, e) from e
                 raise
         self.events.publish("params", {"port": port, "frame": target, "changes": dict(changes)})
         return target

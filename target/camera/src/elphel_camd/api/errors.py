@@ -33,6 +33,7 @@ from elphel_camd.errors import (
     I2CError,
     ParameterRangeError,
     PortError,
+    PortI2CError,
     RegisterNotFoundError,
     SensorNotFoundError,
     StateWriteError,
@@ -100,6 +101,10 @@ def error_body(exc: Exception, code: str) -> dict[str, Any]:
         body.update(
             parameter=exc.name, value=json_safe(jsonable_encoder(exc.value)), allowed=exc.allowed
         )
+    elif isinstance(exc, I2CError):
+        body.update(bus=exc.bus, address=exc.address, register=exc.register)
+        if isinstance(exc, PortI2CError):
+            body["port"] = exc.port
     elif isinstance(exc, FrameScheduleError):
         body.update(
             frame=exc.frame, this_frame=exc.this_frame, earliest=exc.earliest, latest=exc.latest
