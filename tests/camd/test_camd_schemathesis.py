@@ -5,7 +5,9 @@ board and on the mixed one (MT9P006 + MT9F002 + Lepton 3.5), with the token and 
 it, and every check schemathesis has runs on each answer: no server error; status, content
 type, headers and body as the schema declares; what the schema allows is accepted (or
 refused with a declared 404/409), what it refuses is refused; the declared security is
-what the daemon checks; ``Allow`` names the path's methods. The example count is bounded
+what the daemon checks (in process schemathesis' own auth probe does not run:
+tests/camd/test_security.py compares each operation's declared security with its
+answers); ``Allow`` names the path's methods. The example count is bounded
 (the full ``schemathesis run URL/openapi.json --checks all`` against ``elphel-sim up`` is
 the same contract, run from outside). The event stream is left out: it never ends by
 itself (tests/camd/test_security.py and tests/integration/test_camd_cli.py follow it).
