@@ -189,3 +189,89 @@ def test_sse_parser_gives_events_or_a_typed_error_naming_the_event(lines):
         if event is not None:
             assert isinstance(event.type, str) and isinstance(event.data, dict)
             assert event.id is None or event.id >= 0
+
+
+# -- DSI / ML_DATA TIFFs and the stage model ----------------------------------------------------
+
+
+def _ml_seed() -> bytes:
+    import io
+
+    import numpy as np
+    import tifffile
+
+    from elphel_host.tp.dsi import ML_LAYERS, properties_xml
+
+    side = 3
+    data = np.arange(len(ML_LAYERS) * (2 * side) ** 2, dtype=np.float32)
+    buf = io.BytesIO()
+    tifffile.imwrite(
+        buf,
+        data.reshape(len(ML_LAYERS), 2 * side, 2 * side),
+        imagej=True,
+        metadata={"Labels": list(ML_LAYERS), "Info": properties_xml({"tileWidth": side})},
+    )
+    return buf.getvalue()
+
+
+ML_SEED = _ml_seed()
+
+
+def _mutated(seed: bytes, edits: list[tuple[int, int]], cut: int | None) -> bytes:
+    out = bytearray(seed)
+    for at, value in edits:
+        out[at % len(out)] = value
+    return bytes(out[:cut] if cut is not None else out)
+
+
+tiffs = st.builds(
+    _mutated,
+    st.just(ML_SEED),
+    st.lists(st.tuples(st.integers(0, 2**16), st.integers(0, 255)), max_size=6),
+    st.none() | st.integers(0, len(ML_SEED)),
+)
+
+
+@FUZZ
+@given(content=tiffs | st.binary(max_size=64))
+def test_dsi_and_ml_data_readers_work_or_name_the_file(content):
+    from elphel_host.tp.dsi import read_dsi, read_ml_data
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write(Path(tmp), "ml.tiff", content)
+        for reader in (read_dsi, read_ml_data):
+            try:
+                reader(path)
+            except InputFormatError as e:
+                assert str(path) in str(e)
+
+
+def test_the_unmutated_ml_data_seed_reads():
+    from elphel_host.tp.dsi import read_ml_data
+
+    with tempfile.TemporaryDirectory() as tmp:
+        corr, other, _props = read_ml_data(write(Path(tmp), "ml.tiff", ML_SEED))
+    assert corr.shape == (2, 2, 3, 3, 4) and other.shape == (2, 2, 3)
+
+
+STAGE_MODEL = {"mm_per_step": 0.00125, "offset_mm": 1.5, "backlash_mm": 0.01}
+
+
+@FUZZ
+@given(
+    content=st.one_of(
+        raw_files,
+        st.builds(mutate, st.just(STAGE_MODEL), paths, json_values).map(as_text),
+    )
+)
+def test_stage_model_reader_works_or_names_the_file(content):
+    from elphel_host.stage.positioning import StageModel
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write(Path(tmp), "stage.json", content)
+        try:
+            model = StageModel.load(path)
+        except InputFormatError as e:
+            assert str(path) in str(e)
+        else:
+            assert model.mm_per_step > 0 and model.calibrated
