@@ -44,7 +44,9 @@ def camera(board, tmp_path):
 
 @pytest.fixture
 def client(camera):
-    with TestClient(create_app(camera, token=TOKEN)) as c:
+    # Reads public: these tests are about the answers; tests/camd/test_security.py checks
+    # that reads need the token by default.
+    with TestClient(create_app(camera, token=TOKEN, public_reads=True)) as c:
         yield c
 
 
@@ -55,7 +57,7 @@ def shared_client(tmp_path_factory):
     cam = CameraService(board, store=ParamStore(tmp_path_factory.mktemp("params")))
     cam.set_params(0, SMALL)
     board.sim_advance(frames=4)
-    with TestClient(create_app(cam, token=TOKEN)) as c:
+    with TestClient(create_app(cam, token=TOKEN, public_reads=True)) as c:
         yield c
     cam.close()
 
@@ -75,45 +77,56 @@ def test_openapi_states_every_parameter_with_unit_and_limits(client):
         assert "default" not in prop
 
 
+# Values every sensor rejects and that the OpenAPI schema refuses (422), and values the
+# schema allows but the MT9P006 refuses (409: its own limits, the window inside the sensor).
+SCHEMA_INVALID = {
+    "WOI_WIDTH": [3],
+    "WOI_HEIGHT": [5],
+    "WOI_LEFT": [1],
+    "WOI_TOP": [3],
+    "FLIPH": [2],
+    "FLIPV": [2],
+    "VEXPOS": [0],
+    "TRIG": [1, 5, 19],
+    "PF_HEIGHT": [3, 1],
+    "FPSFLAGS": [4],
+}
+SENSOR_REFUSED = {
+    "WOI_WIDTH": [2594],
+    "WOI_HEIGHT": [1946],
+    "WOI_LEFT": [2592],
+    "WOI_TOP": [1944],
+    "EXPOS": [10**9],
+    "TRIG_PERIOD": [2, 255],
+    "TRIG_MASTER": [1, 3],
+    "PF_HEIGHT": [2000],
+}
+
+
 def invalid_values(name):
-    """Values every sensor rejects for a writable parameter, and MT9P006-specific ones."""
+    """(value, status) pairs a writable parameter refuses on port 0 (an MT9P006)."""
     spec = PARAMS[name]
     values = [spec.minimum - 1, spec.maximum + 1, "12", 1.5, None, True, [1]]
-    values += {
-        "WOI_WIDTH": [2594, 3],
-        "WOI_HEIGHT": [1946, 5],
-        "WOI_LEFT": [2592, 1],
-        "WOI_TOP": [1944, 3],
-        "FLIPH": [2],
-        "FLIPV": [2],
-        "EXPOS": [10**9],
-        "VEXPOS": [0],
-        "GAINR": [0xFFFFF],
-        "TRIG": [1, 5, 19],
-        "TRIG_PERIOD": [2, 255],
-        "TRIG_MASTER": [1, 3],
-        "PF_HEIGHT": [3, 1, 2000],
-        "FPSFLAGS": [4],
-    }.get(name, [])
-    return values
+    values += SCHEMA_INVALID.get(name, [])
+    return [(v, 422) for v in values] + [(v, 409) for v in SENSOR_REFUSED.get(name, [])]
 
 
 WRITABLE = [n for n, s in PARAMS.items() if not s.read_only]
 
 
 @pytest.mark.parametrize("name", WRITABLE)
-def test_every_invalid_value_is_422_naming_it_and_changes_nothing(shared_client, name):
+def test_every_invalid_value_is_422_or_409_naming_it_and_changes_nothing(shared_client, name):
     client = shared_client
-    before = client.get("/api/v1/ports/0/params").json()
+    before = client.get("/api/v1/ports/0/params", headers=AUTH).json()
     valid = {"GAINR": 0x18000} if name == "GAINB" else {"GAINB": 0x18000}  # must not stick
-    for value in invalid_values(name):
+    for value, status in invalid_values(name):
         r = client.patch("/api/v1/ports/0/params", json={**valid, name: value}, headers=AUTH)
-        assert r.status_code == 422, (name, value, r.text)
+        assert r.status_code == status, (name, value, r.text)
         body = r.json()
         assert body["parameter"] == name, body
         assert body["value"] == value or body["value"] == str(value), body
         assert body["allowed"] and name in body["detail"], body
-    assert client.get("/api/v1/ports/0/params").json() == before
+    assert client.get("/api/v1/ports/0/params", headers=AUTH).json() == before
 
 
 def test_read_only_unknown_and_malformed_bodies_are_422(client):
@@ -207,20 +220,21 @@ def test_registers_read_write_and_validation(client, camera):
     assert w.status_code == 200, w.text
     assert client.get(f"/api/v1/ports/0/registers/{gain['address']}").json()["value"] == 0x10
     assert camera.board.chips[0].values[gain["address"]] == 0x10
-    unknown = client.get("/api/v1/ports/0/registers/0xee")
-    assert unknown.status_code == 422 and unknown.json()["parameter"] == "address"
+    unknown = client.get("/api/v1/ports/0/registers/0xee")  # allowed by the schema, not the chip
+    assert unknown.status_code == 404 and unknown.json()["parameter"] == "address"
+    assert unknown.json()["error"] == "no_such_register"
     assert "0xee" in unknown.json()["detail"]
     over = client.put(
         f"/api/v1/ports/0/registers/0x{gain['address']:x}",
         json={"value": gain["maximum"] + 1},
         headers=AUTH,
     )
-    assert over.status_code == 422
+    assert over.status_code == 409
     assert over.json()["parameter"] == "green1_gain"
     assert over.json()["value"] == gain["maximum"] + 1 and over.json()["allowed"]
     chip = next(r for r in table if r["access"] == "ro")
     ro = client.put(f"/api/v1/ports/0/registers/{chip['address']}", json={"value": 1}, headers=AUTH)
-    assert ro.status_code == 422 and ro.json()["parameter"] == chip["name"]
+    assert ro.status_code == 409 and ro.json()["parameter"] == chip["name"]
     assert client.put("/api/v1/ports/0/registers/0x35", json={"value": 1}).status_code == 401
     bad = client.get("/api/v1/ports/0/registers/zz")
     assert bad.status_code == 422 and bad.json()["parameter"] == "addr"
@@ -228,7 +242,7 @@ def test_registers_read_write_and_validation(client, camera):
 
 def test_i2c_fault_is_503_on_its_port_while_the_other_port_serves():
     board = two_port_board()
-    with TestClient(create_app(CameraService(board), token=TOKEN)) as c:
+    with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
         assert c.get("/api/v1/health").json()["status"] == "ok"
         board.bus(0).sim_stuck()
         h = c.get("/api/v1/health")
@@ -282,7 +296,8 @@ def test_security_token_read_protection_cors_and_size_limit(camera):
         assert c.get("/api/v1/ports/0/params", headers=AUTH).status_code == 200
         assert c.get("/api/v1/health").status_code == 200
     with TestClient(create_app(camera, token=TOKEN, max_body_bytes=2048)) as c:
-        assert c.get("/api/v1/ports/0/params").status_code == 200
+        assert c.get("/api/v1/ports/0/params").status_code == 401  # reads need it by default
+        assert c.get("/api/v1/ports/0/params", headers=AUTH).status_code == 200
         r = c.patch("/api/v1/ports/0/params", content=b"{" + b" " * 4096 + b"}", headers=AUTH)
         assert r.status_code == 413
         for method in ("patch", "put"):

@@ -277,7 +277,11 @@ def test_kill_9_during_200_writes_restarts_with_the_last_acknowledged_state(tmp_
     assert restarts >= 3
     final = Daemon(tmp_path, env)
     try:
-        now = httpx.get(final.url + "/api/v1/ports/0/params", timeout=20).json()
+        now = httpx.get(
+            final.url + "/api/v1/ports/0/params",
+            headers={"Authorization": f"Bearer {token}"},
+            timeout=20,
+        ).json()
         restored = {k: now[k] for k in acked}
         assert restored == acked or restored == in_flight_expect(now, pending)
     finally:

@@ -108,6 +108,7 @@ def test_cli_watch_prints_frames_and_changes(rig):
         [
             *(sys.executable, "-m", "elphel_host.cli", "camera", "watch"),
             *("--types", "params", "--count", "1", "--url", rig["ELPHEL_CAMERA_URL"]),
+            *("--token", rig["ELPHEL_CAMERA_TOKEN"]),  # reads need it too
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

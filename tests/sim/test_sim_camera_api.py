@@ -25,7 +25,7 @@ def board():
 
 @pytest.fixture
 def client(board):
-    with TestClient(create_app(CameraService(board), token=TOKEN)) as c:
+    with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
         yield c
 
 
@@ -99,16 +99,17 @@ def test_patch_params_sets_window_and_gain_through_rest(client):
     assert client.get(f"/api/v1/ports/0/params?frame={now + 5}").json()["GAINR"] == 0x20000
 
 
-def test_patch_errors_are_422_with_the_parameter_value_and_range(client):
+def test_patch_errors_are_409_or_422_with_the_parameter_value_and_range(client):
+    # 409: the schema allows it, the sensor (or the frame schedule) refuses it.
     r = client.patch("/api/v1/ports/0/params", json={"WOI_WIDTH": 3000}, headers=AUTH)
-    assert r.status_code == 422
+    assert r.status_code == 409
     body = r.json()
     assert body["parameter"] == "WOI_WIDTH" and body["value"] == 3000
     assert "2..2592" in body["allowed"] and "WOI_WIDTH" in body["detail"]
     r = client.patch("/api/v1/ports/0/params?ahead=1", json={"EXPOS": 100}, headers=AUTH)
-    assert r.status_code == 422 and r.json()["error"] == "frame_too_late"
+    assert r.status_code == 409 and r.json()["error"] == "frame_too_late"
     r = client.patch("/api/v1/ports/0/params?ahead=15", json={"EXPOS": 100}, headers=AUTH)
-    assert r.status_code == 422 and r.json()["error"] == "frame_too_early"
+    assert r.status_code == 409 and r.json()["error"] == "frame_too_early"
     r = client.patch("/api/v1/ports/0/params?frame=soon", json={"EXPOS": 100}, headers=AUTH)
     assert r.status_code == 422 and r.json()["parameter"] == "frame"
     r = client.patch("/api/v1/ports/0/params", json={"EXPOS": 100})
@@ -122,7 +123,7 @@ def test_sim_board_is_registered_for_the_daemon():
 
 
 def test_stuck_bus_surfaces_as_503_naming_the_port(board):
-    with TestClient(create_app(CameraService(board), token=TOKEN)) as c:
+    with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
         board.bus(0).sim_stuck()
         r = c.get("/api/v1/info")
         assert r.status_code == 503

@@ -50,6 +50,10 @@ class QuadCaptureTimeout(QuadCaptureError, TimeoutError):  # noqa: N818 - like S
     """The camera's frames did not reach the frame a quad capture waits for."""
 
 
+class EventStreamError(CameraClientError, ValueError):
+    """An event of the daemon's event stream is malformed: names the event and the field."""
+
+
 class InputFormatError(ElphelError, ValueError):
     """A file or directory given as input does not have the documented format."""
 

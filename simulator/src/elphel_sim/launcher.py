@@ -214,7 +214,9 @@ def up(
         camera_url, token = f"nc393://{host}:{port}?imgsrv={imgsrv[0].getsockname()[1]}", None
         hint = f"elphel camera info --url {camera_url}"
     else:
-        cameras = [Served(create_app(camera, token=secret), bind_loopback(camera_port))]
+        # As the daemon: reads need the token, Host must be an address or localhost.
+        app = create_app(camera, token=secret, allowed_hosts=[])
+        cameras = [Served(app, bind_loopback(camera_port))]
         camera_url = cameras[0].url
         hint = f"elphel camera info --url {camera_url} --token {token}"
     board.start_clock()

@@ -6,6 +6,8 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from elphel_host.errors import EventStreamError
+
 
 @dataclass(frozen=True)
 class CameraEvent:
@@ -18,7 +20,11 @@ class CameraEvent:
 
 @dataclass
 class SSEParser:
-    """Incremental parser of an event stream's lines."""
+    """Incremental parser of an event stream's lines.
+
+    An event whose ``data`` is not one JSON object raises `EventStreamError` naming the
+    event and the field; the parser is then ready for the next event.
+    """
 
     event: str = "message"
     data: list[str] = field(default_factory=list)
@@ -29,9 +35,19 @@ class SSEParser:
             if not self.data:
                 self.event = "message"
                 return None
-            out = CameraEvent(self.event, json.loads("\n".join(self.data)), self.id)
+            event, text, id_ = self.event, "\n".join(self.data), self.id
             self.event, self.data, self.id = "message", [], None
-            return out
+            try:
+                data = json.loads(text)
+            except (json.JSONDecodeError, RecursionError) as e:
+                raise EventStreamError(
+                    f"event {event!r} (id {id_}): data={text[:80]!r} is not JSON ({e})"
+                ) from e
+            if not isinstance(data, dict):
+                raise EventStreamError(
+                    f"event {event!r} (id {id_}): data={text[:80]!r}; allowed: a JSON object"
+                )
+            return CameraEvent(event, data, id_)
         if line.startswith(":"):
             return None
         name, _, value = line.partition(":")

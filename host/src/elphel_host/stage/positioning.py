@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from elphel_host.errors import (
+    InputFormatError,
     StageClosedLoopError,
     StageLimitError,
     StageNotHomedError,
@@ -62,13 +63,31 @@ class StageModel:
         """A calibration saved by `save` (a default model if the file does not exist)."""
         if not path.exists():
             return cls()
-        data = json.loads(path.read_text())
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise InputFormatError(f"{path}: not valid JSON ({e})") from e
+        if not isinstance(data, dict):
+            raise InputFormatError(f"{path}: top level={type(data).__name__}; allowed: an object")
+
+        def number(key: str, value: object, *, positive: bool = False) -> float:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if ok and positive:
+                ok = math.isfinite(float(value)) and float(value) > 0  # type: ignore[arg-type]
+            if not ok:
+                allowed = "a number > 0" if positive else "a number"
+                raise InputFormatError(f"{path}: {key}={value!r}; allowed: {allowed}")
+            return float(value)  # type: ignore[arg-type]
+
+        offset = data.get("offset_mm")
         return cls(
-            mm_per_step=float(data["mm_per_step"]),
-            offset_mm=data.get("offset_mm"),
-            backlash_mm=float(data.get("backlash_mm", 0.0)),
+            mm_per_step=number("mm_per_step", data.get("mm_per_step"), positive=True),
+            offset_mm=None if offset is None else number("offset_mm", offset),
+            backlash_mm=number("backlash_mm", data.get("backlash_mm", 0.0)),
             calibrated=True,
-            spread_mm_per_step=float(data.get("spread_mm_per_step", math.nan)),
+            spread_mm_per_step=number(
+                "spread_mm_per_step", data.get("spread_mm_per_step", math.nan)
+            ),
         )
 
     def save(self, path: Path) -> None:

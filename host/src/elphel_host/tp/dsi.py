@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import json
+import struct
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -96,16 +97,34 @@ def write_dsi(
 
 
 def read_dsi(path: str | Path) -> tuple[dict[str, F32], dict[str, str]]:
-    """Read a DSI written by :func:`write_dsi`: (layers, properties)."""
-    with tifffile.TiffFile(path) as tif:
-        data = tif.asarray()
-        meta = tif.imagej_metadata or {}
+    """Read a DSI written by :func:`write_dsi`: (layers, properties).
+
+    Raises `InputFormatError` naming the file for anything that is not such a TIFF.
+    """
+    try:
+        with tifffile.TiffFile(path) as tif:
+            data = tif.asarray()
+            meta = tif.imagej_metadata or {}
+    except FileNotFoundError:
+        raise
+    except (tifffile.TiffFileError, struct.error, EOFError, OSError, ValueError) as e:
+        # A damaged file fails deep inside tifffile with any of these.
+        raise InputFormatError(f"{path}: not a readable DSI TIFF ({e})") from e
+    except (KeyError, IndexError, TypeError, AttributeError, AssertionError, MemoryError) as e:
+        raise InputFormatError(f"{path}: not a readable DSI TIFF ({e})") from e
     labels = meta.get("Labels")
+    if isinstance(labels, str):
+        labels = [labels]
     if data.ndim == 2:
         data = data[None]
-    if not labels or len(labels) != data.shape[0]:
+    if data.ndim != 3:
+        raise InputFormatError(f"{path}: shape={data.shape}; allowed: slices of 2-D layers")
+    if not isinstance(labels, list) or len(labels) != data.shape[0]:
         raise InputFormatError(f"{path}: ImageJ slice labels missing or not one per slice")
-    props = parse_properties(str(meta.get("Info", "")))
+    try:
+        props = parse_properties(str(meta.get("Info", "")))
+    except ET.ParseError as e:
+        raise InputFormatError(f"{path}: Info properties are not XML ({e})") from e
     return {str(n): data[i].astype(np.float32) for i, n in enumerate(labels)}, props
 
 
@@ -194,7 +213,18 @@ def read_ml_data(path: str | Path) -> tuple[F32, F32, dict[str, str]]:
     ``other`` holds the target disparity, the ground-truth disparity and its strength.
     """
     layers, props = read_dsi(path)
-    side = int(props.get("tileWidth", 2 * ML_HALF + 1))
+
+    def number(key: str, default: int, minimum: int) -> int:
+        text = props.get(key, default)
+        try:
+            value = int(text)
+        except ValueError:
+            raise InputFormatError(f"{path}: {key}={text!r}; allowed: an integer") from None
+        if value < minimum:
+            raise InputFormatError(f"{path}: {key}={value}; allowed: >= {minimum}")
+        return value
+
+    side = number("tileWidth", 2 * ML_HALF + 1, 1)
     missing = [n for n in ML_LAYERS if n not in layers]
     if missing:
         raise InputFormatError(f"{path}: ML_DATA layers missing: {missing}")
@@ -209,12 +239,16 @@ def read_ml_data(path: str | Path) -> tuple[F32, F32, dict[str, str]]:
 
     corr = np.stack([tiles(layers[n]) for n in ML_LAYERS[:4]], axis=-1)
     other = tiles(layers["other"]).reshape(ty, tx, side * side)
-    idx = [
-        int(props.get(k, d))
-        for k, d in (
-            ("ML_OTHER_TARGET", 0),
-            ("ML_OTHER_GTRUTH", 2),
-            ("ML_OTHER_GTRUTH_STRENGTH", 4),
-        )
-    ]
+    idx = []
+    for key, default in (
+        ("ML_OTHER_TARGET", 0),
+        ("ML_OTHER_GTRUTH", 2),
+        ("ML_OTHER_GTRUTH_STRENGTH", 4),
+    ):
+        i = number(key, default, 0)
+        if i >= side * side:
+            raise InputFormatError(
+                f"{path}: {key}={i}; allowed: < {side * side} (tileWidth squared)"
+            )
+        idx.append(i)
     return corr.astype(np.float32), other[:, :, idx].astype(np.float32), props

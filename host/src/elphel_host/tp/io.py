@@ -43,7 +43,7 @@ def load_json(path: Path) -> Any:
     """The JSON document in ``path``; `InputFormatError` when it is not JSON."""
     try:
         return json.loads(path.read_text())
-    except json.JSONDecodeError as e:
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise InputFormatError(f"{path}: not valid JSON ({e})") from e
 
 

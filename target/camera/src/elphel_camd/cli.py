@@ -1,8 +1,10 @@
-"""The `elphel-camd` command: run the daemon on a board.
+"""The `elphel-camd` command: run the daemon on a board, or rotate its token.
 
-Settings come from the command line, then ``ELPHEL_CAMD_*`` environment variables, then
-the JSON config file (see `elphel_camd.config`); what the daemon keeps on disk is
-`elphel_camd.store`'s.
+``elphel-camd --board B ...`` serves the board; ``elphel-camd token rotate`` writes a new
+random token to the token file (0600), which a running daemon reads at its next request
+(the old token is refused from then on). Settings come from the command line, then
+``ELPHEL_CAMD_*`` environment variables, then the JSON config file (see
+`elphel_camd.config`); what the daemon keeps on disk is `elphel_camd.store`'s.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from elphel_camd.boards import board_factories
 from elphel_camd.config import ConfigError, DaemonSettings, load_settings
 from elphel_camd.events import EventHub
 from elphel_camd.service import CameraService
-from elphel_camd.store import ParamStore, load_or_create_token
+from elphel_camd.store import ParamStore, load_or_create_token, new_token, write_atomic
 
 log = logging.getLogger("elphel_camd")
 
@@ -52,16 +54,97 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--token-file", type=Path, help="token file (default STATE_DIR/token)")
     p.add_argument("--state-dir", type=Path, help="where the token and parameters are kept")
     p.add_argument(
+        "--public-reads",
+        action="store_true",
+        default=None,
+        help="answer reads without the token (by default every request but /health needs it)",
+    )
+    p.add_argument(
         "--read-protected",
         action="store_true",
         default=None,
-        help="reads need the token too (the health check excepted)",
+        help="the default (reads need the token); kept for old scripts",
     )
+    p.add_argument(
+        "--allow-host",
+        action="append",
+        dest="allowed_hosts",
+        help="a host name clients may use in Host besides IP addresses and localhost "
+        "(repeat; * = any, behind a proxy that checks it)",
+    )
+    p.add_argument(
+        "--cors-origin",
+        action="append",
+        dest="cors_origins",
+        help="an origin whose browser pages may call the API, e.g. https://lab.example (repeat)",
+    )
+    p.add_argument("--tls-cert", type=Path, help="TLS certificate (PEM): serve https")
+    p.add_argument("--tls-key", type=Path, help="TLS private key (PEM) of --tls-cert")
     return p
 
 
 # Options named as the setting they override (an option left out is None: not given).
-_SETTING_OPTIONS = ("board", "host", "port", "token", "token_file", "state_dir", "read_protected")
+_SETTING_OPTIONS = (
+    "board",
+    "host",
+    "port",
+    "token",
+    "token_file",
+    "state_dir",
+    "read_protected",
+    "public_reads",
+    "allowed_hosts",
+    "cors_origins",
+    "tls_cert",
+    "tls_key",
+)
+
+
+def build_token_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="elphel-camd token",
+        description="Manage the daemon's bearer token file.",
+    )
+    sub = p.add_subparsers(dest="action", required=True)
+    rotate = sub.add_parser(
+        "rotate",
+        help="replace the token file with a new random token; a running daemon uses it "
+        "from its next request on and refuses the old one",
+    )
+    rotate.add_argument("--config", type=Path, help="JSON settings file")
+    rotate.add_argument("--token-file", type=Path, help="token file (default STATE_DIR/token)")
+    rotate.add_argument("--state-dir", type=Path, help="the daemon's state directory")
+    rotate.add_argument(
+        "--quiet", action="store_true", help="print nothing (else the new token on stdout)"
+    )
+    return p
+
+
+def token_main(argv: Sequence[str]) -> int:
+    """``elphel-camd token rotate``: a new token in the token file, 0600, atomically."""
+    args = build_token_parser().parse_args(argv)
+    try:
+        settings = load_settings(args.config, token_file=args.token_file, state_dir=args.state_dir)
+    except ConfigError as e:
+        print(f"elphel-camd token: {e}", file=sys.stderr)
+        return 1
+    path = settings.token_path
+    token = new_token()
+    try:
+        write_atomic(path, (token + "\n").encode(), mode=0o600)
+    except OSError as e:
+        print(f"elphel-camd token: cannot write {path}: {e}", file=sys.stderr)
+        return 1
+    print(f"elphel-camd token: new token written to {path}", file=sys.stderr)
+    if settings.token is not None and settings.token.get_secret_value():
+        print(
+            "elphel-camd token: note: ELPHEL_CAMD_TOKEN is set; a daemon started with it "
+            "(or with --token) does not read the file",
+            file=sys.stderr,
+        )
+    if not args.quiet:
+        print(token)
+    return 0
 
 
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
@@ -107,21 +190,28 @@ build_camera = build_service  # the old name
 
 def main(argv: Sequence[str] | None = None) -> int:
     from elphel_camd.api import create_app
+    from elphel_camd.api.deps import TokenSource
     from elphel_camd.serving import GracefulServer, server_config
 
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["token"]:
+        return token_main(argv[1:])
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     try:
         settings = settings_from_args(args)
+        if (settings.tls_cert is None) != (settings.tls_key is None):
+            raise ConfigError("give both --tls-cert and --tls-key (or neither)")
         if settings.token is not None and settings.token.get_secret_value():
-            token = settings.token.get_secret_value()
+            token = TokenSource(settings.token.get_secret_value())
         else:
-            token = load_or_create_token(settings.token_path)
-            log.info("bearer token from %s", settings.token_path)
+            load_or_create_token(settings.token_path)
+            token = TokenSource(path=settings.token_path)
+            log.info("bearer token from %s (re-read when it changes)", settings.token_path)
         service = build_service(settings)
-    except (ConfigError, OSError) as e:
+    except (ConfigError, OSError, ValueError) as e:
         print(f"elphel-camd: {e}", file=sys.stderr)
         return 1
     # IPPROTO_TCP explicitly: asyncio sets TCP_NODELAY only on sockets that name it, and
@@ -136,13 +226,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         app = create_app(
             service,
             token=token,
-            read_protected=settings.read_protected,
+            public_reads=settings.reads_public,
             max_body_bytes=settings.max_body_bytes,
+            allowed_hosts=[settings.host, *settings.allowed_hosts],
+            cors_origins=settings.cors_origins,
         )
+        tls: dict[str, Any] = {}
+        if settings.tls_cert is not None and settings.tls_key is not None:
+            tls = {"ssl_certfile": str(settings.tls_cert), "ssl_keyfile": str(settings.tls_key)}
         # Request/idle timeouts and a bounded number of connections; a shutdown ends
         # the event streams first (elphel_camd.serving).
-        config = server_config(app, log_level=settings.log_level, access_log=settings.access_log)
-        log.info("listening on http://%s:%d", host, port)
+        config = server_config(
+            app,
+            log_level=settings.log_level,
+            access_log=settings.access_log,
+            h11_max_incomplete_event_size=settings.max_header_bytes,
+            **tls,
+        )
+        scheme = "https" if tls else "http"
+        log.info(
+            "listening on %s://%s:%d (reads %s)",
+            scheme,
+            host,
+            port,
+            "public" if settings.reads_public else "need the token",
+        )
         GracefulServer(config, on_shutdown=[service.events.close]).run(sockets=[sock])
     except OSError as e:
         print(

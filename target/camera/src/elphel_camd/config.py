@@ -67,7 +67,25 @@ class DaemonSettings(BaseSettings):
     token_file: Path | None = Field(
         None, description="token file, created 0600 on first start (default STATE_DIR/token)"
     )
-    read_protected: bool = Field(False, description="reads need the token too")
+    public_reads: bool = Field(
+        False, description="answer reads without the token (writes still need it)"
+    )
+    read_protected: bool | None = Field(
+        None, description="former setting: false is public_reads=true, true the default"
+    )
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="host names the Host header may carry besides IP addresses and "
+        "localhost (DNS-rebinding guard), e.g. the camera's DNS name; * allows any",
+    )
+    cors_origins: list[str] = Field(
+        default_factory=list, description="origins whose browser pages may call the API"
+    )
+    tls_cert: Path | None = Field(None, description="TLS certificate (PEM): serve https")
+    tls_key: Path | None = Field(None, description="TLS private key (PEM) of tls_cert")
+    max_header_bytes: int = Field(
+        16384, ge=1024, description="largest request head (request line and headers)"
+    )
     state_dir: Path = Field(default_factory=default_state_dir, description="daemon state")
     params_dir: Path | None = Field(
         None, description="per-port parameter files (default STATE_DIR/params)"
@@ -82,6 +100,11 @@ class DaemonSettings(BaseSettings):
     event_queue: int = Field(256, ge=1, description="events buffered per SSE client")
     log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
     access_log: bool = Field(True, description="log every request")
+
+    @property
+    def reads_public(self) -> bool:
+        """Whether reads are answered without the token (``read_protected`` is the old name)."""
+        return self.public_reads or self.read_protected is False
 
     @property
     def token_path(self) -> Path:
@@ -112,7 +135,7 @@ def read_config_file(path: Path) -> dict[str, Any]:
     """The JSON object of a config file (ConfigError if unreadable or not an object)."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ConfigError(f"cannot read config {path}: {e}") from e
     if not isinstance(data, dict):
         raise ConfigError(f"config {path}: a JSON object is needed, not {type(data).__name__}")

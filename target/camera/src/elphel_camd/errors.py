@@ -25,6 +25,25 @@ class I2CError(CameraError, OSError):
         self.register = register
 
 
+class PortI2CError(I2CError):
+    """An I2C failure while a port's change was written; the change was taken back.
+
+    Names the port, the bus, the device address and the register, and keeps the
+    original error as ``__cause__``.
+    """
+
+    def __init__(self, port: int, cause: I2CError) -> None:
+        register = "?" if cause.register is None else f"0x{cause.register:02x}"
+        super().__init__(
+            f"port {port}: I2C failure at device 0x{cause.address:02x} register {register} "
+            f"on {cause.bus}; nothing was changed ({cause})",
+            bus=cause.bus,
+            address=cause.address,
+            register=cause.register,
+        )
+        self.port = port
+
+
 class SensorNotFoundError(CameraError, LookupError):
     """No sensor answered on a port, or it answered with an unknown chip id."""
 
@@ -37,6 +56,18 @@ class ParameterRangeError(CameraError, ValueError):
         self.name = name
         self.value = value
         self.allowed = allowed
+
+
+class RegisterNotFoundError(ParameterRangeError, LookupError):
+    """A register address the port's sensor does not have (names the ones it has)."""
+
+
+class StateWriteError(CameraError, OSError):
+    """The state directory cannot be written (disk full, read-only): the change was refused.
+
+    Names the file and the operating system's reason; the settings in effect and on disk
+    are the last ones saved.
+    """
 
 
 class FrameScheduleError(CameraError, ValueError):

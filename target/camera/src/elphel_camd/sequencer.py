@@ -169,6 +169,18 @@ class PortSequencer:
                 state = self._normalized({**state, **merged[t]}, frozenset(merged[t]), t)
         return target, merged
 
+    def schedule(self) -> tuple[State, dict[int, dict[str, int]]]:
+        """The state now and the scheduled changes (for `restore_schedule`)."""
+        with self.lock:
+            return dict(self._now), {t: dict(c) for t, c in self._pending.items()}
+
+    def restore_schedule(self, saved: tuple[State, dict[int, dict[str, int]]]) -> None:
+        """Take back the changes requested since `schedule` (the hardware was not written)."""
+        with self.lock:
+            self._now, self._pending = dict(saved[0]), {t: dict(c) for t, c in saved[1].items()}
+            if "FRAME" in self._now:
+                self._now["FRAME"] = self.this_frame
+
     def flush(self) -> None:
         """Apply every scheduled change now (boards without frame syncs)."""
         with self.lock:

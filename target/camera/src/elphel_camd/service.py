@@ -28,7 +28,10 @@ from elphel_camd.errors import (
     I2CError,
     ParameterRangeError,
     PortError,
+    PortI2CError,
+    RegisterNotFoundError,
     SensorNotFoundError,
+    StateWriteError,
     UnsupportedError,
 )
 from elphel_camd.events import EventHub
@@ -312,18 +315,32 @@ class CameraService:
                 others = [s for p, s in self.sequencers.items() if p != port]
                 for other in others:  # check first: all ports or none
                     other.check(common)
-            target = seq.request(changes, frame=frame, ahead=ahead)
-            if common:
-                for other in others:
-                    other.request(common)
-            if not self.scheduled:
-                seq.flush()
-            snapshots = []
-            for p in ports:
-                self._versions[p] += 1
-                snapshots.append((p, self._versions[p], self._persistent(p)))
-        for p, version, params in snapshots:
-            self._save(p, version, params)
+            # All or nothing, saving included: a change that cannot be saved (disk full,
+            # read-only state directory) is taken back and refused.
+            before = {p: self.sequencers[p].schedule() for p in ports}
+            try:
+                target = seq.request(changes, frame=frame, ahead=ahead)
+                if common:
+                    for other in others:
+                        other.request(common)
+                if not self.scheduled:
+                    seq.flush()
+                for p in ports:
+                    self._versions[p] += 1
+                    self._save(p, self._versions[p], self._persistent(p))
+            except (StateWriteError, I2CError) as e:
+                # All or nothing: take the change back; a board programmed at once (no
+                # frame syncs) gets the previous state written again.
+                for p in ports:
+                    self.sequencers[p].restore_schedule(before[p])
+                if not self.scheduled:
+                    try:
+                        seq.flush()
+                    except I2CError as again:
+                        log.error("port %d: previous state not written back: %s", port, again)
+                if isinstance(e, I2CError):
+                    raise PortI2CError(port, e) from e
+                raise
         self.events.publish("params", {"port": port, "frame": target, "changes": dict(changes)})
         return target
 
@@ -430,7 +447,7 @@ class CameraService:
         register = table.at(address)
         if register is None:
             known = ", ".join(f"0x{r.address:02x}" for r in table)
-            raise ParameterRangeError(
+            raise RegisterNotFoundError(
                 "address", f"0x{address:x}", f"a {table.model} register address: {known}"
             )
         return register

@@ -146,8 +146,12 @@ def server_config(
     request_timeout_s: float = REQUEST_TIMEOUT_S,
     idle_timeout_s: float = IDLE_TIMEOUT_S,
     max_connections: int = MAX_CONNECTIONS,
+    **options: Any,
 ) -> uvicorn.Config:
-    """The uvicorn configuration of a daemon app with its timeouts and limits."""
+    """The uvicorn configuration of a daemon app with its timeouts and limits.
+
+    ``options`` go to uvicorn as they are (TLS files, the header size limit).
+    """
     protocol = type(
         "TimedH11Protocol", (TimedH11Protocol,), {"request_timeout_s": request_timeout_s}
     )
@@ -160,4 +164,5 @@ def server_config(
         timeout_keep_alive=int(max(1, idle_timeout_s)),
         timeout_graceful_shutdown=int(max(1, SHUTDOWN_TIMEOUT_S)),
         limit_concurrency=max_connections,
+        **options,
     )

@@ -10,6 +10,7 @@ moment leaves the last acknowledged state readable (`ParamStore`).
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
@@ -20,7 +21,7 @@ import zlib
 from collections.abc import Mapping
 from pathlib import Path
 
-from elphel_camd.errors import ConfigError
+from elphel_camd.errors import ConfigError, StateWriteError
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +133,11 @@ class ParamStore:
     ``port<N>.json`` when the journal is empty. A background thread flushes the journals to
     the disk within `flush_interval_s` (``sync_each=True`` flushes before `save`
     returns) and, once a journal passes `compact_bytes`, writes its last state as the new
-    snapshot (atomically) and empties the journal.
+    snapshot (atomically) and replaces the journal by one holding only the newest line
+    (also atomically), so the journal stays near `compact_bytes` under steady writes too:
+    a save that finds it past twice that compacts before it returns.
+    A save that cannot be written (disk full, read-only directory) raises
+    `StateWriteError` and leaves the files as they were.
 
     Parameters
     ----------
@@ -183,37 +188,55 @@ class ParamStore:
         line = text + b"\t%08x\n" % zlib.crc32(text)
         lock = self._locks.get(port) or self._locks.setdefault(port, threading.Lock())
         with lock:
-            fd = self._journal(port)
-            if os.write(fd, line) != len(line):
-                raise OSError(f"short write to {self.journal_path(port)}")
+            try:
+                fd = self._journal(port)
+                size = os.fstat(fd).st_size
+                written = os.write(fd, line)
+                if written != len(line):
+                    os.ftruncate(fd, size)  # no torn line left behind
+                    raise OSError(errno.ENOSPC, f"short write ({written} of {len(line)} bytes)")
+                if self.sync_each:
+                    os.fsync(fd)
+            except OSError as e:
+                raise StateWriteError(
+                    f"port {port}: cannot save parameters to {self.journal_path(port)}: "
+                    f"{e.strerror or e}; the change was refused, the last saved settings stay"
+                ) from e
             self._last[port] = text
-            if self.sync_each:
-                os.fsync(fd)
         if self.sync_each:
-            if os.fstat(fd).st_size > self.compact_bytes:
+            if size + len(line) > self.compact_bytes:
                 self._compact(port)
+        elif size + len(line) > 2 * self.compact_bytes:
+            # Writes faster than the flusher compacts: this one compacts (milliseconds,
+            # once per compact_bytes), so the journal never grows past twice its bound.
+            self._compact(port)
         else:
             with self._wake:
                 self._dirty.add(port)
                 self._wake.notify()
 
     def _compact(self, port: int) -> None:
-        """Write the last state as the snapshot, then empty the journal.
+        """Write the last state as the snapshot, then restart the journal from the newest line.
 
         The snapshot is written (and flushed, milliseconds) without the port's lock, so
-        saves go on meanwhile; the journal is emptied only if none came in between, else
-        the next flush tries again. A kill between the two steps leaves a snapshot equal
-        to the journal's last line.
+        saves go on meanwhile. Under the lock, the journal is replaced (a new file with
+        the newest line, renamed over it) — saves that came in between are not lost, and
+        steady writes cannot postpone the compaction. A kill at any step leaves either the
+        old journal or the new one, each ending with the newest acknowledged state.
         """
         lock = self._locks[port]
         with lock:
             text = self._last[port]
         write_atomic(self.path(port), text, sync=True)
         with lock:
-            if self._last[port] is not text:
-                return
-            os.ftruncate(self._journals[port], 0)
-        os.fsync(self._journals[port])
+            newest = self._last[port]
+            line = newest + b"\t%08x\n" % zlib.crc32(newest)
+            path = self.journal_path(port)
+            write_atomic(path, line, sync=True)
+            flags = os.O_WRONLY | os.O_APPEND | getattr(os, "O_CLOEXEC", 0)
+            fd = os.open(path, flags)
+            os.close(self._journals[port])
+            self._journals[port] = fd
 
     def _flush(self, ports: set[int]) -> None:
         # Without the port's lock: an fsync takes milliseconds, a save must not wait for it.

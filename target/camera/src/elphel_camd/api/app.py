@@ -1,35 +1,54 @@
 """The FastAPI application: the camera REST API under /api/v1, built around one service.
 
 `create_app` puts the service and the options where the dependencies find them
-(`elphel_camd.api.deps`), adds the body limit (`middleware`) and the error answers
-(`errors`), and includes one router per resource group (`routes`). Writes (and capture,
-which drives the sensor) need ``Authorization: Bearer <token>``; reads need it too when
-the daemon runs read-protected. No CORS headers are sent: browsers on other origins cannot
-call the API.
+(`elphel_camd.api.deps`), adds the body limit and the Host allow-list (`middleware`), CORS
+only for the origins it is given, and the error answers (`errors`), and includes one
+router per resource group (`routes`). Every request but ``GET /health`` needs
+``Authorization: Bearer <token>`` unless the app is built with ``public_reads``, which
+opens the reads (writes and capture still need it). The OpenAPI schema says exactly that:
+its ``security`` is what the daemon checks. ``/docs`` is a small self-contained page (no
+assets from a CDN, so it works on an offline camera) that lists the operations from
+``/openapi.json``.
 """
 
 from __future__ import annotations
 
+import html
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
 from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import HTMLResponse
 
 from elphel_camd import __version__
-from elphel_camd.api.deps import ApiOptions
+from elphel_camd.api.deps import ApiOptions, TokenSource
 from elphel_camd.api.errors import add_error_handlers
-from elphel_camd.api.middleware import BodyLimit
+from elphel_camd.api.middleware import BodyLimit, HostAllowList
+from elphel_camd.api.models import EVENT_SCHEMA, Problem
 from elphel_camd.api.routes import ROUTERS, page, param_schema
 from elphel_camd.api.routes import preview as preview_routes
 from elphel_camd.service import CameraService
 
 API = "/api/v1"
 
+# Operations that are reads (guarded by READS): their security depends on public_reads.
+_READ_METHODS = ("get", "head")
+_PROBLEM_REF = {"$ref": "#/components/schemas/Problem"}
+
 
 def create_app(
     service: CameraService,
     *,
-    token: str,
-    read_protected: bool = False,
+    token: str | TokenSource,
+    public_reads: bool = False,
+    read_protected: bool | None = None,
     max_body_bytes: int = 65536,
     keepalive_s: float = 15.0,
+    allowed_hosts: Sequence[str] | None = None,
+    cors_origins: Sequence[str] = (),
 ) -> FastAPI:
     """Build the API for a camera service.
 
@@ -38,27 +57,50 @@ def create_app(
     service
         The camera service: the board with its detected sensors.
     token
-        The bearer token that write requests (and reads, if read-protected) must carry.
+        The bearer token (or its `TokenSource`, e.g. the token file, re-read when it
+        changes) that requests must carry.
+    public_reads
+        Answer reads without the token (the health check never needs it).
     read_protected
-        Reads need the token too (the health check excepted).
+        The former option: False means ``public_reads=True``.
     max_body_bytes
         Largest request body; larger ones get 413.
     keepalive_s
         Idle time after which the event stream sends a comment line.
+    allowed_hosts
+        Host names (besides IP addresses and ``localhost``) the ``Host`` header may
+        carry; None checks nothing (in-process clients), ``["*"]`` allows any.
+    cors_origins
+        Origins whose browser pages may call the API (CORS); none by default.
     """
-    if not token:
-        raise ValueError("the API token must not be empty")
+    source = token if isinstance(token, TokenSource) else TokenSource(token)
+    if read_protected is not None:
+        public_reads = not read_protected
     app = FastAPI(
         title="elphel-camd",
         version=__version__,
         description="Camera daemon of an Elphel-style board: frame parameters, capture, "
-        "raw registers and events. Parameter names and units follow Elphel's.",
+        "raw registers and events. Parameter names and units follow Elphel's. Every "
+        "request but GET /health needs the bearer token"
+        + (" (reads are public on this daemon)." if public_reads else ".")
+        + " A value the schema allows can still be refused by the port's sensor or state "
+        "(409, naming the parameter and its allowed range).",
+        docs_url=None,
+        redoc_url=None,
     )
     app.state.service = service
-    app.state.options = ApiOptions(
-        token=token, read_protected=read_protected, keepalive_s=keepalive_s
-    )
+    app.state.options = ApiOptions(token=source, public_reads=public_reads, keepalive_s=keepalive_s)
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
+    if cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=list(cors_origins),
+            allow_methods=["GET", "PATCH", "PUT", "POST"],
+            allow_headers=["Authorization", "Content-Type", "Last-Event-ID"],
+            expose_headers=["X-Frame-Number", "X-Frame-Count"],
+        )
+    if allowed_hosts is not None:
+        app.add_middleware(HostAllowList, allowed=allowed_hosts)
     add_error_handlers(app)
     for router in ROUTERS:
         app.include_router(router, prefix=API)
@@ -67,4 +109,86 @@ def create_app(
     app.include_router(preview_routes.router, prefix=API)
     app.include_router(page.router)
     app.mount("/web", page.static_files(), name="web")
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            schema = get_openapi(
+                title=app.title,
+                version=app.version,
+                description=app.description,
+                routes=app.routes,
+            )
+            app.openapi_schema = contract(schema, public_reads=public_reads)
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return HTMLResponse(docs_page(openapi()))
+
     return app
+
+
+def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
+    """Make the generated schema say what the daemon does.
+
+    Reads declare the bearer security unless they are public (then they never answer
+    401); the event stream declares each event it sends.
+    """
+    schema.setdefault("components", {}).setdefault("schemas", {})
+    schema["components"]["schemas"].setdefault("Problem", Problem.model_json_schema())
+    invalid = {
+        "description": "invalid by the schema: names the parameter, the value and what is allowed",
+        "content": {"application/json": {"schema": _PROBLEM_REF}},
+    }
+    for path, item in schema.get("paths", {}).items():
+        for method, operation in item.items():
+            responses = operation.setdefault("responses", {})
+            if operation.get("parameters") or operation.get("requestBody"):
+                responses["422"] = invalid  # the API's problem body, not FastAPI's own
+            if public_reads and method in _READ_METHODS:
+                operation.pop("security", None)
+                responses.pop("401", None)
+            if path == f"{API}/events" and method == "get":
+                ok = responses.get("200", {}).get("content", {}).get("text/event-stream")
+                if ok is not None:
+                    ok["schema"] = EVENT_SCHEMA
+    schemas = schema["components"]["schemas"]
+    if not any(
+        "HTTPValidationError" in str(op)
+        for item in schema["paths"].values()
+        for op in item.values()
+    ):
+        schemas.pop("HTTPValidationError", None)
+        schemas.pop("ValidationError", None)
+    return schema
+
+
+def docs_page(schema: dict[str, Any]) -> str:
+    """A self-contained HTML page listing the API's operations (no external assets)."""
+    rows = []
+    for path, item in schema.get("paths", {}).items():
+        for method, operation in item.items():
+            codes = ", ".join(sorted(operation.get("responses", {})))
+            summary = operation.get("summary") or operation.get("operationId", "")
+            lock = "" if "security" not in operation else " &#128274;"
+            rows.append(
+                f"<tr><td><code>{method.upper()}</code></td><td><code>{html.escape(path)}"
+                f"</code>{lock}</td><td>{html.escape(str(summary))}</td><td>{codes}</td></tr>"
+            )
+    title = html.escape(f"{schema['info']['title']} {schema['info']['version']}")
+    return (
+        "<!doctype html><html><head><meta charset='utf-8'>"
+        f"<title>{title}</title><style>body{{font-family:sans-serif;margin:2em}}"
+        "td{padding:2px 8px;border-bottom:1px solid #ddd}</style></head><body>"
+        f"<h1>{title}</h1><p>{html.escape(schema['info'].get('description', ''))}</p>"
+        "<p>The full schema: <a href='/openapi.json'>/openapi.json</a> (&#128274; = needs "
+        "the bearer token).</p><table><tr><th>method</th><th>path</th><th>what</th>"
+        f"<th>answers</th></tr>{''.join(rows)}</table></body></html>"
+    )
+
+
+def token_source(token: str | None, path: Path) -> TokenSource:
+    """The daemon's token: fixed if given, else the token file (re-read when replaced)."""
+    return TokenSource(token) if token else TokenSource(path=path)

@@ -1,13 +1,20 @@
 """How the API answers errors: exception -> status and code, problem bodies, 422 bodies.
 
 Errors are JSON ``{"detail": ..., "error": ...}``; a rejected value also names
-``parameter``, ``value`` and ``allowed``. Invalid input is 422, a missing port, sensor or
-frame 404, a board without an image path 501, a failing I2C bus 503 (other ports keep
-serving), a frame that does not come 504.
+``parameter``, ``value`` and ``allowed``. A request the OpenAPI schema refuses is 422; a
+request the schema allows but the port refuses — its sensor's own limits (narrower than
+the schema's, which are the widest any sensor has), a window that does not fit the
+sensor, a frame the schedule cannot reach, a read-only register — is 409, with the same
+body. A missing port, sensor, register or frame is 404, a board without an image path
+501, a failing I2C bus or a state directory that cannot be written 503 (reads keep
+serving), a frame that does not come 504. Non-finite numbers in a rejected body are
+named as strings (``"NaN"``, ``"Infinity"``): JSON has no such numbers.
 """
 
 from __future__ import annotations
 
+import math
+import re
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -16,7 +23,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from elphel_camd.api.models import Problem
+from elphel_camd.api.models import Problem, schema_allowed
 from elphel_camd.errors import (
     CaptureUnavailableError,
     FrameNotAvailableError,
@@ -26,7 +33,10 @@ from elphel_camd.errors import (
     I2CError,
     ParameterRangeError,
     PortError,
+    PortI2CError,
+    RegisterNotFoundError,
     SensorNotFoundError,
+    StateWriteError,
     UnsupportedError,
 )
 from elphel_camd.params import PARAMS
@@ -35,27 +45,48 @@ from elphel_camd.params import PARAMS
 ERROR_STATUS: tuple[tuple[type[Exception], int, str], ...] = (
     (PortError, 404, "no_such_port"),
     (SensorNotFoundError, 404, "no_sensor"),
+    (RegisterNotFoundError, 404, "no_such_register"),
     (FrameNotAvailableError, 404, "frame_not_available"),
-    (ParameterRangeError, 422, "parameter_range"),
-    (FrameTooLateError, 422, "frame_too_late"),
-    (FrameTooEarlyError, 422, "frame_too_early"),
-    (UnsupportedError, 422, "unsupported"),
+    (ParameterRangeError, 409, "parameter_range"),
+    (FrameTooLateError, 409, "frame_too_late"),
+    (FrameTooEarlyError, 409, "frame_too_early"),
+    (UnsupportedError, 409, "unsupported"),
     (CaptureUnavailableError, 501, "no_image_path"),
+    (StateWriteError, 503, "state_not_writable"),
     (I2CError, 503, "i2c"),
     (TimeoutError, 504, "timeout"),
 )
 
 _DESCRIPTIONS = {
     401: "no or wrong bearer token",
-    404: "no such port, sensor or frame",
-    413: "request body too large",
-    422: "invalid input: names the parameter, the value and what is allowed",
+    404: "no such port, sensor, register or frame",
+    409: "allowed by the schema but refused by the port's sensor or state (its own limits, "
+    "the window, the frame schedule, a read-only register); names what and why",
+    413: "request body too large (names the limit)",
+    422: "invalid by the schema: names the parameter, the value and what is allowed",
     501: "the board has no image path",
-    503: "the port's I2C bus fails",
+    503: "the port's I2C bus fails, or the state directory cannot be written",
     504: "the frame did not come in time",
 }
 
-_HTTP_CODES = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed"}
+_HTTP_CODES = {
+    400: "bad_request",
+    401: "unauthorized",
+    404: "not_found",
+    405: "method_not_allowed",
+    421: "host_not_allowed",
+}
+
+
+def json_safe(value: Any) -> Any:
+    """A rejected value made JSON-ready: non-finite floats become "NaN"/"Infinity" strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
 
 
 def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
@@ -67,7 +98,13 @@ def error_body(exc: Exception, code: str) -> dict[str, Any]:
     """The problem body of a daemon error."""
     body: dict[str, Any] = {"detail": str(exc), "error": code}
     if isinstance(exc, ParameterRangeError):
-        body.update(parameter=exc.name, value=jsonable_encoder(exc.value), allowed=exc.allowed)
+        body.update(
+            parameter=exc.name, value=json_safe(jsonable_encoder(exc.value)), allowed=exc.allowed
+        )
+    elif isinstance(exc, I2CError):
+        body.update(bus=exc.bus, address=exc.address, register=exc.register)
+        if isinstance(exc, PortI2CError):
+            body["port"] = exc.port
     elif isinstance(exc, FrameScheduleError):
         body.update(
             frame=exc.frame, this_frame=exc.this_frame, earliest=exc.earliest, latest=exc.latest
@@ -83,7 +120,7 @@ def _allowed(name: str, kind: str) -> str:
         writable = sorted(n for n, s in PARAMS.items() if not s.read_only)
         return f"one of {', '.join(writable)}"
     if spec is not None:
-        return f"an integer {spec.minimum}..{spec.maximum} [{spec.unit}]"
+        return schema_allowed(spec)
     return "see the OpenAPI schema"
 
 
@@ -100,8 +137,11 @@ def validation_problem(exc: RequestValidationError) -> dict[str, Any]:
         allowed = _allowed(name, kind)
     else:
         allowed = str(first.get("msg", "see the OpenAPI schema"))
-    value = jsonable_encoder(first.get("input"), custom_encoder={bytes: repr})
+    value = json_safe(jsonable_encoder(first.get("input"), custom_encoder={bytes: repr}))
     detail = "; ".join(f"{'.'.join(map(str, e.get('loc', ())))}: {e.get('msg')}" for e in errors)
+    given = first.get("input")
+    if isinstance(given, float) and not math.isfinite(given):
+        allowed = f"a finite number: {allowed}"
     return {
         "detail": f"{name}={value!r} is invalid ({detail}); allowed: {allowed}",
         "error": "parameter_range" if kind != "extra_forbidden" else "unknown_parameter",
@@ -116,12 +156,42 @@ def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(status_code=422, content=validation_problem(exc))
 
 
+def allowed_methods(request: Request) -> list[str]:
+    """Every method the API's schema declares on the request's path (for ``Allow``)."""
+    methods: set[str] = set()
+    for template, item in request.app.openapi().get("paths", {}).items():
+        pattern = re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(template))
+        if re.fullmatch(pattern, request.url.path):
+            methods.update(m.upper() for m in item)
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
+
+
 def _on_http(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
+    if exc.status_code == 400 and request.method in ("PATCH", "PUT", "POST"):
+        # FastAPI's answer to a body it cannot decode (not UTF-8): invalid input, like
+        # a body that is not JSON.
+        return JSONResponse(
+            status_code=422,
+            content={
+                "detail": f"the request body cannot be read: {exc.detail}",
+                "error": "parameter_range",
+                "parameter": "body",
+                "value": None,
+                "allowed": "a JSON object (UTF-8)",
+            },
+        )
+    headers = dict(exc.headers or {})
+    if exc.status_code == 405:
+        # Starlette names the methods of the first route that matched the path only; a
+        # path served by several routes (GET and PATCH of params) has all of theirs.
+        headers["Allow"] = ", ".join(allowed_methods(request))
     return JSONResponse(
         status_code=exc.status_code,
         content={"detail": str(exc.detail), "error": _HTTP_CODES.get(exc.status_code, "http")},
-        headers=exc.headers,
+        headers=headers,
     )
 
 

@@ -1,10 +1,35 @@
-"""Request body limit: an ASGI middleware that answers 413 to bodies over a size."""
+"""ASGI middleware of the API: the request body limit and the Host allow-list.
+
+`BodyLimit` answers 413 to bodies over a size, declared (``Content-Length``) or sent
+(chunked: such a body is read here, up to the limit, before the app sees it, so the
+answer is 413 and not the framework's 400 for a body it could not read). `HostAllowList`
+answers 421 to requests whose ``Host`` names a host the daemon was not told it is: a web
+page that re-binds its own DNS name to the camera's address (DNS rebinding) sends its own
+name and is refused.
+"""
 
 from __future__ import annotations
 
+import ipaddress
 import json
+from collections.abc import Iterable
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+
+async def _problem(send: Send, status: int, body: dict[str, object]) -> None:
+    data = json.dumps(body).encode()
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(data)).encode()),
+            ],
+        }
+    )
+    await send({"type": "http.response.body", "body": data})
 
 
 class BodyLimit:
@@ -15,49 +40,114 @@ class BodyLimit:
         self.max_bytes = max_bytes
 
     async def _reject(self, send: Send) -> None:
-        body = json.dumps(
-            {"detail": f"request body over {self.max_bytes} bytes", "error": "too_large"}
-        ).encode()
-        await send(
+        await _problem(
+            send,
+            413,
             {
-                "type": "http.response.start",
-                "status": 413,
-                "headers": [(b"content-type", b"application/json")],
-            }
+                "detail": f"request body over {self.max_bytes} bytes (limit max_body_bytes)",
+                "error": "too_large",
+                "limit": "max_body_bytes",
+                "maximum": self.max_bytes,
+            },
         )
-        await send({"type": "http.response.body", "body": body})
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        declared: int | None = None
         for key, value in scope["headers"]:
-            if key == b"content-length" and value.isdigit() and int(value) > self.max_bytes:
+            if key == b"content-length":
+                declared = int(value) if value.isdigit() else None
+        if declared is not None:
+            if declared > self.max_bytes:
                 await self._reject(send)
                 return
+            await self.app(scope, receive, send)  # the server stops at the declared length
+            return
+        # No length (chunked, or no body): read what comes, at most the limit, then replay.
+        chunks: list[bytes] = []
         received = 0
-        started = False
-
-        async def counted() -> Message:
-            nonlocal received
+        more = True
+        while more:
             message = await receive()
-            if message["type"] == "http.request":
-                received += len(message.get("body", b""))
-                if received > self.max_bytes:
-                    raise _BodyTooLargeError
-            return message
-
-        async def tracked(message: Message) -> None:
-            nonlocal started
-            started = started or message["type"] == "http.response.start"
-            await send(message)
-
-        try:
-            await self.app(scope, counted, tracked)
-        except _BodyTooLargeError:
-            if not started:
+            if message["type"] != "http.request":
+                await self.app(scope, _replay([], message, receive), send)
+                return
+            chunk = message.get("body", b"")
+            received += len(chunk)
+            if received > self.max_bytes:
                 await self._reject(send)
+                return
+            chunks.append(chunk)
+            more = message.get("more_body", False)
+        body: Message = {"type": "http.request", "body": b"".join(chunks), "more_body": False}
+        await self.app(scope, _replay([body], None, receive), send)
 
 
-class _BodyTooLargeError(Exception):
-    pass
+def _replay(messages: list[Message], last: Message | None, receive: Receive) -> Receive:
+    pending = list(messages) + ([last] if last is not None else [])
+
+    async def replayed() -> Message:
+        if pending:
+            return pending.pop(0)
+        return await receive()
+
+    return replayed
+
+
+def host_name(header: str) -> str:
+    """The host of a ``Host`` header, without the port, lower-case (IPv6 unbracketed)."""
+    value = header.strip().lower()
+    if value.startswith("["):
+        return value[1 : value.find("]")] if "]" in value else value
+    return value.rsplit(":", 1)[0] if value.count(":") == 1 else value
+
+
+def is_ip_literal(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
+
+
+class HostAllowList:
+    """Answer 421 unless ``Host`` is an IP address, ``localhost``, or a name allowed.
+
+    An IP address in ``Host`` cannot come from a rebound DNS name, so addresses always
+    pass; names must be listed (``allowed_hosts``, e.g. the camera's DNS name). ``*``
+    allows every name (behind a reverse proxy that checks it).
+    """
+
+    def __init__(self, app: ASGIApp, allowed: Iterable[str]) -> None:
+        self.app = app
+        self.allowed = frozenset(host_name(h) for h in allowed) | {"localhost"}
+        self.any = "*" in self.allowed
+
+    def allows(self, header: str) -> bool:
+        name = host_name(header)
+        return self.any or name in self.allowed or is_ip_literal(name)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        header = ""
+        for key, value in scope["headers"]:
+            if key == b"host":
+                header = value.decode("latin-1")
+                break
+        if not self.allows(header):
+            await _problem(
+                send,
+                421,
+                {
+                    "detail": f"Host {header!r} is not a name of this camera; allowed: an IP "
+                    f"address or {', '.join(sorted(self.allowed))} (setting allowed_hosts)",
+                    "error": "host_not_allowed",
+                    "limit": "allowed_hosts",
+                },
+            )
+            return
+        await self.app(scope, receive, send)

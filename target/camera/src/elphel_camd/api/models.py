@@ -1,20 +1,35 @@
 """Pydantic models of the REST API, the parameter ones generated from `PARAMS`.
 
 Every frame parameter becomes a field with its unit and fixed limits, so the OpenAPI
-schema documents each name. The fixed limits are the widest any sensor allows; the
-sensor driver narrows them (e.g. WOI_WIDTH <= 2592 on the MT9P006) and answers 422 with
-the range that applies.
+schema documents each name. The fixed limits are the widest any sensor allows, with what
+holds on every sensor (window edges and sizes even, TRIG one of 0, 4, 20); a value
+outside them is 422. The port's sensor driver narrows them (e.g. WOI_WIDTH <= 2592 on the
+MT9P006, the window inside the sensor) and refuses the rest with 409 and the range that
+applies. `EVENT_SCHEMA` describes one server-sent event of ``GET /events``.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, create_model
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, create_model
 
-from elphel_camd.params import PARAMS, ParamSpec
+from elphel_camd.events import EVENT_TYPES
+from elphel_camd.params import PARAMS, TRIG_VALUES, ParamSpec
 
 STRICT = ConfigDict(extra="forbid")
+
+# What the schema states beyond the fixed limits, because every sensor requires it.
+EVEN = frozenset({"WOI_LEFT", "WOI_TOP", "WOI_WIDTH", "WOI_HEIGHT", "PF_HEIGHT"})
+ENUMS: dict[str, tuple[int, ...]] = {"TRIG": TRIG_VALUES}
+
+
+def schema_allowed(spec: ParamSpec) -> str:
+    """What the schema allows for a parameter, as a 422 answer names it."""
+    if spec.name in ENUMS:
+        return f"one of {', '.join(map(str, ENUMS[spec.name]))}"
+    even = " (even)" if spec.name in EVEN else ""
+    return f"an integer {spec.minimum}..{spec.maximum}{even} [{spec.unit}]"
 
 
 def _drop_default(schema: dict[str, Any]) -> None:
@@ -22,18 +37,47 @@ def _drop_default(schema: dict[str, Any]) -> None:
 
 
 def _field(spec: ParamSpec) -> Any:
+    extra: dict[str, Any] = {"unit": spec.unit}
+    if spec.read_only:
+        extra["readOnly"] = True
+    description = f"{spec.doc} [{spec.unit}]" + (" (read-only)" if spec.read_only else "")
+    if spec.name in ENUMS:
+        extra["enum"] = list(ENUMS[spec.name])
     return Field(
         default=None,
         ge=spec.minimum,
         le=spec.maximum,
+        multiple_of=2 if spec.name in EVEN else None,
         strict=True,
-        description=f"{spec.doc} [{spec.unit}]" + (" (read-only)" if spec.read_only else ""),
-        json_schema_extra={"unit": spec.unit, **({"readOnly": True} if spec.read_only else {})},
+        description=description,
+        json_schema_extra=extra,
     )
 
 
+def whole_number(value: Any) -> Any:
+    """A float that is a whole number (6396.0: an integer to JSON Schema) as an int."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+Integer = Annotated[int, BeforeValidator(whole_number)]
+
+
+def _enum_type(allowed: tuple[int, ...]) -> Any:
+    def check(value: int) -> int:
+        if value not in allowed:
+            raise ValueError(f"not one of {', '.join(map(str, allowed))}")
+        return value
+
+    return Annotated[int, BeforeValidator(whole_number), AfterValidator(check)]
+
+
 def _params_model(name: str, specs: list[ParamSpec], doc: str) -> type[BaseModel]:
-    fields: dict[str, Any] = {spec.name: (int, _field(spec)) for spec in specs}
+    fields: dict[str, Any] = {
+        spec.name: (_enum_type(ENUMS[spec.name]) if spec.name in ENUMS else Integer, _field(spec))
+        for spec in specs
+    }
     config = ConfigDict(extra="forbid", json_schema_extra=_drop_defaults)
     model: type[BaseModel] = create_model(name, __config__=config, __doc__=doc, **fields)
     return model
@@ -72,7 +116,11 @@ class Problem(BaseModel):
 class PatchResult(BaseModel):
     model_config = STRICT
 
-    frame: int = Field(description="frame at which the change is in effect")
+    frame: int = Field(
+        description="frame from which this request's values are in effect, as scheduled when "
+        "the answer was made (no other write came in between); a later write of the same "
+        "parameter for the same or an earlier frame replaces it: the last write wins"
+    )
     params: Params  # type: ignore[valid-type]
 
 
@@ -168,7 +216,7 @@ class RegisterWrite(BaseModel):
 
     model_config = STRICT
 
-    value: int = Field(strict=True, ge=0, le=0xFFFF)
+    value: Integer = Field(strict=True, ge=0, le=0xFFFF)
 
 
 class RegisterEntry(BaseModel):
@@ -186,3 +234,66 @@ class RegisterEntry(BaseModel):
     fields: list[RegisterFieldInfo] = Field(
         default_factory=list, description="the register's declared bit fields"
     )
+
+
+def _json_data(properties: dict[str, Any], required: list[str]) -> dict[str, Any]:
+    return {
+        "type": "string",
+        "contentMediaType": "application/json",
+        "contentSchema": {"type": "object", "properties": properties, "required": required},
+    }
+
+
+_INT = {"type": "integer"}
+_EVENT_DATA: dict[str, dict[str, Any]] = {
+    "frame": _json_data(
+        {"port": _INT, "frame": _INT, "timestamp_ns": _INT}, ["port", "frame", "timestamp_ns"]
+    ),
+    "params": _json_data(
+        {
+            "port": _INT,
+            "frame": _INT,
+            "changes": {"type": "object", "additionalProperties": _INT},
+            "register": {"type": "string"},
+        },
+        ["port", "frame"],
+    ),
+    "error": _json_data(
+        {"port": _INT, "frame": _INT, "error": {"type": "string"}, "detail": {"type": "string"}},
+        ["port", "error", "detail"],
+    ),
+    "dropped": _json_data({"dropped": _INT}, ["dropped"]),
+}
+_EVENT_FIELDS = {
+    "id": {"type": "string", "pattern": "^[0-9]+$", "description": "the event's sequence number"},
+    "retry": {"type": "integer", "minimum": 0},
+}
+
+
+def _event(type_: str) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "title": f"{type_} event",
+        "required": ["event", "data"],
+        "properties": {"event": {"const": type_}, "data": _EVENT_DATA[type_], **_EVENT_FIELDS},
+    }
+
+
+# One server-sent event as a client parses it (``event``, ``data``, ``id``, ``retry``):
+# each type the hub publishes with its JSON data, ``dropped``, and any other type with a
+# JSON object as data (a newer daemon may add types; clients skip what they do not know).
+EVENT_SCHEMA: dict[str, Any] = {
+    "anyOf": [
+        *(_event(t) for t in (*EVENT_TYPES, "dropped") if t in _EVENT_DATA),
+        {
+            "type": "object",
+            "title": "other event",
+            "required": ["event", "data"],
+            "properties": {
+                "event": {"type": "string"},
+                "data": {"type": "string", "contentMediaType": "application/json"},
+                **_EVENT_FIELDS,
+            },
+        },
+    ]
+}

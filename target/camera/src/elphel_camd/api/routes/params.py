@@ -1,11 +1,15 @@
 """Routes of a port's frame parameters: ``GET`` and ``PATCH /ports/{port}/params``.
 
 A PATCH is validated against `ParamsPatch`, its target frame parsed here, and handed to
-`CameraService.set_params`, which schedules it on the port's sequencer.
+`CameraService.set_params`, which schedules it on the port's sequencer. The answer is read
+under the same port lock as the write, so it names the frame at which this request's
+values are in effect and the parameters of that frame with no other write in between;
+concurrent writers are ordered, and the last write of a parameter wins.
 """
 
 from __future__ import annotations
 
+import contextlib
 from typing import Annotated
 
 from fastapi import APIRouter, Query
@@ -14,7 +18,9 @@ from fastapi.responses import JSONResponse
 from elphel_camd.api.deps import READS, WRITES, FrameQuery, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.api.models import Params, ParamsPatch, PatchResult
-from elphel_camd.errors import ParameterRangeError, UnsupportedError
+from elphel_camd.errors import FrameNotAvailableError, ParameterRangeError, UnsupportedError
+from elphel_camd.params import COMMON_TRIGGER_PARAMS
+from elphel_camd.sequencer import MAX_AHEAD
 
 router = APIRouter()
 
@@ -42,7 +48,13 @@ def parse_frame(frame: str | None, ahead: int | None) -> tuple[int | None, int |
     responses=error_responses(401, 404, 422, 503),
 )
 def get_params(service: Service, port: PortPath, frame: FrameQuery = None) -> JSONResponse:
-    """Parameters in effect now, or for a recent or scheduled frame."""
+    """Parameters in effect now, or for a recent frame or one up to 14 frames ahead."""
+    seq = service.sequencer(port)
+    if frame is not None and frame > seq.this_frame + MAX_AHEAD:
+        raise FrameNotAvailableError(
+            f"port {port}: frame {frame} is beyond the schedule (current frame "
+            f"{seq.this_frame}; parameters are known up to {MAX_AHEAD} frames ahead)"
+        )
     return JSONResponse(service.params(port, frame=frame))
 
 
@@ -50,7 +62,7 @@ def get_params(service: Service, port: PortPath, frame: FrameQuery = None) -> JS
     "/ports/{port}/params",
     response_model=PatchResult,
     dependencies=WRITES,
-    responses=error_responses(401, 404, 413, 422, 503),
+    responses=error_responses(401, 404, 409, 413, 422, 503),
 )
 def patch_params(
     service: Service,
@@ -68,6 +80,13 @@ def patch_params(
     """Set parameters (all or none), now or at a frame; answers the frame they take effect."""
     absolute, relative = parse_frame(frame, ahead)
     values = changes.model_dump(exclude_unset=True)  # type: ignore[attr-defined]
-    target = service.set_params(port, values, frame=absolute, ahead=relative)
-    params = service.params(port, frame=target) if service.scheduled else service.params(port)
+    service.sequencer(port)  # 404 first
+    # The ports set_params locks, in its order, held until the answer is read.
+    common = any(name in values for name in COMMON_TRIGGER_PARAMS)
+    ports = sorted(service.sequencers) if common else [port]
+    with contextlib.ExitStack() as held:
+        for p in ports:
+            held.enter_context(service.sequencers[p].lock)
+        target = service.set_params(port, values, frame=absolute, ahead=relative)
+        params = service.params(port, frame=target) if service.scheduled else service.params(port)
     return JSONResponse({"frame": target, "params": params})

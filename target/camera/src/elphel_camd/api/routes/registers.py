@@ -88,7 +88,7 @@ def list_registers(service: Service, port: PortPath) -> JSONResponse:
     "/ports/{port}/registers/{addr}",
     response_model=RegisterValue,
     dependencies=READS,
-    responses=error_responses(401, 404, 422, 503),
+    responses=error_responses(401, 404, 409, 422, 503),
 )
 def get_register(service: Service, port: PortPath, addr: AddressPath) -> JSONResponse:
     """Read a raw sensor register now (address decimal or 0x hex)."""
@@ -100,7 +100,7 @@ def get_register(service: Service, port: PortPath, addr: AddressPath) -> JSONRes
     "/ports/{port}/registers/{addr}",
     response_model=RegisterValue,
     dependencies=WRITES,
-    responses=error_responses(401, 404, 413, 422, 503),
+    responses=error_responses(401, 404, 409, 413, 422, 503),
 )
 def put_register(
     service: Service, port: PortPath, addr: AddressPath, body: RegisterWrite
