@@ -244,17 +244,24 @@ def depth_map(
     return depth.astype(np.float32)
 
 
-def surface_cloud(scene: QuadScene, *, step_px: float = 1.0, margin_px: float = 16.0) -> PointCloud:
+def surface_cloud(
+    scene: QuadScene,
+    *,
+    step_px: float = 1.0,
+    margin_px: float = 16.0,
+    carriage_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> PointCloud:
     """The true surface seen by the virtual centre camera, one point every ``step_px``.
 
     Points within ``margin_px`` of the image border are left out (the tile processor
-    measures no tile there). Colour: each region's albedo.
+    measures no tile there). Colour: each region's albedo. Coordinates are in the frame
+    of the virtual centre camera after the carriage moved by ``carriage_mm``.
     """
     rig = scene.rig
     xs1 = np.arange(margin_px, rig.width - margin_px + 1e-9, step_px)
     ys1 = np.arange(margin_px, rig.height - margin_px + 1e-9, step_px)
     xs, ys = np.meshgrid(xs1, ys1)
-    depth, label = cast(scene, xs, ys)
+    depth, label = cast(scene, xs, ys, origin_mm=carriage_mm)
     ok = np.isfinite(depth)
     s = depth[ok] * rig.pitch_mm / rig.focal_length_mm
     cx, cy = rig.intrinsics.principal_point
@@ -301,22 +308,26 @@ def render_quad_at(
     return np.stack(out)
 
 
-def write_truth(path: str | Path, scene: QuadScene, *, step_px: float = 1.0) -> dict[str, str]:
-    """Write ``reference.ply`` (the dense true surface) and ``depth_cam0..3.tif`` (mm, float32)."""
+def write_truth(
+    path: str | Path,
+    scene: QuadScene,
+    *,
+    step_px: float = 1.0,
+    carriage_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> dict[str, str]:
+    """Write ``reference.ply`` (the dense true surface) and ``depth_cam0..3.tif`` (mm, float32).
+
+    Both for the quad after the carriage moved by ``carriage_mm``.
+    """
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
-    out = {
-        "reference": str(
-            write_ply(
-                root / "reference.ply",
-                surface_cloud(scene, step_px=step_px),
-                comments=("elphel-sim: true surface, mm",),
-            )
-        )
-    }
+    cloud = surface_cloud(scene, step_px=step_px, carriage_mm=carriage_mm)
+    ply = write_ply(root / "reference.ply", cloud, comments=("elphel-sim: true surface, mm",))
+    out = {"reference": str(ply)}
     for cam in range(4):
         file = root / f"depth_cam{cam}.tif"
         with replacing(file, keep_suffix=True) as tmp:
-            tifffile.imwrite(tmp, depth_map(scene, cam), metadata={"unit": "mm", "camera": cam})
+            depth = depth_map(scene, cam, carriage_mm=carriage_mm)
+            tifffile.imwrite(tmp, depth, metadata={"unit": "mm", "camera": cam})
         out[f"depth_cam{cam}"] = str(file)
     return out
