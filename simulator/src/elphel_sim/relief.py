@@ -16,6 +16,7 @@ cameras see it), `write_truth` writes both (``reference.ply``, ``depth_cam0.tif`
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -331,3 +332,64 @@ def write_truth(
             tifffile.imwrite(tmp, depth, metadata={"unit": "mm", "camera": cam})
         out[f"depth_cam{cam}"] = str(file)
     return out
+
+
+def burst_positions_mm(rig: QuadRig, *, scale: int = 2, disparity_px: float = 2.5) -> list[float]:
+    """Carriage positions of a sub-pixel burst planned for a surface at ``disparity_px``.
+
+    `elphel burst plan --bayer` for the rig's optics at that surface's depth.
+    """
+    from elphel_host.burst.plan import plan_burst
+
+    plan = plan_burst(
+        scale=scale,
+        focal_length_mm=rig.focal_length_mm,
+        pixel_pitch_um=rig.pixel_pitch_um,
+        distance_mm=rig.depth_mm(disparity_px),
+        bayer=rig.bayer is not None,
+    )
+    return [float(p) for p in plan.positions_mm]
+
+
+def simulate_quad_burst(
+    path: str | Path,
+    scene: QuadScene,
+    positions_mm: Sequence[float],
+    *,
+    axis_angle_deg: float,
+    seed: int = 0,
+    model: SensorModel = DEFAULT_SENSOR,
+) -> Path:
+    """Render the quad at each carriage position along the axis; write a quad-burst directory.
+
+    Frame k of every camera is taken with the carriage at ``positions_mm[k]`` (one
+    trigger); each frame entry records ``stage_mm`` and ``caliper_mm`` (exact here), the
+    bursts' manifests the stage axis angle.
+    """
+    from elphel_host.burst.io import write_quad_burst
+
+    rig = scene.rig
+    t = np.radians(axis_angle_deg)
+    frames = []
+    for k, s in enumerate(positions_mm):
+        offset = (float(s * np.cos(t)), float(s * np.sin(t)), 0.0)
+        frames.append(render_quad_at(scene, offset, seed=seed + 1000 * k, model=model))
+    stack = np.stack(frames, axis=1)  # (4, N, H, W)
+    infos = [
+        {"stage_mm": float(s), "caliper_mm": float(s), "timestamp_ns": 10_000_000 * k}
+        for k, s in enumerate(positions_mm)
+    ]
+    return write_quad_burst(
+        path,
+        stack,
+        positions=rig.positions,
+        infos=infos,
+        bayer=rig.bayer,
+        optics={
+            "focal_length_mm": rig.focal_length_mm,
+            "pixel_pitch_um": rig.pixel_pitch_um,
+            "baseline_mm": rig.baseline_mm,
+        },
+        stage={"axis_angle_deg": float(axis_angle_deg)},
+        full_scale_dn=float((1 << model.bits) - 1),
+    )

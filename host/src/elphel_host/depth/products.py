@@ -68,13 +68,20 @@ class DepthResult:
         }
 
 
-def _colours(quad: QuadImages, cx: F32, cy: F32, disparity: F32) -> NDArray[np.uint8]:
+def _colours(
+    quad: QuadImages, cx: F32, cy: F32, disparity: F32, rgb_images: F32 | None = None
+) -> NDArray[np.uint8]:
     """Mean of the four cameras' 2x2 cells at each point's position in each camera."""
     n = cx.size
     rgb = np.zeros((n, 3), dtype=np.float64)
     h, w = quad.images.shape[1:]
     for cam, (px, py) in enumerate(quad.geometry.positions):
         img = quad.images[cam]
+        if rgb_images is not None:
+            col = np.clip(np.floor(cx - disparity * px).astype(np.intp), 0, w - 1)
+            row = np.clip(np.floor(cy - disparity * py).astype(np.intp), 0, h - 1)
+            rgb += rgb_images[cam][row, col].astype(np.float64)
+            continue
         # continuous coordinate x covers pixel floor(x); the cell containing it starts even
         col = np.clip(np.floor(cx - disparity * px).astype(np.intp) // 2 * 2, 0, w - 2)
         row = np.clip(np.floor(cy - disparity * py).astype(np.intp) // 2 * 2, 0, h - 2)
@@ -102,6 +109,7 @@ def dsi_depth(
     optics: DepthOptics,
     *,
     min_strength: float = DEFAULT_MIN_STRENGTH,
+    rgb_images: F32 | None = None,
 ) -> DepthResult:
     """Depth map and point cloud of a DSI measured on ``quad`` (whose pixels ``optics`` describes).
 
@@ -116,6 +124,9 @@ def dsi_depth(
         and baseline.
     min_strength
         Tiles below it are left out and counted.
+    rgb_images
+        Optional ``(4, H, W, 3)`` colour images of the quad (a fused Bayer burst) to take
+        the points' colours from instead of the quad's own images.
     """
     for name in ("disparity", "strength"):
         if name not in dsi:
@@ -141,6 +152,7 @@ def dsi_depth(
         cx[keep].astype(np.float32),
         cy[keep].astype(np.float32),
         disparity[keep].astype(np.float32),
+        rgb_images,
     )
     cloud = PointCloud(pts.astype(np.float32), strength[keep].astype(np.float32), colours)
     return DepthResult(
