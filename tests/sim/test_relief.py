@@ -15,6 +15,8 @@ from elphel_sim import relief
 from elphel_sim.quad import QuadRig
 from elphel_sim.scenarios import QUAD_RIG_AXIS_DEG, build
 
+pytestmark = pytest.mark.slow  # renders the relief scene
+
 RIG = QuadRig(width=320, height=240)
 
 

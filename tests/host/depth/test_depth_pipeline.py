@@ -20,6 +20,8 @@ from elphel_sim import relief
 from elphel_sim.quad import QuadRig
 from elphel_sim.scenarios import QUAD_RIG_AXIS_DEG
 
+pytestmark = pytest.mark.slow  # renders 24 quad frames of the relief scene
+
 RIG = QuadRig(width=192, height=128)
 POSITIONS = [0.0, 7.0, 15.0, 22.0, 31.0, 38.0]
 
