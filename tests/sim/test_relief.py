@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -101,3 +102,36 @@ def test_quad_rig_scenario_moves_the_quad_with_the_carriage() -> None:
     t = np.radians(QUAD_RIG_AXIS_DEG)
     assert np.allclose(moved, [10 * np.cos(t), 10 * np.sin(t), 0.0])
     assert np.tan(t) == pytest.approx(0.25)
+
+
+def test_inspection_endpoint_serves_the_truth() -> None:
+    from fastapi.testclient import TestClient
+
+    from elphel_host.cloud.ply import read_ply
+    from elphel_sim.board import SimCameraBoard
+    from elphel_sim.launcher import create_sim_app
+
+    board = SimCameraBoard(build("quad-rig", seed=0), seed=0)
+    client = TestClient(create_sim_app(board))
+    r = client.get("/quad/reference.ply", params={"step_px": 32})
+    assert r.status_code == 200
+    path = Path(tempfile.mkdtemp()) / "ref.ply"
+    path.write_bytes(r.content)
+    ref = read_ply(path)
+    wall = RIG.depth_mm(relief.ReliefSpec().wall)
+    assert len(ref) > 1000 and ref.xyz[:, 2].max() == pytest.approx(wall, rel=1e-5)
+    # the carriage moves the quad by 1 m: the near step moves the other way in its frame
+    moved = client.get("/quad/reference.ply", params={"step_px": 8, "carriage_mm": 1000})
+    here = client.get("/quad/reference.ply", params={"step_px": 8, "carriage_mm": 0})
+    near_z = RIG.depth_mm(relief.ReliefSpec().steps[2])
+    xs = []
+    for resp in (here, moved):
+        path.write_bytes(resp.content)
+        c = read_ply(path)
+        xs.append(float(np.mean(c.xyz[np.isclose(c.xyz[:, 2], near_z, rtol=1e-5), 0])))
+    t = np.radians(QUAD_RIG_AXIS_DEG)
+    assert xs[1] - xs[0] == pytest.approx(-1000 * np.cos(t), abs=150)
+    assert client.get("/quad/reference.ply", params={"step_px": 0.01}).status_code == 422
+    d = client.get("/quad/depth/2")
+    assert d.status_code == 200 and d.headers["content-type"] == "image/tiff"
+    assert client.get("/quad/depth/4").status_code == 422
