@@ -68,7 +68,7 @@ class DepthConfig:
     method: str = "robust"
     motion: str = "local"
     min_strength: float = DEFAULT_MIN_STRENGTH
-    block: int = 96
+    block: int = 48
     threads: int = 2
 
     def __post_init__(self) -> None:

@@ -109,6 +109,46 @@ def block_disparity(field: F32, y0: int, y1: int, x0: int, x1: int) -> float:
     return float(np.median(part)) if part.size else float(np.median(field))
 
 
+def block_spread(field: F32, y0: int, y1: int, x0: int, x1: int) -> float:
+    """10th-90th percentile range of the tile disparities in a block (as `block_disparity`)."""
+    ty = slice(max(0, (y0 - 4 + 7) // 8), max(1, (y1 - 4 + 7) // 8))
+    tx = slice(max(0, (x0 - 4 + 7) // 8), max(1, (x1 - 4 + 7) // 8))
+    part = field[ty, tx]
+    if not part.size:
+        return 0.0
+    lo, hi = np.percentile(part, [10, 90])
+    return float(hi - lo)
+
+
+def warped_mean(
+    frames: Sequence[F32], model: ParallaxModel, disparity_px: F32, *, bayer: str | None
+) -> F32:
+    """Frames moved back by ``D(p) v_k`` (cubic) and averaged: ``(H, W)`` or ``(H, W, 3)``.
+
+    Bayer frames are demosaiced per colour (bilinear) first. ``disparity_px`` is per pixel.
+    """
+    from elphel_host.mfsr.fuse import _demosaic_plane, bayer_sites
+
+    h, w = frames[0].shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    acc: F32 | None = None
+    for frame, (vy, vx) in zip(frames, model.per_disparity, strict=True):
+        if bayer is None:
+            img = frame[..., None]
+        else:
+            img = np.stack([_demosaic_plane(frame, s) for s in bayer_sites(bayer).values()], -1)
+        mapx = (xs - disparity_px * np.float32(vx)).astype(np.float32)
+        mapy = (ys - disparity_px * np.float32(vy)).astype(np.float32)
+        moved = np.stack(
+            [cv2.remap(np.ascontiguousarray(img[..., c]), mapx, mapy, cv2.INTER_CUBIC,
+                       borderMode=cv2.BORDER_REFLECT) for c in range(img.shape[2])], -1
+        ).astype(np.float32)  # fmt: skip
+        acc = moved if acc is None else acc + moved
+    assert acc is not None
+    out: F32 = (acc / np.float32(len(frames))).astype(np.float32)
+    return out[..., 0] if bayer is None else out
+
+
 def fuse_local(
     frames: Sequence[F32],
     model: ParallaxModel,
@@ -117,10 +157,12 @@ def fuse_local(
     scale: int,
     bayer: str | None,
     method: str = "robust",
-    block: int = 96,
+    block: int = 48,
     margin: int = 16,
     config: RobustConfig = DEFAULT_CONFIG,
     threads: int = 2,
+    max_misregistration_px: float = 0.15,
+    min_frames: int = 4,
 ) -> tuple[F32, dict[str, Any]]:
     """Fuse frames block by block, each block registered by its disparity.
 
@@ -137,6 +179,11 @@ def fuse_local(
         As for :func:`elphel_host.mfsr.fuse.fuse_frames`.
     block, margin
         Block side and the overlap fused around it (LR px; even for Bayer).
+    max_misregistration_px, min_frames
+        A block fuses only the frames whose shift, for the block's disparity spread
+        (10th-90th percentile), is wrong by at most ``max_misregistration_px`` at its
+        extremes; with fewer than ``min_frames`` such frames the block is the
+        parallax-compensated mean (:func:`warped_mean`) up-sampled bicubically instead.
 
     Returns
     -------
@@ -158,29 +205,59 @@ def fuse_local(
     reach = int(np.ceil(max(abs(a) + abs(b) for a, b in model.per_disparity) * float(field.max())))
     pad = margin + reach + (reach % 2)
 
-    def one(start: tuple[int, int]) -> tuple[tuple[int, int], F32, float]:
+    per_px: F32 = np.asarray(cv2.resize(field, (w, h), interpolation=cv2.INTER_LINEAR), np.float32)
+    reach_k = [float(np.hypot(a, b)) for a, b in model.per_disparity]
+    fallback: list[F32] = []  # the warped mean, computed once if a block needs it
+
+    def mean_up(ya: int, yb: int, xa: int, xb: int) -> F32:
+        if not fallback:
+            fallback.append(warped_mean(frames, model, per_px, bayer=bayer))
+        part = fallback[0][ya:yb, xa:xb]
+        up = cv2.resize(part, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+        out_: F32 = np.asarray(up, np.float32).reshape(up.shape[0], up.shape[1], ncol)
+        return out_
+
+    def one(start: tuple[int, int]) -> tuple[tuple[int, int], F32, float, int]:
         y, x = start
         y1, x1 = min(y + block, h), min(x + block, w)
         d = block_disparity(field, y, y1, x, x1)
+        spread = block_spread(field, y, y1, x, x1)
         ya, xa = max(0, y - pad), max(0, x - pad)
         yb, xb = min(h, y1 + pad), min(w, x1 + pad)
-        crop = [np.ascontiguousarray(f[ya:yb, xa:xb]) for f in frames]
-        shifts = model.shifts(d)
-        regs = [FrameRegistration(i, s, 1.0, "parallax", True) for i, s in enumerate(shifts)]
-        img, _ = fuse_registered(crop, regs, scale=scale, method=method, bayer=bayer,
-                                 config=config)  # fmt: skip
-        img = img.reshape(img.shape[0], img.shape[1], ncol)
+        use = [k for k, r in enumerate(reach_k) if r * spread / 2 <= max_misregistration_px]
+        if len(use) < min_frames:
+            img = mean_up(ya, yb, xa, xb)
+        else:
+            crop = [np.ascontiguousarray(frames[k][ya:yb, xa:xb]) for k in use]
+            shifts = model.shifts(d)
+            regs = [FrameRegistration(i, shifts[k], 1.0, "parallax", True)
+                    for i, k in enumerate(use)]  # fmt: skip
+            img, _ = fuse_registered(crop, regs, scale=scale, method=method, bayer=bayer,
+                                     config=config)  # fmt: skip
+            img = img.reshape(img.shape[0], img.shape[1], ncol)
         oy, ox = (y - ya) * scale, (x - xa) * scale
-        return start, img[oy : oy + (y1 - y) * scale, ox : ox + (x1 - x) * scale], d
+        n_used = len(use) if len(use) >= min_frames else 0
+        return start, img[oy : oy + (y1 - y) * scale, ox : ox + (x1 - x) * scale], d, n_used
 
+    if any(
+        len([r for r in reach_k if r * block_spread(field, y, min(y + block, h), x,
+                                                     min(x + block, w)) / 2
+             <= max_misregistration_px]) < min_frames
+        for y, x in starts
+    ):  # fmt: skip
+        mean_up(0, 1, 0, 1)  # compute the shared fallback before the threads need it
     results = parallel_map(one, starts, threads=threads)
     disparities = []
-    for (y, x), img, d in results:
+    used = []
+    for (y, x), img, d, n in results:
         out[y * scale : y * scale + img.shape[0], x * scale : x * scale + img.shape[1]] = img
         disparities.append(d)
+        used.append(n)
     image: F32 = out[..., 0] if bayer is None else out
     return image, {
         "blocks": len(starts),
         "block_px": block,
         "block_disparity_px": [float(np.min(disparities)), float(np.max(disparities))],
+        "block_frames": used,
+        "blocks_mean_fallback": int(sum(1 for n in used if n == 0)),
     }
