@@ -23,6 +23,8 @@ AREAS = (
     "elphel_host.burst.cli",
     "elphel_host.mfsr.cli",
     "elphel_host.tp.cli",
+    "elphel_host.cloud.cli",
+    "elphel_host.depth.cli",
     "elphel_host.recordings.cli",
 )
 

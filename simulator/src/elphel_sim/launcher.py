@@ -8,6 +8,7 @@ endpoint (``sim_url``): it tells the truth the host cannot see, for tests and de
 from __future__ import annotations
 
 import asyncio
+import io
 import json
 import signal
 import socket
@@ -17,16 +18,19 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from fastapi import FastAPI, HTTPException
+import tifffile
+from fastapi import FastAPI, HTTPException, Response
 
 from elphel_camd.api import create_app
 from elphel_camd.errors import FrameNotAvailableError, PortError
 from elphel_camd.service import CameraService
 from elphel_camd.serving import GracefulServer, server_config
 from elphel_camd.store import new_token
+from elphel_host.cloud.ply import ply_bytes
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
+from elphel_sim.relief import depth_map, surface_cloud
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
 from elphel_sim.stock.firmware import StockFirmware
@@ -133,6 +137,40 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
             "interior": t.interior.tolist(),
             "textured": t.textured.tolist(),
         }
+
+    def quad_offset_mm(carriage_mm: float | None) -> tuple[float, float, float]:
+        """Where the quad is: carried by the stage (quad-rig) or fixed (quad)."""
+        rig = board.world.rig
+        mount = rig.mounts.get("cam0")
+        if mount is None or not mount.on_stage:
+            return (0.0, 0.0, 0.0)
+        c = rig.carriage_mm if carriage_mm is None else carriage_mm
+        norm = sum(a * a for a in rig.axis) ** 0.5
+        return (c * rig.axis[0] / norm, c * rig.axis[1] / norm, c * rig.axis[2] / norm)
+
+    @app.get("/quad/reference.ply")
+    def quad_reference(step_px: float = 1.0, carriage_mm: float | None = None) -> Response:
+        """The true surface seen by the quad's virtual centre camera (binary PLY, mm).
+
+        One point every ``step_px`` of the centre view, for the carriage at ``carriage_mm``
+        (default: where it is now; a quad not on the stage does not move).
+        """
+        if not 0.25 <= step_px <= 64:
+            raise HTTPException(status_code=422, detail=f"step_px={step_px}; allowed: 0.25..64")
+        cloud = surface_cloud(
+            quad_scene(), step_px=step_px, carriage_mm=quad_offset_mm(carriage_mm)
+        )
+        return Response(ply_bytes(cloud), media_type="application/octet-stream")
+
+    @app.get("/quad/depth/{camera}")
+    def quad_depth(camera: int, carriage_mm: float | None = None) -> Response:
+        """Camera ``camera``'s true depth per pixel (float32 TIFF, mm; inf where nothing)."""
+        if not 0 <= camera <= 3:
+            raise HTTPException(status_code=422, detail=f"camera={camera}; allowed: 0..3")
+        depth = depth_map(quad_scene(), camera, carriage_mm=quad_offset_mm(carriage_mm))
+        buf = io.BytesIO()
+        tifffile.imwrite(buf, depth, metadata={"unit": "mm", "camera": camera})
+        return Response(buf.getvalue(), media_type="image/tiff")
 
     return app
 

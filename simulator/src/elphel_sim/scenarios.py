@@ -11,6 +11,7 @@ from elphel_camd.sensors import mt9f002
 from elphel_camd.sensors import mt9p006 as spec
 from elphel_sim.chips.lepton35 import lepton_intrinsics
 from elphel_sim.quad import QuadRig, QuadScene, standard_scene
+from elphel_sim.relief import relief_scene
 from elphel_sim.render import Intrinsics, SensorModel
 from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 
@@ -175,9 +176,41 @@ def quad(seed: int) -> Scenario:
     return Scenario(world, ports, quad=scene)
 
 
+#: The stage axis of the quad rig, tilted in the image plane so that one linear axis
+#: samples sub-pixel phases along both image axes (tan = 1/4, as the burst plan asks at x2
+#: with a Bayer sensor); the quad itself stays square and upright.
+QUAD_RIG_AXIS_DEG = math.degrees(math.atan(1 / 4))
+
+
+def quad_rig(seed: int) -> Scenario:
+    """The quad camera on the stage carriage, in front of the relief scene.
+
+    Four MT9P006 on ports 0..3 at the corners of a 150 mm square (as ``quad``), mounted on
+    the carriage, whose axis runs at atan(1/4) to the image rows; the scene is
+    `elphel_sim.relief.relief_scene`: a back wall at disparity 1 px (307 m), three steps
+    at 4.2, 4.8 and 5.4 px, a slanted plane from 1.5 to 3.5 px and a cylinder whose front
+    is at 3.5 px, textured up to 1 cycle/px. A stage step of s mm shifts a surface of
+    disparity D by D * s / 150 px along the axis.
+    """
+    rig = QUAD_RIG
+    scene = relief_scene(rig, seed=seed)
+    mounts = {
+        f"cam{i}": CameraMount(
+            f"cam{i}", offset_mm=(rig.baseline_mm * x, rig.baseline_mm * y, 0.0), on_stage=True
+        )
+        for i, (x, y) in enumerate(rig.positions)
+    }
+    t = math.radians(QUAD_RIG_AXIS_DEG)
+    world = World(scene.scene, Rig(axis=(math.cos(t), math.sin(t), 0.0), mounts=mounts))
+    intrinsics = quad_intrinsics(rig)
+    ports = [PortSpec("MT9P006", f"cam{i}", intrinsics, LAB_LIGHT) for i in range(4)]
+    return Scenario(world, ports, quad=scene)
+
+
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
 SCENARIOS["mixed"] = mixed
 SCENARIOS["quad"] = quad
+SCENARIOS["quad-rig"] = quad_rig
 
 
 def build(name: str, *, seed: int) -> Scenario:

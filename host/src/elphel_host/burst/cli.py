@@ -173,6 +173,18 @@ def _add_capture_parser(sub: Any) -> None:
     cp.add_argument("--focal-length-mm", type=float, help="record optics in the manifest")
     cp.add_argument("--pixel-pitch-um", type=float)
     cp.add_argument("--distance-mm", type=float)
+    cp.add_argument(
+        "--quad",
+        action="store_true",
+        help="capture a quad burst: at each position one trigger-synchronised set of the "
+        "four sensor ports (OUT/quad.json + OUT/cam0..cam3 burst directories)",
+    )
+    cp.add_argument(
+        "--geometry",
+        type=Path,
+        metavar="FILE",
+        help="with --quad: ports, positions and optics of the quad (as for elphel tp capture)",
+    )
     add_json_option(cp)
     fz = cp.add_argument_group("fusion while capturing (elphel mfsr on the finished burst)")
     fz.add_argument(
@@ -243,7 +255,11 @@ def _manifest_top(args: argparse.Namespace, plan: BurstPlan) -> dict[str, Any]:
 def run_capture(args: argparse.Namespace) -> int:
     if not args.camera or not args.stage:
         args.parser.error("give --camera and --stage (or ELPHEL_CAMERA_URL / ELPHEL_STAGE_URL)")
+    if args.geometry is not None and not args.quad:
+        args.parser.error("--geometry: allowed only with --quad")
     plan = read_plan(args.plan)
+    if args.quad:
+        return run_quad_capture(args, plan)
     fuse = _fuse_options(args, plan)
     if fuse is not None:  # an output that cannot be written fails before the rig moves
         fuse[2].parent.mkdir(parents=True, exist_ok=True)
@@ -325,3 +341,44 @@ def _capture_summary(result: CaptureResult, frames: int, start_mm: float) -> dic
         "start_mm": start_mm,
         "seconds": round(result.seconds, 2),
     }
+
+
+def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
+    """``elphel burst capture --quad``: a quad-burst directory, resumable."""
+    from elphel_host.burst.capture import QuadRigEngine, capture_quad_burst
+    from elphel_host.tp.layout import read_layout
+
+    if args.fuse:
+        args.parser.error("--fuse: not with --quad (run elphel depth on the quad burst)")
+    layout = read_layout(args.geometry) if args.geometry else None
+    top = _manifest_top(args, plan)
+    line = ProgressLine()
+    with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
+        positioner = Positioner(stage, StageModel.load(args.model))
+        so_far = load_progress(args.out / "cam0")
+        if so_far is not None:
+            start_mm = float(so_far.extra["capture"]["start_mm"])
+        elif args.start_mm is not None:
+            start_mm = args.start_mm
+        else:
+            start_mm = round(positioner.read_mm(), 2)
+        top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
+        if plan.tilt_deg is not None:
+            top["stage"]["axis_angle_deg"] = plan.tilt_deg
+        engine = QuadRigEngine(positioner, camera, layout=layout, settle_s=args.settle_s)
+
+        def progress(done: int, total: int, message: str) -> None:
+            line.update(f"quad burst: {done}/{total} {message}", done=done, total=total)
+
+        result = capture_quad_burst(
+            engine, plan.positions_mm, args.out, start_mm=start_mm, top=top, progress=progress
+        )
+        line.end()
+    summary = _capture_summary(result, len(plan.positions_mm), start_mm)
+    summary["quad"] = True
+    human = (
+        f"{result.directory}: {len(result.captured)} quad sets captured, "
+        f"{len(result.skipped)} already there, in {result.seconds:.1f} s"
+    )
+    emit(args, summary, human)
+    return 0

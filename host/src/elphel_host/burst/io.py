@@ -33,6 +33,8 @@ from numpy.typing import NDArray
 
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
+from elphel_host.tp.io import MANIFEST as QUAD_MANIFEST
+from elphel_host.tp.io import QuadCamera, QuadManifest
 
 BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 MANIFEST = "manifest.json"
@@ -395,4 +397,121 @@ def write_burst(
         tuple(entries), bayer, optics=optics or {}, stage=stage or {}, extra=extra or {}
     )
     write_manifest(root, manifest)
+    return root
+
+
+# --- Quad bursts -------------------------------------------------------------------------
+#
+#     QB/quad.json          a quad manifest whose cameras' "file" name burst directories
+#     QB/cam0/ .. QB/cam3/  burst directories; frame k of every camera is one trigger
+
+
+def quad_burst_cameras(positions: Sequence[tuple[float, float]]) -> tuple[QuadCamera, ...]:
+    """Cameras 0..3 of a quad burst: ``file`` = ``cam0`` .. ``cam3`` (burst directories)."""
+    return tuple(
+        QuadCamera(file=f"cam{i}", position=(float(p[0]), float(p[1])))
+        for i, p in enumerate(positions)
+    )
+
+
+@dataclass(frozen=True)
+class QuadBurst:
+    """A quad-burst directory as loaded: quad.json and each camera's burst.
+
+    Attributes
+    ----------
+    manifest
+        The ``quad.json``.
+    bursts
+        Camera i's burst (frames ``(N, H, W)``), N and the frame size the same for all.
+    """
+
+    manifest: QuadManifest
+    bursts: tuple[Burst, ...]
+
+    @property
+    def frames(self) -> int:
+        return int(self.bursts[0].frames.shape[0])
+
+
+def read_quad_burst(path: str | Path) -> QuadBurst:
+    """Load a quad-burst directory and check that its four bursts belong together.
+
+    Raises
+    ------
+    InputFormatError
+        When quad.json or a camera's burst directory is missing or malformed, when the
+        bursts differ in frame count, size or Bayer pattern, or when frame k of two
+        cameras carries different ``timestamp_ns`` (not one trigger).
+    """
+    root = Path(path)
+    manifest = QuadManifest.read(root)
+    source = root / QUAD_MANIFEST
+    bursts = []
+    for i, cam in enumerate(manifest.cameras):
+        d = root / cam.file
+        if not d.is_dir():
+            raise InputFormatError(
+                f"{source}: cameras[{i}].file={cam.file!r} is not a burst directory in {root}"
+            )
+        bursts.append(read_burst(d))
+    counts = [b.frames.shape[0] for b in bursts]
+    if len(set(counts)) != 1:
+        raise InputFormatError(f"{root}: the cameras' bursts differ in frame count: {counts}")
+    shapes = [b.frames.shape[1:] for b in bursts]
+    if len(set(shapes)) != 1:
+        raise InputFormatError(f"{root}: the cameras' frames differ in size: {shapes}")
+    patterns = {b.bayer for b in bursts} | {manifest.bayer}
+    if len(patterns) != 1:
+        raise InputFormatError(
+            f"{root}: Bayer patterns differ between quad.json and the bursts: "
+            f"{sorted(map(str, patterns))}"
+        )
+    for k in range(counts[0]):
+        stamps = [b.infos[k].timestamp_ns for b in bursts]
+        if None not in stamps and len(set(stamps)) != 1:
+            raise InputFormatError(
+                f"{root}: frame {k} is not of one trigger: timestamp_ns {stamps} (cam0..cam3)"
+            )
+    return QuadBurst(manifest=manifest, bursts=tuple(bursts))
+
+
+def write_quad_burst(
+    path: str | Path,
+    frames: NDArray[Any],
+    *,
+    positions: Sequence[tuple[float, float]],
+    infos: Sequence[Mapping[str, Any]] | None = None,
+    bayer: str | None = None,
+    optics: Mapping[str, float] | None = None,
+    stage: Mapping[str, float] | None = None,
+    full_scale_dn: float | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write a quad-burst directory from frames ``(4, N, H, W)`` uint16; quad.json goes last.
+
+    ``infos`` (one per frame k, shared by the four cameras), ``bayer``, ``stage`` go into
+    every camera's manifest; ``optics`` into quad.json (``focal_length_mm``,
+    ``pixel_pitch_um``, ``baseline_mm``) and the bursts' manifests.
+    """
+    a = np.asarray(frames)
+    if a.ndim != 4 or a.shape[0] != 4:
+        raise ValueError(f"frames must have shape (4, N, H, W), got {a.shape}")
+    root = Path(path)
+    root.mkdir(parents=True, exist_ok=True)
+    cams = quad_burst_cameras(positions)
+    burst_optics = {k: v for k, v in (optics or {}).items() if k in _OPTICS}
+    for i, cam in enumerate(cams):
+        write_burst(
+            root / cam.file, list(a[i]), infos=infos, bayer=bayer, optics=burst_optics,
+            stage=stage, extra={"quad_camera": i},
+        )  # fmt: skip
+    manifest = QuadManifest(
+        cameras=cams,
+        bayer=bayer,
+        full_scale_dn=full_scale_dn,
+        optics=dict(optics) if optics else None,
+        extra=dict(extra or {}),
+    )
+    manifest.write(root)
     return root

@@ -16,6 +16,8 @@ import numpy as np
 
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import add_camera_options, emit
+from elphel_host.depth.geometry import DepthOptics
+from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_dsi, write_ml_data
@@ -27,7 +29,7 @@ from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
-USAGE = """elphel tp QUAD_DIR --out DSI.tif [--json] [tile processor options]
+USAGE = """elphel tp QUAD_DIR --out DSI.tif [--ply CLOUD.ply] [--json] [tile processor options]
        elphel tp capture --camera URL [--token T] --out QUAD_DIR [--geometry FILE]
                          [--trigger-period-ms MS] [--force] [--json]"""
 
@@ -103,11 +105,30 @@ def register(subparsers: Any) -> None:
         metavar="PATH",
         help="also write an RGBA float32 TIFF: the four cameras blended at the measured disparity",
     )
+    add_depth_options(tp)
     p.set_defaults(func=run, parser=p)
 
 
+def add_depth_options(group: Any) -> None:
+    """``--ply`` and ``--min-strength``: depth map and point cloud of the DSI."""
+    group.add_argument(
+        "--ply",
+        metavar="CLOUD.ply",
+        help="also write the point cloud (binary PLY, mm), CLOUD.png (a view of it), "
+        "CLOUD_depth.tif (float32 depth in mm per tile) and CLOUD_depth.png; needs "
+        "focal_length_mm, pixel_pitch_um and baseline_mm in quad.json optics",
+    )
+    group.add_argument(
+        "--min-strength",
+        type=float,
+        default=DEFAULT_MIN_STRENGTH,
+        metavar="S",
+        help=f"tiles weaker than S are left out of the cloud (default {DEFAULT_MIN_STRENGTH:g})",
+    )
+
+
 # Options of one form that make no sense in the other (compared with their defaults).
-_TP_ONLY = ("refine", "scan", "fat_zero", "threads", "ml_data", "texture")
+_TP_ONLY = ("refine", "scan", "fat_zero", "threads", "ml_data", "texture", "ply", "min_strength")
 _CAPTURE_ONLY = ("geometry", "trigger_period_ms", "force", "timeout")
 
 
@@ -174,6 +195,13 @@ def run_capture(args: argparse.Namespace) -> int:
 def run_tp(args: argparse.Namespace) -> int:
     """``elphel tp QUAD_DIR --out DSI.tif``: the DSI of a quad directory."""
     qs = read_quad_dir(args.quad_dir)
+    optics = None
+    if args.ply:
+        if not args.min_strength >= 0:
+            args.parser.error(f"--min-strength {args.min_strength:g}; allowed: >= 0")
+        optics = DepthOptics.from_optics(
+            qs.manifest.optics, source=str(Path(args.quad_dir, "quad.json"))
+        )
     config = TpConfig(
         refine_passes=args.refine,
         scan=tuple(args.scan),
@@ -212,9 +240,18 @@ def run_tp(args: argparse.Namespace) -> int:
         rgba = rgba_texture(rendered, bayer=qs.quad.bayer)
         write_texture(args.texture, rgba)
         result["texture"] = str(args.texture)
+    if optics is not None:
+        depth = dsi_depth(dsi, qs.quad, optics, min_strength=args.min_strength)
+        result["depth"] = {**depth.summary(), **write_depth_products(args.ply, depth, optics)}
     human = (
         f"{result['dsi']}: {result['tiles_x']}x{result['tiles_y']} tiles, {len(dsi)} layers, "
         f"{seconds:.2f} s; median disparity {result['disparity_median']:.3f} px"
     )
+    if "depth" in result:
+        d = result["depth"]
+        human += (
+            f"\n{d['ply']}: {d['points']} points; left out {d['weak_tiles']} tiles below "
+            f"strength {d['min_strength']:g} and {d['infinite_tiles']} at infinity"
+        )
     emit(args, result, human)
     return 0

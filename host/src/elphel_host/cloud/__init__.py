@@ -1,0 +1,1 @@
+"""Point clouds: the PLY format (`ply`), cloud-to-cloud distances (`compare`), pictures."""

@@ -1,0 +1,252 @@
+"""`elphel depth`: fuse each camera's burst of a quad burst, then the tile processor and depth.
+
+Stages, each timed:
+
+1. ``prior``: the tile processor on frame 0 of the four cameras (the low-resolution quad,
+   Bayer as captured): the disparity map that predicts each surface's parallax.
+2. ``fuse``: each camera's burst fused (MFSR) at ``scale``. With ``motion="local"`` a
+   frame's shift at a pixel is ``D(p) * v_k`` (:mod:`elphel_host.mfsr.local_motion`),
+   ``v_k`` from the caliper positions and the stage axis (else from the global
+   registration); with ``motion="global"`` one shift per frame, as `elphel mfsr` does.
+3. ``tp``: the tile processor on the fused quad (colour fused to luminance with the
+   correlation's colour weights), disparities in fused pixels and, in the
+   ``disparity_lr`` layer, in original pixels.
+4. ``depth``: depth map (mm) and point cloud from the geometry's optics, the fused pitch
+   being the original divided by ``scale``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_host.burst.io import QuadBurst, read_quad_burst
+from elphel_host.depth.geometry import DepthOptics
+from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, DepthResult, dsi_depth
+from elphel_host.errors import InputFormatError
+from elphel_host.mfsr.fuse import bayer_luma, fuse_frames, register_lumas
+from elphel_host.mfsr.local_motion import ParallaxModel, disparity_field, fuse_local
+from elphel_host.mfsr.scale import check_scale
+from elphel_host.tp.config import TpConfig
+from elphel_host.tp.images import QuadImages
+from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
+from elphel_host.tp.processor import disparity_map
+
+F32 = NDArray[np.float32]
+MOTIONS = ("local", "global")
+#: Luminance of a fused colour image: the correlation's colour weights (R, G, B).
+LUMA_WEIGHTS = (0.294, 0.588, 0.118)
+
+
+@dataclass(frozen=True)
+class DepthConfig:
+    """Options of :func:`quad_burst_depth`.
+
+    Attributes
+    ----------
+    scale
+        Up-sampling factor of the fusion (1..8).
+    method
+        MFSR method (``robust``, ``baseline``, ``bicubic``).
+    motion
+        ``local`` (per-block parallax from the disparity prior) or ``global``.
+    min_strength
+        Strength threshold of the depth map and cloud (the same for every method).
+    block
+        Block side (original px) of the local motion model.
+    threads
+        Worker threads of the tile processor and the block fusion.
+    """
+
+    scale: int = 2
+    method: str = "robust"
+    motion: str = "local"
+    min_strength: float = DEFAULT_MIN_STRENGTH
+    block: int = 48
+    threads: int = 2
+
+    def __post_init__(self) -> None:
+        check_scale(self.scale)
+        if self.motion not in MOTIONS:
+            raise ValueError(f"motion={self.motion!r}; allowed: {', '.join(MOTIONS)}")
+        if not self.min_strength >= 0:
+            raise ValueError(f"min_strength={self.min_strength}; allowed: >= 0")
+
+
+def tp_config(scale: float, *, threads: int = 2) -> TpConfig:
+    """The tile processor's options for a quad up-sampled by ``scale``.
+
+    Disparities grow with the scale; the first pass also tries a target of 7 px when the
+    scale is above 1 so that surfaces beyond the +-7 px search still lock, and a second
+    refinement pass follows.
+    """
+    if scale <= 1:
+        return TpConfig(threads=threads)
+    return TpConfig(threads=threads, scan=(0.0, 7.0), refine_passes=2)
+
+
+def luminance(rgb: F32) -> F32:
+    """``(H, W, 3)`` -> ``(H, W)`` with :data:`LUMA_WEIGHTS`."""
+    w = np.asarray(LUMA_WEIGHTS, dtype=np.float32) / np.float32(sum(LUMA_WEIGHTS))
+    out: F32 = np.asarray(rgb, dtype=np.float32) @ w
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class DepthRun:
+    """What :func:`quad_burst_depth` computed.
+
+    Attributes
+    ----------
+    prior_dsi, dsi
+        The low-resolution DSI (frame 0) and the fused quad's DSI.
+    fused
+        The fused quad (luminance, full scale 1) the DSI was measured on.
+    fused_rgb
+        The fused colour images ``(4, H, W, 3)`` (None for mono bursts).
+    depth
+        Depth map and cloud.
+    optics
+        The fused quad's optics.
+    seconds
+        Per stage (``prior``, ``fuse``, ``tp``, ``depth``) and ``total``.
+    info
+        Per camera fusion details.
+    """
+
+    prior_dsi: dict[str, F32]
+    dsi: dict[str, F32]
+    fused: QuadImages
+    fused_rgb: F32 | None
+    depth: DepthResult
+    optics: DepthOptics
+    seconds: dict[str, float]
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def full_scale(qb: QuadBurst) -> float:
+    if qb.manifest.full_scale_dn is not None:
+        return float(qb.manifest.full_scale_dn)
+    peak = max(float(b.frames.max()) for b in qb.bursts)
+    return float(2 ** max(8, int(np.ceil(np.log2(peak + 1)))) - 1)
+
+
+def parallax_model(qb: QuadBurst, cam: int, optics: DepthOptics) -> ParallaxModel | None:
+    """The frames' shift per px of disparity from the caliper, or None without positions."""
+    burst = qb.bursts[cam]
+    pos = [e.position_mm for e in burst.infos]
+    if any(p is None for p in pos):
+        return None
+    angle = float(burst.stage.get("axis_angle_deg", 0.0))
+    return ParallaxModel.from_caliper(
+        [float(p) for p in pos if p is not None], baseline_mm=optics.baseline_mm,
+        axis_angle_deg=angle,
+    )  # fmt: skip
+
+
+def quad_burst_depth(
+    qb: QuadBurst,
+    *,
+    config: DepthConfig = DepthConfig(),
+    source: str = "quad burst",
+    progress: Callable[[str], None] | None = None,
+) -> DepthRun:
+    """Fuse every camera's burst, run the tile processor on the fused quad, make the depth."""
+    say = progress or (lambda _msg: None)
+    optics = DepthOptics.from_optics(qb.manifest.optics, source=f"{source}/quad.json")
+    full = np.float32(full_scale(qb))
+    bayer = qb.manifest.bayer
+    geometry = qb.manifest.geometry
+    seconds: dict[str, float] = {}
+    t_all = t0 = time.perf_counter()
+    say("prior: tile processor on frame 0")
+    lr = QuadImages(
+        (np.stack([b.frames[0].astype(np.float32) for b in qb.bursts]) / full).astype(np.float32),
+        bayer=bayer,
+        geometry=geometry,
+    )
+    prior = disparity_map(lr, config=tp_config(1, threads=config.threads))
+    seconds["prior"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    field_lr = disparity_field(
+        prior["disparity"], prior["strength"], min_strength=config.min_strength
+    )
+    planes: list[F32] = []
+    info: dict[str, Any] = {}
+    for cam, burst in enumerate(qb.bursts):
+        say(f"fuse: camera {cam} ({burst.frames.shape[0]} frames, x{config.scale})")
+        frames = [f.astype(np.float32) for f in burst.frames]
+        model = parallax_model(qb, cam, optics) if config.motion == "local" else None
+        if config.motion == "local" and config.method != "bicubic":
+            cam_info: dict[str, Any]
+            if model is None:
+                lumas = frames if bayer is None else [bayer_luma(f) for f in frames]
+                regs = register_lumas(lumas, mosaic=bayer is not None)
+                model = ParallaxModel.from_registration(
+                    regs, disparity_px=float(np.median(field_lr))
+                )
+                cam_info = {"parallax_from": "registration"}
+            else:
+                cam_info = {"parallax_from": "caliper"}
+            img, binfo = fuse_local(
+                frames, model, field_lr, scale=config.scale, bayer=bayer, method=config.method,
+                block=config.block, threads=config.threads,
+            )  # fmt: skip
+            cam_info.update(binfo)
+        else:
+            res = fuse_frames(
+                frames, scale=config.scale, method=config.method, bayer=bayer,
+                prior=burst.stage_prior_px(),
+            )  # fmt: skip
+            img, cam_info = res.image, {"used": len(res.registrations) - len(res.excluded)}
+        info[f"cam{cam}"] = cam_info
+        planes.append(np.asarray(img, dtype=np.float32) / full)
+    rgb = np.stack(planes) if bayer is not None else None
+    lum = np.stack([luminance(p) for p in planes]) if bayer is not None else np.stack(planes)
+    seconds["fuse"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    say("tp: tile processor on the fused quad")
+    fused = QuadImages(np.ascontiguousarray(lum, dtype=np.float32), bayer=None, geometry=geometry)
+    dsi = disparity_map(fused, config=tp_config(config.scale, threads=config.threads))
+    dsi["disparity_lr"] = (dsi["disparity"] / np.float32(config.scale)).astype(np.float32)
+    seconds["tp"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    hr_optics = optics.scaled(config.scale)
+    depth = dsi_depth(dsi, fused, hr_optics, min_strength=config.min_strength, rgb_images=rgb)
+    seconds["depth"] = time.perf_counter() - t0
+    seconds["total"] = time.perf_counter() - t_all
+    return DepthRun(prior, dsi, fused, rgb, depth, hr_optics, seconds, info)
+
+
+def read_and_run(
+    path: str | Path, *, config: DepthConfig, progress: Callable[[str], None] | None = None
+) -> tuple[DepthRun, float]:
+    """Read a quad-burst directory and run :func:`quad_burst_depth`; also the read time."""
+    t0 = time.perf_counter()
+    qb = read_quad_burst(path)
+    if qb.frames < 1:
+        raise InputFormatError(f"{path}: the bursts have no frames")
+    return quad_burst_depth(qb, config=config, source=str(path), progress=progress), (
+        time.perf_counter() - t0
+    )
+
+
+def write_fused_quad(path: str | Path, run: DepthRun) -> Path:
+    """The fused quad as a quad directory (float32 luminance, full scale 1)."""
+    manifest = QuadManifest(
+        cameras=quad_cameras(run.fused.geometry.positions),
+        bayer=None,
+        full_scale_dn=1.0,
+        optics={
+            "focal_length_mm": run.optics.focal_length_mm,
+            "pixel_pitch_um": run.optics.pixel_pitch_um,
+            "baseline_mm": run.optics.baseline_mm,
+        },
+    )
+    return write_quad_dir(path, manifest, list(run.fused.images))

@@ -1,0 +1,224 @@
+"""A quad's DSI as depth: the depth map (mm), the point cloud and their pictures.
+
+Tiles whose strength is below the threshold are left out (NaN in the depth map, no
+point) and counted, and so are tiles at or beyond infinity (disparity <= 0). Each point's
+colour is the mean of what the four cameras see where the measured disparity puts the
+tile centre in each of them (the 2x2 Bayer cell there), white-balanced by nothing and
+shown with a display gamma of 1/2.2, scaled so the 99.5th percentile is white.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+from numpy.typing import NDArray
+
+from elphel_host.cloud.ply import PointCloud, write_ply
+from elphel_host.cloud.render import cloud_png, depth_png
+from elphel_host.depth.geometry import DepthOptics
+from elphel_host.errors import InputFormatError
+from elphel_host.fileio import replacing
+from elphel_host.tp.bayer import lattices
+from elphel_host.tp.geometry import tile_centres
+from elphel_host.tp.images import QuadImages
+
+F32 = NDArray[np.float32]
+
+#: Default strength threshold: textured tiles of the simulator's scenes have strength
+#: 0.3-0.5, texture-less ones ~0.1 (docs/tile-processor.md, Measured figures).
+DEFAULT_MIN_STRENGTH = 0.15
+
+
+@dataclass(frozen=True, eq=False)
+class DepthResult:
+    """Depth of every tile and the cloud of the kept ones.
+
+    Attributes
+    ----------
+    depth_mm
+        ``(tiles_y, tiles_x)`` float32, NaN where left out.
+    cloud
+        One point per kept tile (x, y, z mm, strength, colour).
+    tiles, weak, infinite
+        Tiles in all; left out for a strength below the threshold; left out for a
+        disparity <= 0 (or not finite).
+    min_strength
+        The threshold used.
+    """
+
+    depth_mm: F32
+    cloud: PointCloud
+    tiles: int
+    weak: int
+    infinite: int
+    min_strength: float
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "tiles": self.tiles,
+            "points": len(self.cloud),
+            "weak_tiles": self.weak,
+            "infinite_tiles": self.infinite,
+            "min_strength": self.min_strength,
+        }
+
+
+def _colours(
+    quad: QuadImages, cx: F32, cy: F32, disparity: F32, rgb_images: F32 | None = None
+) -> NDArray[np.uint8]:
+    """Mean of the four cameras' 2x2 cells at each point's position in each camera."""
+    n = cx.size
+    rgb = np.zeros((n, 3), dtype=np.float64)
+    h, w = quad.images.shape[1:]
+    for cam, (px, py) in enumerate(quad.geometry.positions):
+        img = quad.images[cam]
+        if rgb_images is not None:
+            col = np.clip(np.floor(cx - disparity * px).astype(np.intp), 0, w - 1)
+            row = np.clip(np.floor(cy - disparity * py).astype(np.intp), 0, h - 1)
+            rgb += rgb_images[cam][row, col].astype(np.float64)
+            continue
+        # continuous coordinate x covers pixel floor(x); the cell containing it starts even
+        col = np.clip(np.floor(cx - disparity * px).astype(np.intp) // 2 * 2, 0, w - 2)
+        row = np.clip(np.floor(cy - disparity * py).astype(np.intp) // 2 * 2, 0, h - 2)
+        if quad.bayer is None:
+            v = img[row, col].astype(np.float64)
+            rgb += v[:, None]
+            continue
+        sums = np.zeros((3, n))
+        counts = np.zeros(3)
+        for lat in lattices(quad.bayer):
+            sums[lat.colour] += img[row + lat.row, col + lat.col]
+            counts[lat.colour] += 1
+        r, b, g = (sums[i] / counts[i] for i in range(3))
+        rgb += np.stack([r, g, b], axis=1)
+    rgb /= 4.0
+    white = float(np.percentile(rgb, 99.5)) if n else 1.0
+    disp = np.clip(rgb / max(white, 1e-12), 0.0, 1.0) ** (1 / 2.2)
+    out: NDArray[np.uint8] = np.round(disp * 255).astype(np.uint8)
+    return out
+
+
+def dsi_depth(
+    dsi: dict[str, F32],
+    quad: QuadImages,
+    optics: DepthOptics,
+    *,
+    min_strength: float = DEFAULT_MIN_STRENGTH,
+    rgb_images: F32 | None = None,
+) -> DepthResult:
+    """Depth map and point cloud of a DSI measured on ``quad`` (whose pixels ``optics`` describes).
+
+    Parameters
+    ----------
+    dsi
+        Layers with at least ``disparity`` and ``strength`` ``(tiles_y, tiles_x)``.
+    quad
+        The images the DSI was measured on (for the image size and the colours).
+    optics
+        Focal length, pixel pitch of these images (an up-sampled quad: :meth:`DepthOptics.scaled`)
+        and baseline.
+    min_strength
+        Tiles below it are left out and counted.
+    rgb_images
+        Optional ``(4, H, W, 3)`` colour images of the quad (a fused Bayer burst) to take
+        the points' colours from instead of the quad's own images.
+    """
+    for name in ("disparity", "strength"):
+        if name not in dsi:
+            raise InputFormatError(f"DSI has no {name!r} layer; layers: {', '.join(dsi)}")
+    if not min_strength >= 0:
+        raise InputFormatError(f"min_strength={min_strength}; allowed: >= 0")
+    disparity = np.asarray(dsi["disparity"], dtype=np.float64)
+    strength = np.asarray(dsi["strength"], dtype=np.float64)
+    if disparity.shape != quad.tiles:
+        raise InputFormatError(
+            f"DSI has {disparity.shape[1]}x{disparity.shape[0]} tiles, the quad "
+            f"{quad.tiles[1]}x{quad.tiles[0]}"
+        )
+    h, w = quad.images.shape[1:]
+    infinite = ~(np.isfinite(disparity) & (disparity > 0))
+    weak = ~infinite & ~(strength >= min_strength)
+    keep = ~infinite & ~weak
+    depth = optics.depth_mm(np.where(keep, disparity, np.nan))
+    cy, cx = tile_centres(*quad.tiles)
+    pts = optics.points_mm(cx[keep], cy[keep], depth[keep], image_size=(w, h))
+    colours = _colours(
+        quad,
+        cx[keep].astype(np.float32),
+        cy[keep].astype(np.float32),
+        disparity[keep].astype(np.float32),
+        rgb_images,
+    )
+    cloud = PointCloud(pts.astype(np.float32), strength[keep].astype(np.float32), colours)
+    return DepthResult(
+        depth_mm=depth.astype(np.float32),
+        cloud=cloud,
+        tiles=int(disparity.size),
+        weak=int(np.count_nonzero(weak)),
+        infinite=int(np.count_nonzero(infinite)),
+        min_strength=float(min_strength),
+    )
+
+
+def write_depth_tiff(path: str | Path, depth_mm: F32, *, metadata: dict[str, Any]) -> Path:
+    """A float32 depth TIFF (mm, NaN = no depth), its metadata as JSON in the description."""
+    path = Path(path)
+    with replacing(path, sync=True, keep_suffix=True) as tmp:
+        tifffile.imwrite(
+            tmp, np.asarray(depth_mm, dtype=np.float32), metadata={"unit": "mm", **metadata}
+        )
+    return path
+
+
+def read_depth_tiff(path: str | Path) -> tuple[F32, dict[str, Any]]:
+    """Read a depth TIFF written by :func:`write_depth_tiff`: (depth mm, metadata)."""
+    with tifffile.TiffFile(path) as tif:
+        data = tif.asarray().astype(np.float32)
+        desc = tif.pages.first.description
+    try:
+        meta = json.loads(desc) if desc else {}
+    except json.JSONDecodeError as e:
+        raise InputFormatError(f"{path}: description is not the JSON of a depth TIFF") from e
+    return data, meta
+
+
+def depth_paths(ply: str | Path) -> dict[str, Path]:
+    """Where the products of ``--ply CLOUD.ply`` go: the cloud, its picture, the depth map."""
+    ply = Path(ply)
+    return {
+        "ply": ply,
+        "cloud_png": ply.with_suffix(".png"),
+        "depth_tiff": ply.with_name(ply.stem + "_depth.tif"),
+        "depth_png": ply.with_name(ply.stem + "_depth.png"),
+    }
+
+
+def write_depth_products(
+    ply: str | Path, result: DepthResult, optics: DepthOptics, *, title: str = ""
+) -> dict[str, str]:
+    """Write the cloud (PLY + PNG view) and the depth map (TIFF + PNG with a colour bar)."""
+    paths = depth_paths(ply)
+    meta = {
+        "min_strength": result.min_strength,
+        "optics": {
+            "focal_length_mm": optics.focal_length_mm,
+            "pixel_pitch_um": optics.pixel_pitch_um,
+            "baseline_mm": optics.baseline_mm,
+        },
+        "tile_centre": "(8*tx+4, 8*ty+4)",
+        **result.summary(),
+    }
+    write_ply(
+        paths["ply"],
+        result.cloud,
+        comments=("elphel depth: x y z in mm, camera frame of the virtual centre camera",),
+    )
+    cloud_png(paths["cloud_png"], result.cloud, title=f"{title} {len(result.cloud)} points".strip())
+    write_depth_tiff(paths["depth_tiff"], result.depth_mm, metadata=meta)
+    depth_png(paths["depth_png"], result.depth_mm, title=f"{title} depth".strip())
+    return {k: str(v) for k, v in paths.items()}
