@@ -27,6 +27,7 @@ from elphel_host.tp.clt.batch import (
     camera_spectra,
     camera_transform,
     expand,
+    mosaic_cells,
     padded_mosaic,
 )
 from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
@@ -70,7 +71,7 @@ class PreparedQuad:
 
     quad: QuadImages
     config: TpConfig
-    flats: list[F32]
+    cells: list[F32]
     transform: CameraTransform
     centres: tuple[NDArray[np.float64], NDArray[np.float64]]
     profiles: Profiles
@@ -105,7 +106,10 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
         pad=pad,
         row_stride=w,
     )
-    flats = [padded_mosaic(img, pad, bayer=quad.bayer is not None) for img in quad.images]
+    cells = [
+        mosaic_cells(padded_mosaic(img, pad, bayer=quad.bayer is not None), transform)
+        for img in quad.images
+    ]
     ty, tx = quad.tiles
     lags = np.arange(-config.radius, config.radius + 1, dtype=np.float64)
     vectors = quad.geometry.pair_vectors()
@@ -113,7 +117,7 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
     return PreparedQuad(
         quad=quad,
         config=config,
-        flats=flats,
+        cells=cells,
         transform=transform,
         centres=tile_centres(ty, tx),
         profiles=compact_profiles(full, transform.fset, lpf_mask(config.lpf_sigma)),
@@ -157,12 +161,12 @@ def _products(
     for cam, (px, py) in enumerate(quad.geometry.positions):
         at = place_tiles(cx, cy, target, (px, py))
         if prep.kernels is None:
-            per_camera.append(camera_spectra(prep.flats[cam], prep.transform, at))
+            per_camera.append(camera_spectra(prep.cells[cam], prep.transform, at))
         else:
             index = _kernel_index(quad, cx - target * px, cy - target * py)
             per_camera.append(
                 camera_spectra(
-                    prep.flats[cam],
+                    prep.cells[cam],
                     prep.transform,
                     at,
                     kernels=prep.kernels[cam],
