@@ -4,6 +4,9 @@ NumPy's element-wise work, SciPy's FFTs and OpenCV release the GIL on large arra
 plain threads run them truly in parallel: one frame, alias, row band or tile band per
 thread. While such threads multiply many small matrices, OpenBLAS's own threads would
 fight them for the same cores, so `single_threaded_blas` keeps OpenBLAS to one thread.
+`dask_client` is the other scale: independent tasks (one quad, one burst) on a Dask
+cluster of worker processes, local or remote.
+
 NumPy does not expose a thread setting, so the OpenBLAS library NumPy loaded is found in
 the process's memory map and its ``*_set_num_threads`` entry point is called through
 ctypes. Without such a library (other BLAS, other OS) that is a no-op.
@@ -85,3 +88,40 @@ def single_threaded_blas() -> Iterator[None]:
             _depth -= 1
             if _depth == 0:
                 setter(ctypes.c_int(_saved[0]))
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> Iterator[Any]:
+    """A ``dask.distributed.Client``: of the cluster at ``scheduler``, else of a local one.
+
+    The local cluster has ``workers`` single-threaded worker processes (default: one per
+    core); it is closed on exit. Its nannies set ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` (and
+    more) in this process's environment for their workers, so the environment is put back
+    afterwards, and processes started later from here do not inherit single-threaded BLAS.
+    """
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as e:  # pragma: no cover - dask[distributed] is a dependency
+        raise RuntimeError(
+            "a Dask cluster needs dask[distributed] (pip install 'dask[distributed]')"
+        ) from e
+    environ = dict(os.environ)
+    cluster = None
+    try:
+        if scheduler:
+            client = Client(scheduler, timeout="30s")
+        else:
+            n = workers if workers is not None else (os.cpu_count() or 1)
+            cluster = LocalCluster(
+                n_workers=n, processes=True, threads_per_worker=1, dashboard_address=None
+            )
+            client = Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
+        os.environ.clear()
+        os.environ.update(environ)
