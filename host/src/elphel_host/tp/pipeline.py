@@ -93,8 +93,8 @@ def stage_times() -> Iterator[dict[str, float]]:
     try:
         yield sums
     finally:
-        with _stage_lock:
-            _stage_sums.remove(sums)
+        with _stage_lock:  # by identity: two collectors may hold equal sums
+            del _stage_sums[next(i for i, d in enumerate(_stage_sums) if d is sums)]
 
 
 def _record(name: str, t0: float) -> float:
