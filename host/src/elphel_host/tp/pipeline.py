@@ -147,10 +147,11 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
         pad=pad,
         row_stride=w,
     )
-    cells = [
-        mosaic_cells(padded_mosaic(img, pad, bayer=quad.bayer is not None), transform)
-        for img in quad.images
-    ]
+    cells = parallel_map(
+        lambda img: mosaic_cells(padded_mosaic(img, pad, bayer=quad.bayer is not None), transform),
+        list(quad.images),
+        threads=config.threads,
+    )
     ty, tx = quad.tiles
     lags = np.arange(-config.radius, config.radius + 1, dtype=np.float64)
     vectors = quad.geometry.pair_vectors()
