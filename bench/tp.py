@@ -332,14 +332,15 @@ def main() -> int:
         del big_raw
         _, big_times, big_peak, big_stages = timed_tp(big_quad, config, 2)
         big_s = min(big_times[1:])
-        # the small quad again, right after, so that both times see the same load
+        # the small quad again, right after, so that both times see about the same load
         _, again, _, _ = timed_tp(quad, config, 2)
-        small_s = min(tp_s, *again[1:])
+        small_s = min(again[1:])
         result["large_quad"] = {
             "width": 2 * args.width,
             "height": 2 * args.height,
             "seconds": round(big_s, 3),
             "runs_s": [round(t, 3) for t in big_times[1:]],
+            "small_quad_right_after_s": round(small_s, 3),
             "peak_traced_memory_mb": round(big_peak / 2**20, 1),
             "stage_seconds_summed_over_threads": {k: round(v, 3) for k, v in big_stages.items()},
         }
@@ -361,7 +362,7 @@ def main() -> int:
     result["ratios"] = ratios
     targets = {
         "3x_faster_than_sgbm": sgbm_s >= 3 * tp_s,
-        "fronto_rms_le_0.03": all(tp_rms[n] <= 0.03 for n in fronto),
+        "fronto_all_rms_le_0.03": tp_fronto <= 0.03,
         "slanted_rms_le_0.045": tp_rms["slanted"] <= 0.045,
         "peak_memory_le_1gb": peak <= 2**30,
         "fronto_rms_le_0.05": all(tp_rms[n] <= 0.05 for n in fronto),
