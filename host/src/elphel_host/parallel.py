@@ -109,7 +109,13 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> 
     cluster = None
     try:
         if scheduler:
-            client = Client(scheduler, timeout="30s")
+            try:
+                client = Client(scheduler, timeout="30s")
+            except (OSError, ValueError) as e:
+                raise OSError(
+                    f"Dask scheduler {scheduler}: cannot connect ({e}); allowed: the address "
+                    "of a running scheduler, e.g. tcp://host:8786"
+                ) from e
         else:
             n = workers if workers is not None else (os.cpu_count() or 1)
             cluster = LocalCluster(
