@@ -118,8 +118,9 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> 
                 ) from e
         else:
             n = workers if workers is not None else (os.cpu_count() or 1)
+            # the scheduler's HTTP endpoint on a free port: two local clusters may run at once
             cluster = LocalCluster(
-                n_workers=n, processes=True, threads_per_worker=1, dashboard_address=None
+                n_workers=n, processes=True, threads_per_worker=1, dashboard_address=":0"
             )
             client = Client(cluster)
         try:
