@@ -132,3 +132,49 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> 
             cluster.close()
         os.environ.clear()
         os.environ.update(environ)
+
+
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+_MMAP_THRESHOLD_MAX = 32 * 2**20  # glibc's largest allowed on 64-bit
+
+
+def _libc() -> Any:
+    try:
+        lib = ctypes.CDLL("libc.so.6")
+        lib.mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+        lib.malloc_trim.argtypes = [ctypes.c_size_t]
+        return lib
+    except (OSError, AttributeError):
+        return None
+
+
+_LIBC = _libc()
+
+
+@contextmanager
+def heap_reuse() -> Iterator[None]:
+    """Let glibc reuse freed heap memory for large arrays during the body.
+
+    Dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_`` set, which also fixes
+    glibc's mmap threshold at 128 KiB: then every array above it is a fresh mapping whose
+    pages fault in on first touch, and chunked array code runs several times slower
+    (measured: a DSI 3.5x the CPU time). The body runs with the mmap threshold at 32 MiB
+    and trimming deferred; afterwards the thresholds go back to the environment's
+    (or glibc's defaults) and the free memory is returned to the system. A no-op
+    without glibc or when neither variable is set.
+    """
+    fixed = [os.environ.get(v) for v in ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_")]
+    if _LIBC is None or not any(fixed):
+        yield  # glibc's dynamic thresholds are in effect: they already reuse the heap
+        return
+    trim = int(fixed[0] or 128 * 1024)
+    mmap = int(fixed[1] or 128 * 1024)
+    _LIBC.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)
+    _LIBC.mallopt(_M_TRIM_THRESHOLD, 2**30)
+    try:
+        yield
+    finally:
+        _LIBC.mallopt(_M_MMAP_THRESHOLD, mmap)
+        _LIBC.mallopt(_M_TRIM_THRESHOLD, trim)
+        _LIBC.malloc_trim(0)
