@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from elphel_host.camera.backends import connect
-from elphel_host.cli_common import add_camera_options, emit
+from elphel_host.cli_common import ProgressLine, add_camera_options, emit
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
 from elphel_host.tp.capture import capture_quad
@@ -25,11 +25,13 @@ from elphel_host.tp.io import read_quad_dir
 from elphel_host.tp.layout import read_layout
 from elphel_host.tp.pipeline import correlation_tiles
 from elphel_host.tp.processor import disparity_map
+from elphel_host.tp.sequence import find_quads, plan_jobs, run_sequence
 from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
 USAGE = """elphel tp QUAD_DIR --out DSI.tif [--ply CLOUD.ply] [--json] [tile processor options]
+       elphel tp QUAD_DIR... --out-dir DIR [--scheduler ADDRESS] [--workers N] [--json]
        elphel tp capture --camera URL [--token T] --out QUAD_DIR [--geometry FILE]
                          [--trigger-period-ms MS] [--force] [--json]"""
 
@@ -45,13 +47,14 @@ def register(subparsers: Any) -> None:
         "camera: one trigger, four sensor ports, the same timestamp.",
     )
     p.add_argument(
-        "quad_dir",
+        "quad_dirs",
+        nargs="+",
         metavar="QUAD_DIR",
-        help="quad directory (quad.json + cam0..3.tif), or `capture` to take one from a camera",
+        help="quad directory (quad.json + cam0..3.tif), or `capture` to take one from a camera; "
+        "with --out-dir, any number of them or directories of them",
     )
     p.add_argument(
         "--out",
-        required=True,
         metavar="PATH",
         help="DSI.tif to write (ImageJ stack); with `capture`, the quad directory to create",
     )
@@ -106,6 +109,7 @@ def register(subparsers: Any) -> None:
         help="also write an RGBA float32 TIFF: the four cameras blended at the measured disparity",
     )
     add_depth_options(tp)
+    _add_sequence_options(p)
     p.set_defaults(func=run, parser=p)
 
 
@@ -127,9 +131,30 @@ def add_depth_options(group: Any) -> None:
     )
 
 
+def _add_sequence_options(p: Any) -> None:
+    seq = p.add_argument_group("many quads (elphel tp QUAD_DIR... --out-dir DIR)")
+    seq.add_argument(
+        "--out-dir",
+        metavar="DIR",
+        help="one DSI per quad, DIR/<quad name>.tif; DSIs already there are kept, not redone",
+    )
+    seq.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="Dask scheduler of an existing cluster (tcp://host:8786); default: a local cluster",
+    )
+    seq.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="local cluster: worker processes (default: one per core)",
+    )
+
+
 # Options of one form that make no sense in the other (compared with their defaults).
 _TP_ONLY = ("refine", "scan", "fat_zero", "threads", "ml_data", "texture", "ply", "min_strength")
 _CAPTURE_ONLY = ("geometry", "trigger_period_ms", "force", "timeout")
+_SEQUENCE_ONLY = ("scheduler", "workers")
 
 
 def _misplaced(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
@@ -138,12 +163,30 @@ def _misplaced(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Dispatch ``elphel tp capture ...`` and ``elphel tp QUAD_DIR ...``."""
+    """Dispatch ``elphel tp capture ...``, ``elphel tp QUAD_DIR ...`` and ``--out-dir``."""
+    args.quad_dir = args.quad_dirs[0]
     if args.quad_dir == CAPTURE:
+        if len(args.quad_dirs) > 1 or args.out_dir:
+            args.parser.error("capture takes one quad set: `elphel tp capture ... --out QUAD_DIR`")
+        wrong = _misplaced(args, _SEQUENCE_ONLY)
+        if wrong:
+            args.parser.error(f"{', '.join(wrong)}: only with --out-dir")
         return run_capture(args)
     wrong = _misplaced(args, _CAPTURE_ONLY)
     if wrong:
         args.parser.error(f"{', '.join(wrong)}: only with `elphel tp capture`")
+    if args.out_dir:
+        return run_many(args)
+    wrong = _misplaced(args, _SEQUENCE_ONLY)
+    if wrong:
+        args.parser.error(f"{', '.join(wrong)}: only with --out-dir (many quads)")
+    if len(args.quad_dirs) > 1:
+        args.parser.error(
+            f"{len(args.quad_dirs)} quad directories: give --out-dir DIR (one DSI each), "
+            "or one QUAD_DIR with --out"
+        )
+    if not args.out:
+        args.parser.error("--out DSI.tif is required (or --out-dir DIR for many quads)")
     return run_tp(args)
 
 
@@ -152,6 +195,8 @@ def run_capture(args: argparse.Namespace) -> int:
     wrong = _misplaced(args, _TP_ONLY)
     if wrong:
         args.parser.error(f"{', '.join(wrong)}: only with `elphel tp QUAD_DIR`, not `capture`")
+    if not args.out:
+        args.parser.error("capture needs --out QUAD_DIR (the quad directory to create)")
     if not args.camera:
         hint = " (for a quad directory named capture, write ./capture)"
         args.parser.error(
@@ -255,3 +300,65 @@ def run_tp(args: argparse.Namespace) -> int:
         )
     emit(args, result, human)
     return 0
+
+
+def run_many(args: argparse.Namespace) -> int:
+    """``elphel tp QUAD_DIR... --out-dir DIR``: one DSI per quad, on a Dask cluster."""
+    if args.out:
+        args.parser.error("--out and --out-dir: give one (--out-dir for many quads)")
+    single_only = [
+        f
+        for f, v in (("--ml-data", args.ml_data), ("--texture", args.texture), ("--ply", args.ply))
+        if v
+    ]
+    if single_only:
+        args.parser.error(f"{', '.join(single_only)}: only with one QUAD_DIR and --out")
+    if args.workers is not None and args.workers < 1:
+        args.parser.error(f"--workers={args.workers}; allowed: >= 1")
+    if args.workers is not None and args.scheduler:
+        args.parser.error("--workers: only for the local cluster, not with --scheduler")
+    quads = find_quads(args.quad_dirs)
+    jobs = plan_jobs(quads, args.out_dir)
+    Path(args.out_dir).mkdir(parents=True, exist_ok=True)
+    # one quad per single-threaded worker process, unless --threads says otherwise
+    threads = args.threads if args.threads != args.parser.get_default("threads") else 1
+    config = TpConfig(
+        refine_passes=args.refine, scan=tuple(args.scan), fat_zero=args.fat_zero, threads=threads
+    )
+    progress = ProgressLine()
+    failed_line = progress.say("failed: ")
+    counts = {"done": 0, "skipped": 0, "failed": 0}
+
+    def report(res: dict[str, Any], done: int, total: int) -> None:
+        counts[res["status"]] += 1
+        if res["status"] == "failed":
+            failed_line(f"{res['quad']}: {res['error']}")
+        progress.update(
+            f"{done}/{total} quads ({counts['skipped']} skipped, {counts['failed']} failed)",
+            done=done,
+            total=total,
+        )
+
+    t0 = time.perf_counter()
+    try:
+        results = run_sequence(
+            jobs, config, scheduler=args.scheduler, workers=args.workers, on_result=report
+        )
+    finally:
+        progress.end()
+    seconds = time.perf_counter() - t0
+    result = {
+        "out_dir": str(args.out_dir),
+        "quads": results,
+        "done": counts["done"],
+        "skipped": counts["skipped"],
+        "failed": counts["failed"],
+        "seconds": round(seconds, 3),
+        "scheduler": args.scheduler or "local",
+    }
+    human = (
+        f"{args.out_dir}: {len(results)} quads, {counts['done']} done, {counts['skipped']} "
+        f"skipped (already there), {counts['failed']} failed, {seconds:.1f} s"
+    )
+    emit(args, result, human)
+    return 1 if counts["failed"] else 0

@@ -104,20 +104,23 @@ def compact_pair_products(
     The production form of :func:`pair_products`: the spectra come from
     :func:`~elphel_host.tp.clt.batch.camera_spectra` with the square roots of the colour
     weights already inside, per camera a list of colours ``(T, 2, F_c)`` (red and blue on
-    the first ``fset.n_box`` frequencies, green or mono on all).
+    the first ``fset.n_box`` frequencies, green or mono on all). The result is a
+    transposed view of a pair-major array (each pair's block contiguous).
     """
     t = spectra[0][0].shape[0]
-    conj = [[np.conj(z) for z in cam] for cam in spectra]
-    out = np.empty((t, len(pairs), 2, fset.size), dtype=np.complex64)
+    ncol = len(spectra[0])
+    # pair-major, so each pair's products are one contiguous block (returned transposed)
+    buf = np.empty((len(pairs), t, 2, fset.size), dtype=np.complex64)
+    conj = {a: [np.conj(z) for z in spectra[a]] for a in sorted({a for a, _ in pairs})}
+    tmp = np.empty((t, 2, fset.n_box), dtype=np.complex64)
     for p, (a, b) in enumerate(pairs):
-        acc = out[:, p]
-        ncol = len(spectra[a])
-        np.multiply(
-            conj[a][ncol - 1], spectra[b][ncol - 1], out=acc
-        )  # green (or mono): all frequencies
+        acc = buf[p]
+        np.multiply(conj[a][ncol - 1], spectra[b][ncol - 1], out=acc)  # green/mono: all
         box = acc[:, :, : fset.n_box]
         for c in range(ncol - 1):
-            box += conj[a][c] * spectra[b][c]
+            np.multiply(conj[a][c], spectra[b][c], out=tmp)
+            box += tmp
+    out: C64 = buf.transpose(1, 0, 2, 3)
     return out
 
 
@@ -268,12 +271,29 @@ def correlation_2d(products: C64, *, lpf_sigma: float, radius: int = 7) -> F32:
     return out
 
 
+def integer_max(
+    samples: F32,
+    profiles: Profiles,
+    *,
+    lag_min: NDArray[np.floating] | None = None,
+    select: F32 | None = None,
+) -> NDArray[np.intp]:
+    """Index of the integer maximum over ``lags`` (the first step of :func:`subpixel_max`)."""
+    lags = profiles.lags
+    search = samples[..., : lags.size] if select is None else select
+    if lag_min is not None:
+        search = np.where(lags < np.asarray(lag_min)[..., None] - 0.5, np.float32(-np.inf), search)
+    out: NDArray[np.intp] = np.argmax(search, axis=-1)
+    return out
+
+
 def subpixel_max(
     samples: F32,
     profiles: Profiles,
     *,
     lag_min: NDArray[np.floating] | None = None,
     select: F32 | None = None,
+    index: NDArray[np.intp] | None = None,
 ) -> tuple[F32, F32, NDArray[np.intp]]:
     """Sub-pixel maximum of correlation profiles.
 
@@ -294,6 +314,9 @@ def subpixel_max(
     select
         Optional ``(..., L)`` profile whose integer maximum is used instead (e.g. the
         profile divided by the window-overlap envelope).
+    index
+        The integer maximum if already known (:func:`integer_max` of the same
+        arguments); else it is found here.
 
     Returns
     -------
@@ -304,10 +327,7 @@ def subpixel_max(
     nl = lags.size
     nd = profiles.deriv_lags.size
     prof = samples[..., :nl]
-    search = prof if select is None else select
-    if lag_min is not None:
-        search = np.where(lags < np.asarray(lag_min)[..., None] - 0.5, np.float32(-np.inf), search)
-    idx = np.argmax(search, axis=-1)
+    idx = integer_max(samples, profiles, lag_min=lag_min, select=select) if index is None else index
     inner = np.clip(idx, 1, nl - 2)
 
     def at(i: NDArray[np.intp], arr: F32 = prof) -> F32:

@@ -22,6 +22,7 @@ import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.errors import InputFormatError
+from elphel_host.fileio import replacing
 from elphel_host.tp.geometry import QuadGeometry
 
 F32 = NDArray[np.float32]
@@ -91,9 +92,11 @@ def write_dsi(
         "layers": names,
     }
     props.update(extra or {})
-    tifffile.imwrite(
-        path, stack, imagej=True, metadata={"Labels": names, "Info": properties_xml(props)}
-    )
+    # through a temporary name: a DSI under its final name is always complete
+    with replacing(path, keep_suffix=True) as tmp:
+        tifffile.imwrite(
+            tmp, stack, imagej=True, metadata={"Labels": names, "Info": properties_xml(props)}
+        )
 
 
 def read_dsi(path: str | Path) -> tuple[dict[str, F32], dict[str, str]]:

@@ -332,7 +332,12 @@ def read_quad_dir(path: str | Path) -> QuadSet:
         file = root / cam.file
         if not file.is_file():
             raise InputFormatError(f"{source}: cameras[{i}].file {file} does not exist")
-        img = tifffile.imread(file)
+        try:
+            img = tifffile.imread(file)
+        except (tifffile.TiffFileError, ValueError, OSError) as e:
+            raise InputFormatError(
+                f"{file}: not a readable TIFF ({e}); allowed: a 16-bit raw frame"
+            ) from e
         if img.ndim != 2:
             raise InputFormatError(
                 f"{file}: image must be 2-D (one raw frame), got shape {img.shape}"

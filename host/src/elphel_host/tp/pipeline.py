@@ -14,7 +14,10 @@ threads do not oversubscribe the cores.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +30,7 @@ from elphel_host.tp.clt.batch import (
     camera_spectra,
     camera_transform,
     expand,
+    mosaic_cells,
     padded_mosaic,
 )
 from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
@@ -35,6 +39,7 @@ from elphel_host.tp.correlation import (
     compact_pair_products,
     compact_profiles,
     correlation_2d,
+    integer_max,
     lpf_mask,
     normalise,
     pair_profiles,
@@ -64,13 +69,50 @@ MEASURED = (
 )
 
 
+#: The stages of a pass, as :func:`stage_times` names them.
+STAGES = ("to_clt", "pair_products", "correlation", "argmax", "subpixel")
+
+_stage_lock = threading.Lock()
+_stage_sums: list[dict[str, float]] = []
+
+
+@contextmanager
+def stage_times() -> Iterator[dict[str, float]]:
+    """Seconds spent in each stage of every pass run in the body (summed over threads).
+
+    Yields a dict, filled when the body ends: per name of :data:`STAGES` the time summed
+    over all chunks and threads (so with 2 threads the sum is about twice the wall time).
+    ``to_clt``: placing the tiles and the four cameras' transforms; ``pair_products``:
+    the six pair products and their normalisation; ``correlation``: the inverse
+    transform to correlation values along each pair's disparity direction;
+    ``argmax``: the integer maximum; ``subpixel``: the sub-pixel fits (and the centroid).
+    """
+    sums = dict.fromkeys(STAGES, 0.0)
+    with _stage_lock:
+        _stage_sums.append(sums)
+    try:
+        yield sums
+    finally:
+        with _stage_lock:  # by identity: two collectors may hold equal sums
+            del _stage_sums[next(i for i, d in enumerate(_stage_sums) if d is sums)]
+
+
+def _record(name: str, t0: float) -> float:
+    t1 = time.perf_counter()
+    if _stage_sums:
+        with _stage_lock:
+            for sums in _stage_sums:
+                sums[name] += t1 - t0
+    return t1
+
+
 @dataclass(frozen=True, eq=False)
 class PreparedQuad:
     """What every pass over one image set shares (see :func:`prepare`)."""
 
     quad: QuadImages
     config: TpConfig
-    flats: list[F32]
+    cells: list[F32]
     transform: CameraTransform
     centres: tuple[NDArray[np.float64], NDArray[np.float64]]
     profiles: Profiles
@@ -105,7 +147,11 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
         pad=pad,
         row_stride=w,
     )
-    flats = [padded_mosaic(img, pad, bayer=quad.bayer is not None) for img in quad.images]
+    cells = parallel_map(
+        lambda img: mosaic_cells(padded_mosaic(img, pad, bayer=quad.bayer is not None), transform),
+        list(quad.images),
+        threads=config.threads,
+    )
     ty, tx = quad.tiles
     lags = np.arange(-config.radius, config.radius + 1, dtype=np.float64)
     vectors = quad.geometry.pair_vectors()
@@ -113,7 +159,7 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
     return PreparedQuad(
         quad=quad,
         config=config,
-        flats=flats,
+        cells=cells,
         transform=transform,
         centres=tile_centres(ty, tx),
         profiles=compact_profiles(full, transform.fset, lpf_mask(config.lpf_sigma)),
@@ -147,7 +193,10 @@ def _kernel_index(
 
 
 def _products(
-    prep: PreparedQuad, tiles: NDArray[np.intp], target: NDArray[np.float64]
+    prep: PreparedQuad,
+    tiles: NDArray[np.intp],
+    target: NDArray[np.float64],
+    t0: float | None = None,
 ) -> NDArray[np.complex64]:
     """Normalised pair products of some tiles at their targets: ``(T, pairs, 2, F)``."""
     quad = prep.quad
@@ -157,28 +206,36 @@ def _products(
     for cam, (px, py) in enumerate(quad.geometry.positions):
         at = place_tiles(cx, cy, target, (px, py))
         if prep.kernels is None:
-            per_camera.append(camera_spectra(prep.flats[cam], prep.transform, at))
+            per_camera.append(camera_spectra(prep.cells[cam], prep.transform, at))
         else:
             index = _kernel_index(quad, cx - target * px, cy - target * py)
             per_camera.append(
                 camera_spectra(
-                    prep.flats[cam],
+                    prep.cells[cam],
                     prep.transform,
                     at,
                     kernels=prep.kernels[cam],
                     kernel_index=index,
                 )
             )
+    if t0 is not None:
+        t0 = _record("to_clt", t0)
     p = compact_pair_products(per_camera, quad.geometry.pairs, prep.transform.fset)
-    return normalise(p, prep.config.fat_zero)
+    p = normalise(p, prep.config.fat_zero)
+    if t0 is not None:
+        _record("pair_products", t0)
+    return p
 
 
 def _measure_chunk(
     prep: PreparedQuad, tiles: NDArray[np.intp], target: NDArray[np.float64], full: bool
 ) -> dict[str, F32]:
     config = prep.config
-    p = _products(prep, tiles, target)
+    t0 = time.perf_counter()
+    p = _products(prep, tiles, target, t0)
+    t0 = time.perf_counter()
     prof = pair_profiles(p, prep.profiles)  # (T, pairs, lags)
+    t0 = _record("correlation", t0)
     groups = {"": list(config.pairs)}
     if full:
         groups.update({"_hor": [0, 1], "_vert": [2, 3], "_diag": [4, 5]})
@@ -187,14 +244,19 @@ def _measure_chunk(
         combined = prof[:, members].mean(axis=1)
         nl = prep.profiles.lags.size
         levelled = (prof[:, members, :nl] / prep.envelope[members]).mean(axis=1)
+        lag_min = config.min_disparity - target
+        t0 = _record("correlation", t0)
+        idx = integer_max(combined, prep.profiles, lag_min=lag_min, select=levelled)
+        t0 = _record("argmax", t0)
         pos, val, idx = subpixel_max(
-            combined, prep.profiles, lag_min=config.min_disparity - target, select=levelled
+            combined, prep.profiles, lag_min=lag_min, select=levelled, index=idx
         )
         out["residual" + suffix] = pos
         out["strength" + suffix] = val
         if suffix == "":
             out["residual_cm"] = windowed_centroid(combined, prep.profiles, idx)
             out["levelled"] = levelled
+        t0 = _record("subpixel", t0)
     return out
 
 

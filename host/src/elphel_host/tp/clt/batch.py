@@ -9,16 +9,21 @@ definition):
   4x4 lowest, below their lattice's alias band; green: ``kh + kv <= green_band``; mono:
   all 64). The box of red/blue frequencies comes first in the frequency list, so red and
   blue are a prefix of green.
-* A camera's tile is gathered once as 256 mosaic samples ordered by colour lattice. Which
-  colour sits on which tile-local parity depends only on the parity of the tile's integer
-  origin (its "class"), so each class has fixed transform matrices that already contain
-  the lattice offset j0 (no per-lattice rotation), the colour weight and colour LPF
-  (as square roots, so a pair product carries them once), and, for green, the sum of the
-  two green lattices. Tiles are grouped by class within a chunk.
+* The mosaic is regrouped once per image by Bayer cell (:func:`mosaic_cells`: per cell
+  its four pixels side by side, in colour order), so a batch of tiles is gathered by one
+  strided indexing operation. The gathered footprint is cell-aligned: 9x9 cells per tile
+  (a tile starting on an odd pixel starts one pixel into its first cell), so every tile
+  has the same colour layout and every colour fixed transform matrices, whatever the
+  parity of the tile's origin. The basis is a pure exponential in the sample index
+  (``E[k, j+1] = E[k, j] exp(i OMEGA[k])``), so the one-pixel offset of an odd start is a
+  phase rotation, folded into the rotation by the fractional shift. The matrices also
+  hold the colour weight and colour LPF (as square roots, so a pair product carries them
+  once) and, for green, the sum of the two green lattices.
 * The shifted window is ``w_s(j) = cos(pi s/16) w0(j) + sin(pi s/16) w1(j)``, so the 2-D
-  window of every tile is a 4-term combination of fixed windows: one small matrix product.
-* What is left per tile is one phase rotation by the camera's fractional shift, common to
-  all colours.
+  window of every tile is a 4-term combination of fixed windows (one set per start
+  parity, zero outside the tile): one small matrix product.
+* What is left per tile is one phase rotation by the camera's fractional shift and start
+  parity, common to all colours.
 """
 
 from __future__ import annotations
@@ -62,39 +67,41 @@ def frequency_set(bayer: str | None, *, green_band: int, box: int = 4) -> Freque
 
 
 @dataclass(frozen=True)
-class _ClassPlan:
-    offsets: NDArray[np.int64]  # (256,) flat offsets of the samples in the padded image
-    windows: F32  # (4, 256) fixed windows w_a(y) w_b(x)
-    blocks: tuple[tuple[slice, F32], ...]  # per colour: samples, matrix (n, 2*2*F_c)
-
-
-@dataclass(frozen=True)
 class CameraTransform:
     """Everything fixed about turning one camera's mosaic into colour spectra."""
 
     fset: FrequencySet
     colour_sizes: tuple[int, ...]  # frequencies per colour (R, B, G) or (mono,)
-    plans: tuple[_ClassPlan, ...]  # index = (top parity) * 2 + (left parity)
+    cell: int  # 2 (Bayer cell) or 1 (mono)
+    span: int  # samples per plane along an axis: 9 (Bayer) or 16 (mono)
+    plane_rows: NDArray[np.intp]  # (planes,) row parity of each plane, colour order
+    plane_cols: NDArray[np.intp]  # (planes,) column parity of each plane
+    blocks: tuple[tuple[slice, F32], ...]  # per colour: planes, matrix (n, 2*2*F_c)
+    windows: F32  # (parities * 4, planes * span^2): fixed windows per start parity
     angles: F32  # (2, 2F): rotation angle per (shift_x, shift_y) for (which, f)
     row_stride: int
     pad: int
 
 
-def _lattice_matrix(
-    lat: Lattice, py: int, px: int, fset: FrequencySet, nf: int
-) -> NDArray[np.float64]:
-    """Samples (v, u) of one lattice at tile-local parity (py, px) -> (which, f, re/im)."""
-    st = lat.step
-    n = lat.samples
-    ys = st * np.arange(n) + py
-    xs = st * np.arange(n) + px
-    ev = E_COMPLEX[fset.kv[:nf]][:, ys]  # (F, n)
-    eh = E_COMPLEX[fset.kh[:nf]][:, xs]  # (F, n)
+def _extended_basis(length: int) -> NDArray[np.complex128]:
+    """``E_COMPLEX`` continued past the tile: ``E[k, j] = E[k, 0] exp(i OMEGA[k] j)``."""
+    j = np.arange(length)
+    out: NDArray[np.complex128] = E_COMPLEX[:, :1] * np.exp(1j * OMEGA[:, None] * j[None, :])
+    return out
+
+
+def _plane_matrix(lat: Lattice, span: int, fset: FrequencySet, nf: int) -> NDArray[np.float64]:
+    """Plane samples (v, u) at cell positions ``step * v + row`` -> (which, f, re/im)."""
+    e = _extended_basis(lat.step * span)
+    ys = lat.step * np.arange(span) + lat.row
+    xs = lat.step * np.arange(span) + lat.col
+    ev = e[fset.kv[:nf]][:, ys]  # (F, v)
+    eh = e[fset.kh[:nf]][:, xs]  # (F, u)
     z2 = ev[:, :, None] * eh[:, None, :]  # (F, v, u)
     z1 = np.conj(ev)[:, :, None] * eh[:, None, :]
-    coef = np.stack([z2, z1]).reshape(2, nf, n * n)  # (which, f, samples)
+    coef = np.stack([z2, z1]).reshape(2, nf, span * span)  # (which, f, samples)
     out = np.stack([coef.real, coef.imag], axis=-1)  # (which, f, samples, re/im)
-    return out.transpose(2, 0, 1, 3).reshape(n * n, 2 * nf * 2) * lat.scale
+    return out.transpose(2, 0, 1, 3).reshape(span * span, 2 * nf * 2) * lat.scale
 
 
 def camera_transform(
@@ -105,7 +112,7 @@ def camera_transform(
     pad: int,
     row_stride: int,
 ) -> CameraTransform:
-    """Prepare the class plans of a sensor.
+    """Prepare the transform matrices of a sensor.
 
     Parameters
     ----------
@@ -126,51 +133,43 @@ def camera_transform(
     lats = lattices(bayer)
     ncol = 1 if bayer is None else 3
     sizes = tuple(fset.size if (bayer is None or c == 2) else fset.n_box for c in range(ncol))
-    w0 = lambda j: np.sin(np.pi * (j + 0.5) / TILE)  # noqa: E731
-    w1 = lambda j: np.cos(np.pi * (j + 0.5) / TILE)  # noqa: E731
-    plans = []
-    for cls in range(4 if bayer is not None else 1):
-        cy, cx = cls // 2, cls % 2
-        offsets, wins, blocks = [], [], []
-        start = 0
-        for colour in range(ncol):
-            members = [lat for lat in lats if lat.colour == colour]
-            mats = []
-            for lat in members:
-                py, px = (lat.row - cy) % lat.step, (lat.col - cx) % lat.step
-                ys = lat.step * np.arange(lat.samples) + py
-                xs = lat.step * np.arange(lat.samples) + px
-                yy, xx = (a.ravel() for a in np.meshgrid(ys, xs, indexing="ij"))
-                offsets.append(yy * row_stride + xx)
-                wins.append(
-                    np.stack([w0(yy) * w0(xx), w0(yy) * w1(xx), w1(yy) * w0(xx), w1(yy) * w1(xx)])
-                )
-                mats.append(_lattice_matrix(lat, py, px, fset, sizes[colour]))
-            m = np.concatenate(mats, axis=0)
-            # fold in the square root of the colour weight: the pair product then carries it once
-            wgt = colour_weights[colour][
-                fset.kh[: sizes[colour]], :, fset.kv[: sizes[colour]]
-            ]  # (F, which)
-            root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
-            m = m * np.repeat(root.ravel(), 2)[None, :]
-            n_in = m.shape[0]
-            blocks.append((slice(start, start + n_in), m.astype(np.float32)))
-            start += n_in
-        plans.append(
-            _ClassPlan(
-                offsets=np.concatenate(offsets).astype(np.int64),
-                windows=np.concatenate(wins, axis=1).astype(np.float32),
-                blocks=tuple(blocks),
-            )
-        )
+    cell = 1 if bayer is None else 2
+    # a tile starts on either parity; its cell-aligned footprint is one sample wider
+    span = TILE if bayer is None else TILE // 2 + 1
+    rows: list[int] = []
+    cols: list[int] = []
+    blocks: list[tuple[slice, F32]] = []
+    for colour in range(ncol):
+        members = [lat for lat in lats if lat.colour == colour]
+        first = len(rows)
+        mats = []
+        for lat in members:
+            rows.append(lat.row)
+            cols.append(lat.col)
+            mats.append(_plane_matrix(lat, span, fset, sizes[colour]))
+        m = np.concatenate(mats, axis=0)
+        # fold in the square root of the colour weight: the pair product then carries it once
+        wgt = colour_weights[colour][
+            fset.kh[: sizes[colour]], :, fset.kv[: sizes[colour]]
+        ]  # (F, which)
+        root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
+        m = m * np.repeat(root.ravel(), 2)[None, :]
+        blocks.append((slice(first, len(rows)), m.astype(np.float32)))
     f = fset.size
     angles = np.zeros((2, 2 * f))
     angles[0] = np.tile(OMEGA[fset.kh], 2)
     angles[1] = np.concatenate([OMEGA[fset.kv], -OMEGA[fset.kv]])
+    plane_rows = np.array(rows, dtype=np.intp)
+    plane_cols = np.array(cols, dtype=np.intp)
     return CameraTransform(
         fset=fset,
         colour_sizes=sizes,
-        plans=tuple(plans),
+        cell=cell,
+        span=span,
+        plane_rows=plane_rows,
+        plane_cols=plane_cols,
+        blocks=tuple(blocks),
+        windows=_window_tables(cell, span, plane_rows, plane_cols).astype(np.float32),
         angles=angles.astype(np.float32),
         row_stride=row_stride,
         pad=pad,
@@ -200,8 +199,50 @@ def padded_mosaic(image: NDArray[np.floating], pad: int, *, bayer: bool) -> F32:
     return out
 
 
+def mosaic_cells(flat: F32, tr: CameraTransform) -> F32:
+    """A :func:`padded_mosaic` regrouped by cell: ``(rows/c, cols/c, planes)``.
+
+    Plane p of cell (i, j) is the pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
+    (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
+    are a few contiguous runs and a batch of tiles is gathered by one indexing operation.
+    """
+    c = tr.cell
+    img = np.asarray(flat, dtype=np.float32).reshape(-1, tr.row_stride)
+    if img.shape[0] % c or img.shape[1] % c:
+        raise ValueError(f"padded mosaic {img.shape}; allowed: multiples of {c}")
+    planes = [img[r::c, q::c] for r, q in zip(tr.plane_rows, tr.plane_cols, strict=True)]
+    out: F32 = np.ascontiguousarray(np.stack(planes, axis=-1))
+    return out
+
+
+def _window_tables(
+    cell: int, span: int, rows: NDArray[np.intp], cols: NDArray[np.intp]
+) -> NDArray[np.float64]:
+    """Fixed windows ``w_a(y) w_b(x)`` on the planes' samples, per tile start parity.
+
+    Row ``parity * 4 + a * 2 + b`` (parity = 2 (top & 1) + (left & 1); a, b: 0 = the sine
+    window, 1 = the cosine one) is the window of the cell-aligned footprint, zero on the
+    samples outside the 16x16 tile. The window of a tile shifted by s is
+    ``cos(pi s/16) w0 + sin(pi s/16) w1`` along each axis.
+    """
+    out = []
+    for parity in range(cell * cell):
+        py, px = divmod(parity, cell) if cell == 2 else (0, 0)
+        j = cell * np.arange(span)
+        jy = j[None, :] + rows[:, None] - py  # (planes, v): tile-local row
+        jx = j[None, :] + cols[:, None] - px
+        inside_y = (jy >= 0) & (jy < TILE)
+        inside_x = (jx >= 0) & (jx < TILE)
+        for a in range(2):
+            wy = np.where(inside_y, np.sin(np.pi * (jy + 0.5) / TILE + a * np.pi / 2), 0.0)
+            for b in range(2):
+                wx = np.where(inside_x, np.sin(np.pi * (jx + 0.5) / TILE + b * np.pi / 2), 0.0)
+                out.append((wy[:, :, None] * wx[:, None, :]).ravel())
+    return np.array(out)
+
+
 def camera_spectra(
-    flat: F32,
+    mosaic: F32,
     tr: CameraTransform,
     at: TilePlacement,
     *,
@@ -217,49 +258,64 @@ def camera_spectra(
 
     Parameters
     ----------
-    flat
-        :func:`padded_mosaic` of the camera.
+    mosaic
+        :func:`mosaic_cells` of the camera (prepare it once per image), or the
+        :func:`padded_mosaic` itself (regrouped on every call).
     tr
         :func:`camera_transform` of the sensor.
     at
         Where the camera's tiles lie on the sensor.
     """
+    cells = mosaic_cells(mosaic, tr) if mosaic.ndim == 1 else mosaic
+    c, span = tr.cell, tr.span
     left_x, shift_x, top_y, shift_y = at.left_x, at.shift_x, at.top_y, at.shift_y
     t = left_x.shape[0]
-    nrows = flat.size // tr.row_stride
-    lx = np.clip(left_x + tr.pad, 0, tr.row_stride - TILE)
-    ly = np.clip(top_y + tr.pad, 0, nrows - TILE)
-    base = ly * tr.row_stride + lx
-    cls = ((top_y & 1) * 2 + (left_x & 1)) if len(tr.plans) == 4 else np.zeros(t, dtype=np.int64)
-    outs = [np.empty((t, 2 * n), dtype=np.complex64) for n in tr.colour_sizes]
+    # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
+    par_x = left_x & (c - 1)
+    par_y = top_y & (c - 1)
+    cols = np.clip((left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span)
+    rows = np.clip((top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span)
+    s0, s1, s2 = cells.strides
+    view = np.lib.stride_tricks.as_strided(
+        cells,
+        shape=(cells.shape[0] - span + 1, cells.shape[1] - span + 1, span, span, cells.shape[2]),
+        strides=(s0, s1, s0, s1, s2),
+        writeable=False,
+    )
+    gathered = view[rows, cols]  # (T, v, u, planes)
+    npl = cells.shape[2]
+    n_plane = span * span
+    if npl == 1:
+        samples = gathered.reshape(t, n_plane)
+    else:
+        samples = np.empty((t, npl, n_plane), dtype=np.float32)
+        samples[...] = gathered.reshape(t, n_plane, npl).transpose(0, 2, 1)
+        samples = samples.reshape(t, npl * n_plane)
+    # the window: 4 fixed windows per start parity, combined by the tile's shift
     a = np.pi / TILE
-    coef = np.empty((t, 4), dtype=np.float32)
     cy, sy = np.cos(a * shift_y), np.sin(a * shift_y)
     cx, sx = np.cos(a * shift_x), np.sin(a * shift_x)
-    coef[:, 0] = cy * cx
-    coef[:, 1] = cy * sx
-    coef[:, 2] = sy * cx
-    coef[:, 3] = sy * sx
+    coef = np.stack([cy * cx, cy * sx, sy * cx, sy * sx], axis=1).astype(np.float32)
+    parity = par_y * c + par_x
     uniform_shift = bool(np.ptp(shift_x) == 0 and np.ptp(shift_y) == 0)  # e.g. a first pass
-    present = np.unique(cls)
-    for c in present:
-        plan = tr.plans[int(c)]
-        sel = None if present.size == 1 else np.nonzero(cls == c)[0]
-        b = base if sel is None else base[sel]
-        samples = np.take(flat, b[:, None] + plan.offsets[None, :])
-        if uniform_shift:
-            samples *= coef[:1] @ plan.windows  # one window for all tiles
-        else:
-            samples *= (coef if sel is None else coef[sel]) @ plan.windows
-        for colour, (rows, mat) in enumerate(plan.blocks):
-            z = (samples[:, rows] @ mat).view(np.complex64)
-            if sel is None:
-                outs[colour] = z
-            else:
-                outs[colour][sel] = z
-    # one rotation by the fractional shift, shared by all colours (box frequencies first)
-    shifts = np.stack([shift_x, shift_y], axis=1).astype(np.float32)
-    ang = (shifts[:1] if uniform_shift else shifts) @ tr.angles  # (T or 1, 2F)
+    if uniform_shift and np.ptp(parity) == 0:
+        p0 = int(parity[0]) * 4
+        samples *= coef[:1] @ tr.windows[p0 : p0 + 4]
+    else:
+        spread = np.zeros((t, tr.windows.shape[0]), dtype=np.float32)
+        np.put_along_axis(spread, parity[:, None] * 4 + np.arange(4), coef, axis=1)
+        samples *= spread @ tr.windows
+    one = slice(0, 1) if uniform_shift and np.ptp(parity) == 0 else slice(None)
+    flat_samples = samples
+    outs = []
+    for planes, mat in tr.blocks:
+        part = flat_samples[:, planes.start * n_plane : planes.stop * n_plane]
+        outs.append((part @ mat).view(np.complex64))
+    # one rotation by the fractional shift (and the cell offset), shared by all colours
+    shifts = np.stack([shift_x[one] - par_x[one], shift_y[one] - par_y[one]], axis=1).astype(
+        np.float32
+    )
+    ang = shifts @ tr.angles  # (T or 1, 2F)
     phase = np.empty(ang.shape, dtype=np.complex64)
     phase.real = np.cos(ang)
     phase.imag = np.sin(ang)
