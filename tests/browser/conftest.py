@@ -45,8 +45,9 @@ def browser() -> Iterator[object]:
         b.close()
 
 
-def rig_of(scenario: str) -> Iterator[Rig]:
-    started = start_rig(scenario=scenario, seed=1)
+def rig_of(scenario: str, *, public_reads: bool = True) -> Iterator[Rig]:
+    """A rig whose reads are open by default (the lab's read-only use of the page)."""
+    started = start_rig(scenario=scenario, seed=1, public_reads=public_reads)
     try:
         yield started.rig
     finally:

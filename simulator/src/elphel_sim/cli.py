@@ -39,6 +39,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="camd: elphel-camd's REST API (default); elphel: a stock NC393's parsedit.php "
         "on the camera port and imgsrv on four consecutive free ports",
     )
+    up.add_argument(
+        "--public-reads",
+        action="store_true",
+        help="camd firmware: answer reads without the token, as elphel-camd --public-reads",
+    )
     up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
     return p
 
@@ -55,6 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             stage_port=args.stage_port,
             as_json=args.json,
             firmware=args.firmware,
+            public_reads=args.public_reads,
         )
     except OSError as e:
         print(f"elphel-sim: {e}", file=sys.stderr)

@@ -237,8 +237,12 @@ def up(
     stage_port: int,
     as_json: bool,
     firmware: str = "camd",
+    public_reads: bool = False,
 ) -> int:
-    """Serve the rig; ``firmware`` "camd" (elphel-camd's REST) or "elphel" (stock NC393)."""
+    """Serve the rig; ``firmware`` "camd" (elphel-camd's REST) or "elphel" (stock NC393).
+
+    ``public_reads``: elphel-camd answers reads without the token (its ``--public-reads``).
+    """
     board = SimCameraBoard(build(scenario, seed=seed), seed=seed)
     camera = CameraService(board)
     secret = new_token()
@@ -252,8 +256,9 @@ def up(
         camera_url, token = f"nc393://{host}:{port}?imgsrv={imgsrv[0].getsockname()[1]}", None
         hint = f"elphel camera info --url {camera_url}"
     else:
-        # As the daemon: reads need the token, Host must be an address or localhost.
-        app = create_app(camera, token=secret, allowed_hosts=[])
+        # As the daemon: reads need the token (unless public_reads), Host must be an
+        # address or localhost.
+        app = create_app(camera, token=secret, public_reads=public_reads, allowed_hosts=[])
         cameras = [Served(app, bind_loopback(camera_port))]
         camera_url = cameras[0].url
         hint = f"elphel camera info --url {camera_url} --token {token}"

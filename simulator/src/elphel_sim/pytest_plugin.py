@@ -71,9 +71,16 @@ class RigProcess:
 
 
 def start_rig(
-    *, scenario: str = "default", seed: int = 0, firmware: str = "camd", timeout: float = 60.0
+    *,
+    scenario: str = "default",
+    seed: int = 0,
+    firmware: str = "camd",
+    timeout: float = 60.0,
+    public_reads: bool = False,
 ) -> RigProcess:
     """Start ``elphel-sim up --json`` on free ports and wait for its announcement.
+
+    ``public_reads`` starts it with ``--public-reads`` (reads answered without the token).
 
     Raises
     ------
@@ -89,6 +96,8 @@ def start_rig(
         raise ValueError(f"elphel_rig firmware {firmware!r}; allowed {', '.join(FIRMWARES)}")
     cmd = [sys.executable, "-m", "elphel_sim.cli", "up", "--json"]
     cmd += ["--scenario", scenario, "--seed", str(int(seed)), "--firmware", firmware]
+    if public_reads:
+        cmd.append("--public-reads")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     line = ""
