@@ -250,7 +250,7 @@ async def listen(url: str, shared: Shared, out: Listener) -> None:
     timeout = httpx.Timeout(30, read=None)
     try:
         async with (
-            httpx.AsyncClient(base_url=url, timeout=timeout) as http,
+            httpx.AsyncClient(base_url=url, headers=AUTH, timeout=timeout) as http,
             http.stream("GET", f"{API}/events", params={"types": "frame,params"}) as r,
         ):
             if r.status_code != 200:

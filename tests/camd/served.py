@@ -37,8 +37,17 @@ class Served:
 
 
 @contextlib.contextmanager
-def serve(service: CameraService, **config: Any) -> Iterator[Served]:
-    app = create_app(service, token=TOKEN, keepalive_s=config.pop("keepalive_s", 15.0))
+def serve(
+    service: CameraService, *, public_reads: bool = True, **config: Any
+) -> Iterator[Served]:
+    """Serve ``service``; reads are open by default (these tests are about streams and
+    connections; tests/camd/test_security.py is about the token)."""
+    app = create_app(
+        service,
+        token=TOKEN,
+        public_reads=public_reads,
+        keepalive_s=config.pop("keepalive_s", 15.0),
+    )
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind(("127.0.0.1", 0))

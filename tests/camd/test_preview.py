@@ -123,7 +123,8 @@ def client():
     cam = CameraService(board)
     cam.set_params(0, SMALL)
     board.sim_advance(frames=4)
-    with TestClient(create_app(cam, token=TOKEN)) as c:
+    # Open reads: these tests are about what a preview holds; the token has its own test.
+    with TestClient(create_app(cam, token=TOKEN, public_reads=True)) as c:
         yield c
     cam.close()
 
@@ -238,7 +239,7 @@ def test_previews_of_a_read_protected_daemon_need_the_token():
     cam = CameraService(board)
     cam.set_params(0, SMALL)
     try:
-        with TestClient(create_app(cam, token=TOKEN, read_protected=True)) as c:
+        with TestClient(create_app(cam, token=TOKEN)) as c:
             for path in ("preview", "preview.mjpeg?count=1", "histogram", "params/schema"):
                 assert c.get(f"/api/v1/ports/0/{path}").status_code == 401, path
             assert c.get("/api/v1/ports/0/preview", headers=AUTH).status_code == 200

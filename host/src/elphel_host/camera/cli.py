@@ -138,7 +138,7 @@ def _said_plainly(func: Callable[[argparse.Namespace], int]) -> Callable[[argpar
                 "ELPHEL_CAMERA_TOKEN"
             ) from e
         except CameraHTTPError as e:
-            if e.status == 422 and e.parameter and e.allowed is not None:
+            if e.status in (409, 422) and e.parameter and e.allowed is not None:
                 raise CameraParameterError(
                     f"{refusal(e.parameter, e.value, e.allowed)}; HTTP {e.status}",
                     parameter=e.parameter,

@@ -194,7 +194,8 @@ class CameraClient(Staging, Closing):
     ) -> Applied:
         """Change parameters all-or-nothing, at once, at frame ``frame`` or ``ahead`` frames on.
 
-        Raises `CameraHTTPError` (422 names the parameter, value and allowed range).
+        Raises `CameraHTTPError` naming the parameter, value and allowed range: 422 when the
+        schema refuses the value, 409 when the port's sensor or schedule does.
         """
         query: dict[str, Any] = {}
         if frame is not None:

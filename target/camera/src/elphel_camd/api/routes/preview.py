@@ -17,7 +17,7 @@ import time
 from collections import OrderedDict
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
 from fastapi.responses import JSONResponse, Response, StreamingResponse
@@ -53,8 +53,10 @@ _FRAME_HEADERS = {
     "X-Image-Height": {"description": "raw frame height, px", "schema": {"type": "integer"}},
 }
 
+# An enum in the schema: a value outside it is invalid by the schema (422), not by the port.
 ScaleQuery = Annotated[
-    str, Query(description=f"preview size: {_SCALE_ALLOWED} of the frame", max_length=8)
+    Literal["1", "1/1", "1/2", "0.5", "1/4", "0.25", "1/8", "0.125"],
+    Query(description=f"preview size: {_SCALE_ALLOWED} of the frame"),
 ]
 WbQuery = Annotated[bool, Query(description="grey-world white balance (Bayer sensors)")]
 TQuery = Annotated[
