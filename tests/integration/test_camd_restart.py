@@ -59,15 +59,22 @@ def stop(proc: subprocess.Popen[str]) -> None:
         proc.wait()
 
 
-def open_streams(url: str, n: int) -> tuple[list[threading.Thread], list[float]]:
+def open_streams(
+    url: str, n: int, token: str | None
+) -> tuple[list[threading.Thread], list[float]]:
     """``n`` event streams read in threads; the time each one ended."""
     ended: list[float] = []
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
 
     def follow() -> None:
         try:
             with httpx.stream(
-                "GET", url + "/api/v1/events", timeout=httpx.Timeout(10, read=None)
+                "GET",
+                url + "/api/v1/events",
+                headers=headers,
+                timeout=httpx.Timeout(10, read=None),
             ) as r:
+                assert r.status_code == 200, r.status_code  # else it ends at once
                 for _ in r.iter_lines():
                     pass
         except httpx.HTTPError:
@@ -84,8 +91,9 @@ def test_sigterm_with_event_streams_connected_stops_at_once(tmp_path):
     port = free_port()
     proc = start_camd(port, tmp_path / "state")
     try:
-        threads, ended = open_streams(f"http://127.0.0.1:{port}", 3)
+        threads, ended = open_streams(f"http://127.0.0.1:{port}", 3, TOKEN)
         time.sleep(1.0)
+        assert not ended  # the streams are open (an answer without a stream ends at once)
         start = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=10)
@@ -102,8 +110,9 @@ def test_sigterm_with_event_streams_connected_stops_at_once(tmp_path):
 def test_sim_up_sigterm_with_event_streams_connected_stops_at_once():
     proc, rig = start_rig()
     try:
-        threads, ended = open_streams(rig["camera_url"], 3)
+        threads, ended = open_streams(rig["camera_url"], 3, rig["token"])
         time.sleep(1.0)
+        assert not ended  # the streams are open (an answer without a stream ends at once)
         start = time.monotonic()
         stop_rig(proc, timeout=10)
         exited = time.monotonic() - start
@@ -124,7 +133,7 @@ def test_restart_with_a_connected_client_loses_no_event_and_repeats_no_patch(tmp
     proc = start_camd(port, state)
     got: list[CameraEvent] = []
     client = CameraClient(url, TOKEN, retry_s=60)
-    listener = CameraClient(url, None, retry_s=60)
+    listener = CameraClient(url, TOKEN, retry_s=60)
 
     def listen() -> None:
         with contextlib.suppress(CameraClientError, RuntimeError):  # the listener closed
