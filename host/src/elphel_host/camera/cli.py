@@ -134,8 +134,8 @@ def _said_plainly(func: Callable[[argparse.Namespace], int]) -> Callable[[argpar
                     "check --token or ELPHEL_CAMERA_TOKEN (elphel-sim up prints it)"
                 ) from e
             raise CameraAuthError(
-                f"the camera at {args.camera} needs its token: give --token or set "
-                "ELPHEL_CAMERA_TOKEN"
+                f"the camera at {args.camera} needs its token (HTTP {e.status}): give --token "
+                "or set ELPHEL_CAMERA_TOKEN"
             ) from e
         except CameraHTTPError as e:
             if e.status in (409, 422) and e.parameter and e.allowed is not None:
