@@ -34,8 +34,11 @@ def _chromium() -> str:
     return path
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def browser() -> Iterator[object]:
+    """Chromium for the tests of this package only: Playwright's sync API keeps an asyncio
+    loop running in the main thread while it is open, which other tests' loops cannot
+    share."""
     executable = _chromium()
     from playwright.sync_api import sync_playwright
 
