@@ -157,8 +157,7 @@ def test_stream_ids_and_last_event_id_resume(service):
 
 
 def test_stalled_listener_is_dropped_and_the_others_get_everything(service):
-    with serve(service) as srv:
-        stalled = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    with serve(service) as srv, socket.socket(socket.AF_INET, socket.SOCK_STREAM) as stalled:
         stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         stalled.connect(("127.0.0.1", int(srv.url.rsplit(":", 1)[1])))
         stalled.sendall(b"GET /api/v1/events?types=params HTTP/1.1\r\nHost: camera\r\n\r\n")
@@ -187,7 +186,6 @@ def test_stalled_listener_is_dropped_and_the_others_get_everything(service):
         with contextlib.suppress(ConnectionResetError):
             while chunk := stalled.recv(65536):
                 received += chunk
-        stalled.close()
         assert received.startswith(b"HTTP/1.1 200")
 
 

@@ -8,6 +8,7 @@ camera: the ones whose disparity is defined without a depth edge.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -15,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from elphel_sim.quad import QuadRig, QuadScene
+    from elphel_sim.quad import QuadRig, QuadScene, Region
 
 
 @dataclass(frozen=True)
@@ -57,11 +58,26 @@ def _cast(
         ],
         -1,
     )
-    best = np.full(xs.shape, np.inf)
-    label = np.full(xs.shape, -1, dtype=np.intp)
-    for i, region in enumerate(scene.regions):
+    best, label = nearest_hits(scene.regions, d)
+    depth = best * rig.focal_length_mm
+    return depth, label
+
+
+def nearest_hits(
+    regions: Sequence[Region],
+    d: NDArray[np.float64],
+    origin_mm: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """The nearest region each ray ``origin + t * d`` meets: ``t`` (inf if none) and its index.
+
+    ``d`` is (..., 3); a region is its plane, bounded by its half extents where it has them.
+    """
+    o0 = np.zeros(3) if origin_mm is None else np.asarray(origin_mm, dtype=np.float64)
+    best = np.full(d.shape[:-1], np.inf)
+    label = np.full(d.shape[:-1], -1, dtype=np.intp)
+    for i, region in enumerate(regions):
         u, v, nrm = region.plane.basis()
-        o = np.asarray(region.plane.origin, dtype=np.float64)
+        o = np.asarray(region.plane.origin, dtype=np.float64) - o0
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (nrm @ o) / (d @ nrm)
         hit = t[..., None] * d
@@ -71,8 +87,7 @@ def _cast(
             ok &= (np.abs((hit - o) @ u) <= hu) & (np.abs((hit - o) @ v) <= hv)
         best = np.where(ok, t, best)
         label = np.where(ok, i, label)
-    depth = best * rig.focal_length_mm
-    return depth, label
+    return best, label
 
 
 def tile_truth(scene: QuadScene, *, margin_px: float = 12.0) -> TileTruth:

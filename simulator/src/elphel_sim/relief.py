@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from elphel_host.cloud.ply import PointCloud, write_ply
 from elphel_host.fileio import replacing
 from elphel_sim.quad import DEFAULT_SENSOR, QuadRig, QuadScene, Region
+from elphel_sim.quad_truth import nearest_hits
 from elphel_sim.render import Intrinsics, SensorModel, expose, mosaic, render_radiance
 from elphel_sim.world import FloatArray, Plane, Pose, Texture, World
 
@@ -211,21 +212,7 @@ def cast(
     The camera looks along +z with the rig's intrinsics; -1 / inf where nothing is hit.
     """
     d = _rays(scene.rig, np.asarray(xs, np.float64), np.asarray(ys, np.float64))
-    o0 = np.asarray(origin_mm, dtype=np.float64)
-    best = np.full(d.shape[:-1], np.inf)
-    label = np.full(d.shape[:-1], -1, dtype=np.intp)
-    for i, region in enumerate(scene.regions):
-        u, v, nrm = region.plane.basis()
-        o = np.asarray(region.plane.origin, dtype=np.float64) - o0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (nrm @ o) / (d @ nrm)
-        hit = t[..., None] * d
-        ok = np.isfinite(t) & (t > 0) & (t < best)
-        if region.plane.half_extent_mm is not None:
-            hu, hv = region.plane.half_extent_mm
-            ok &= (np.abs((hit - o) @ u) <= hu) & (np.abs((hit - o) @ v) <= hv)
-        best = np.where(ok, t, best)
-        label = np.where(ok, i, label)
+    best, label = nearest_hits(scene.regions, d, np.asarray(origin_mm, dtype=np.float64))
     return best * scene.rig.focal_length_mm, label
 
 

@@ -86,7 +86,7 @@ def test_bad_arguments_name_the_value(burst2):
 
 @pytest.mark.parametrize("aliases", [1, 4, 9, 16])
 def test_block_solver_matches_a_direct_solve(aliases):
-    from elphel_host.mfsr.forward import _solve_blocks
+    from elphel_host.mfsr.forward import solve_blocks
 
     rng = np.random.default_rng(aliases)
     c = rng.normal(size=(20, aliases)) + 1j * rng.normal(size=(20, aliases))
@@ -96,7 +96,7 @@ def test_block_solver_matches_a_direct_solve(aliases):
     b = (rng.normal(size=(aliases, 6, 7)) + 1j * rng.normal(size=(aliases, 6, 7))).astype(
         np.complex64
     )
-    x = _solve_blocks(d, g, mu, b)
+    x = solve_blocks(d, g, mu, b)
     for i, j in [(0, 0), (3, 4), (5, 6)]:
         m = np.diag(d[:, i, j]) @ g.astype(np.complex128) @ np.diag(d[:, i, j])
         direct = np.linalg.solve(m + np.diag(mu[:, i, j]), b[:, i, j])

@@ -276,16 +276,7 @@ def run_capture(args: argparse.Namespace) -> int:
             )
         with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
             positioner = Positioner(stage, StageModel.load(args.model))
-            so_far = load_progress(args.out)
-            if so_far is not None:
-                start_mm = float(so_far.extra["capture"]["start_mm"])
-            elif args.start_mm is not None:
-                start_mm = args.start_mm
-            else:
-                start_mm = round(positioner.read_mm(), 2)
-            top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
-            if plan.tilt_deg is not None:
-                top["stage"]["axis_angle_deg"] = plan.tilt_deg
+            start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out))
             engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
 
             def progress(done: int, total: int, message: str) -> None:
@@ -355,16 +346,7 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     line = ProgressLine()
     with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
         positioner = Positioner(stage, StageModel.load(args.model))
-        so_far = load_progress(args.out / "cam0")
-        if so_far is not None:
-            start_mm = float(so_far.extra["capture"]["start_mm"])
-        elif args.start_mm is not None:
-            start_mm = args.start_mm
-        else:
-            start_mm = round(positioner.read_mm(), 2)
-        top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
-        if plan.tilt_deg is not None:
-            top["stage"]["axis_angle_deg"] = plan.tilt_deg
+        start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out / "cam0"))
         engine = QuadRigEngine(positioner, camera, layout=layout, settle_s=args.settle_s)
 
         def progress(done: int, total: int, message: str) -> None:
@@ -382,3 +364,27 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     )
     emit(args, summary, human)
     return 0
+
+
+def _start_and_stage(
+    args: argparse.Namespace,
+    positioner: Positioner,
+    plan: BurstPlan,
+    top: dict[str, Any],
+    so_far: Any,
+) -> float:
+    """Where the plan starts; also sets the stage's entry of the manifest in ``top``.
+
+    The start is kept from an interrupted run, else ``--start-mm``, else where the
+    carriage is now.
+    """
+    if so_far is not None:
+        start_mm = float(so_far.extra["capture"]["start_mm"])
+    elif args.start_mm is not None:
+        start_mm = args.start_mm
+    else:
+        start_mm = round(positioner.read_mm(), 2)
+    top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
+    if plan.tilt_deg is not None:
+        top["stage"]["axis_angle_deg"] = plan.tilt_deg
+    return start_mm

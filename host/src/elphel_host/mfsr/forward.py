@@ -260,7 +260,7 @@ class FourierSolver:
             r1 = min(ny, r0 + _SOLVE_ROWS)
             D = d_all[:, r0:r1]
             mu = np.float32(self.lam) * s2 * l_all[:, r0:r1]
-            out[:, r0:r1] = _solve_blocks(D, g, mu, s2 * D * self.rhs[:, r0:r1])
+            out[:, r0:r1] = solve_blocks(D, g, mu, s2 * D * self.rhs[:, r0:r1])
 
         parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
         return out
@@ -294,7 +294,7 @@ class FourierSolver:
         return np.ascontiguousarray(img, dtype=np.float32)
 
 
-def _solve_blocks(D: NDArray[np.float32], G: C64, mu: NDArray[np.float32], b: C64) -> C64:
+def solve_blocks(D: NDArray[np.float32], G: C64, mu: NDArray[np.float32], b: C64) -> C64:
     """Solve (D G D + diag(mu)) x = b for every pixel of the trailing axes (LDL^H).
 
     The pivots d of a Hermitian matrix are real: they are kept as real arrays, which

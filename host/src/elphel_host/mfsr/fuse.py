@@ -194,7 +194,7 @@ def fuse_registered(
             planes = []
             for sites in bayer_sites(bayer).values():
                 # each colour: bilinear demosaic of that plane, then the published method
-                ch = [_demosaic_plane(fl[i], sites) for i in used]
+                ch = [demosaic_plane(fl[i], sites) for i in used]
                 planes.append(fuse_baseline(ch, scale=scale)[0])
             img, binfo = np.stack(planes, axis=-1), {}
         info["baseline_excluded"] = [used[i] for i in binfo.get("excluded", [])]
@@ -233,7 +233,7 @@ def fuse_registered(
     return np.asarray(img, np.float32), info
 
 
-def _demosaic_plane(mosaic: F32, sites: list[tuple[int, int]]) -> F32:
+def demosaic_plane(mosaic: F32, sites: list[tuple[int, int]]) -> F32:
     """One colour at every pixel by normalised bilinear interpolation of its sites."""
     vals = np.zeros_like(mosaic)
     mask = np.zeros_like(mosaic)
@@ -250,7 +250,7 @@ def _bicubic(frame: F32, scale: int, bayer: str | None) -> F32:
     if bayer is None:
         planes = [frame]
     else:
-        planes = [_demosaic_plane(frame, s) for s in bayer_sites(bayer).values()]
+        planes = [demosaic_plane(frame, s) for s in bayer_sites(bayer).values()]
     up = [cv2.resize(p, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC) for p in planes]
     return np.asarray(up[0] if bayer is None else np.stack(up, axis=-1), dtype=np.float32)
 

@@ -127,7 +127,7 @@ def warped_mean(
 
     Bayer frames are demosaiced per colour (bilinear) first. ``disparity_px`` is per pixel.
     """
-    from elphel_host.mfsr.fuse import _demosaic_plane, bayer_sites
+    from elphel_host.mfsr.fuse import bayer_sites, demosaic_plane
 
     h, w = frames[0].shape
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -136,7 +136,7 @@ def warped_mean(
         if bayer is None:
             img = frame[..., None]
         else:
-            img = np.stack([_demosaic_plane(frame, s) for s in bayer_sites(bayer).values()], -1)
+            img = np.stack([demosaic_plane(frame, s) for s in bayer_sites(bayer).values()], -1)
         mapx = (xs - disparity_px * np.float32(vx)).astype(np.float32)
         mapy = (ys - disparity_px * np.float32(vy)).astype(np.float32)
         moved = np.stack(

@@ -37,7 +37,7 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import ForwardModel, FourierSolver, _solve_blocks
+from elphel_host.mfsr.forward import ForwardModel, FourierSolver, solve_blocks
 from elphel_host.mfsr.frames import aligned, central_window, check_frames, estimate_noise, padded
 from elphel_host.parallel import parallel_map
 
@@ -199,7 +199,7 @@ class _Fold:
         s2 = np.float32(self.scale**2)
         d, l2 = solver._block_factors()
         mu = np.float32(lam) * s2 * l2
-        X = _solve_blocks(d, solver.G.astype(np.complex64), mu, s2 * d * self.rhs)
+        X = solve_blocks(d, solver.G.astype(np.complex64), mu, s2 * d * self.rhs)
         ps = self.pred_solver
         ny, nx = self.shape
         z = ((d / s2) * X).reshape(len(solver.offsets), -1)

@@ -24,7 +24,7 @@ from typing import Any
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from elphel_camd.api.routes.events import ABORT_EXTENSION, SEND_BUFFER_EXTENSION
+from elphel_camd.api.routes.events import CUT_EXTENSION, SEND_BUFFER_EXTENSION
 
 log = logging.getLogger(__name__)
 
@@ -67,15 +67,20 @@ class TimedH11Protocol(H11Protocol):
         super().data_received(data)
         cycle = self.cycle
         if cycle is not None and cycle is not cycle_before:
-            # A new request: let its stream (events) abort the connection if it must.
+            # A new request: let its stream (events) cut the connection if it must.
             extensions: Any = cycle.scope.setdefault("extensions", {})
-            extensions[ABORT_EXTENSION] = self.transport.abort
+            extensions[CUT_EXTENSION] = self._cut
             extensions[SEND_BUFFER_EXTENSION] = self._limit_send_buffer
         waiting = cycle is None or cycle.response_complete or cycle.more_body
         if waiting and not self.transport.is_closing():
             self._arm()
         else:
             self._disarm()
+
+    def _cut(self, grace_s: float) -> None:
+        """Close this connection; drop it if what is buffered has not gone out in grace_s."""
+        self.transport.close()
+        self.loop.call_later(grace_s, self.transport.abort)
 
     def _limit_send_buffer(self, nbytes: int) -> None:
         """Fix this connection's send buffers: the kernel's and the transport's.

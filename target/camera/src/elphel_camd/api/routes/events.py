@@ -34,9 +34,10 @@ router = APIRouter()
 
 # How long the last words (a ``dropped`` notice, the end of the body) may take to go out.
 _FAREWELL_S = 1.0
-# The ASGI scope extension through which the server lets a stream abort its connection
-# (elphel_camd.serving); without it the connection is closed normally.
-ABORT_EXTENSION = "elphel.abort"
+# The ASGI scope extension through which the server lets a stream cut its connection
+# (elphel_camd.serving): what is buffered goes out if the client reads it within
+# _FAREWELL_S, then the connection is dropped. Without it the response just ends.
+CUT_EXTENSION = "elphel.cut"
 # ... and fix its kernel send buffer: else the kernel grows it to megabytes for a client
 # that does not read, and the client is found to lag only minutes later.
 SEND_BUFFER_EXTENSION = "elphel.send_buffer"
@@ -83,7 +84,7 @@ class EventStream(Response):
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         sub = self.sub
         extensions = scope.get("extensions") or {}
-        abort: Callable[[], None] | None = extensions.get(ABORT_EXTENSION)
+        cut: Callable[[float], None] | None = extensions.get(CUT_EXTENSION)
         limit_send_buffer = extensions.get(SEND_BUFFER_EXTENSION)
         if limit_send_buffer is not None:
             limit_send_buffer(STREAM_SEND_BUFFER)
@@ -94,15 +95,14 @@ class EventStream(Response):
                 with anyio.CancelScope() as pump:
                     sub.interrupt = pump.cancel
                     await self._pump(send)
-                if sub.overflowed:
-                    with anyio.move_on_after(_FAREWELL_S) as farewell:
-                        await send(_body(dropped_notice(sub, "slow", self._sent_id)))
-                    if farewell.cancelled_caught and abort is not None:
-                        abort()  # the client does not read: no need to wait for it
-                        tg.cancel_scope.cancel()
-                        return
                 with anyio.move_on_after(_FAREWELL_S):
+                    if sub.overflowed:
+                        await send(_body(dropped_notice(sub, "slow", self._sent_id)))
                     await send({"type": "http.response.body", "body": b"", "more_body": False})
+                if sub.overflowed and cut is not None:
+                    # A client cut off is not kept alive for another request, and one
+                    # that does not read does not hold the connection open.
+                    cut(_FAREWELL_S)
                 tg.cancel_scope.cancel()
         finally:
             self.hub.unsubscribe(sub)

@@ -297,9 +297,10 @@ async def get_preview_stream(
                 "error": "too_many_streams",
             },
         )
-    try:
-        # The first picture is made before the answer starts, so errors get their status.
-        first = await run_in_threadpool(
+
+    def newest() -> Any:
+        """The next frame's preview, made off the event loop."""
+        return run_in_threadpool(
             render,
             service,
             port,
@@ -309,6 +310,10 @@ async def get_preview_stream(
             low_c=tmin,
             high_c=tmax,
         )
+
+    try:
+        # The first picture is made before the answer starts, so errors get their status.
+        first = await newest()
     except BaseException:
         _slots.give()
         raise
@@ -335,16 +340,7 @@ async def get_preview_stream(
                 if wait > 0:
                     await asyncio.sleep(wait)
                 try:
-                    got = await run_in_threadpool(
-                        render,
-                        service,
-                        port,
-                        frame=None,
-                        factor=factor,
-                        white_balance=wb,
-                        low_c=tmin,
-                        high_c=tmax,
-                    )
+                    got = await newest()
                 except (CameraError, TimeoutError, ValueError) as e:
                     log.error("port %d: preview stream ended: %s", port, e)
                     break
