@@ -21,14 +21,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
 QUICKSTART = (ROOT / "docs" / "quickstart.md", "## 5. Set, capture and follow from the host")
-# Examples that fail because of an open bug, not because the page is wrong: each is run
-# by test_known_broken_examples (an expected failure until the bug is fixed).
-KNOWN_BROKEN = {
-    "capture --count 8": "a full-frame burst of 8 from elphel-sim comes as a truncated "
-    "multi-page TIFF ('burst ended after N of 8 frames'), an open bug of the capture endpoint",
-}
-
-
 def sh_block(page: Path, heading: str) -> list[str]:
     """The command lines of the first ``sh`` block after ``heading`` (comments dropped)."""
     text = page.read_text()
@@ -52,8 +44,6 @@ def runnable(lines: list[str]) -> tuple[list[str], list[str]]:
             left.append(f"{line}  (the fixture's URLs)")
         elif "QUAD_DIR" in line or "tp capture" in line:
             left.append(f"{line}  (a placeholder / the quad simulator)")
-        elif any(key in line for key in KNOWN_BROKEN):
-            left.append(f"{line}  (known broken: test_known_broken_examples)")
         else:
             run.append(line)
     return run, left
@@ -94,7 +84,7 @@ def test_readme_by_hand(elphel_rig, tmp_path: Path, monkeypatch: pytest.MonkeyPa
 
 def test_quickstart_set_capture_follow(elphel_rig, tmp_path: Path) -> None:
     lines, left = runnable(sh_block(*QUICKSTART))
-    assert len(lines) == 5, left
+    assert len(lines) == 6, left
     from elphel_host.camera.client import CameraClient
 
     def recent_frame(line: str) -> str:
@@ -107,10 +97,3 @@ def test_quickstart_set_capture_follow(elphel_rig, tmp_path: Path) -> None:
 
     run_lines(lines, elphel_rig, tmp_path, prepare=recent_frame)
     assert (tmp_path / "again.tif").exists()
-
-
-@pytest.mark.xfail(reason="; ".join(KNOWN_BROKEN.values()), strict=False)
-def test_known_broken_examples(elphel_rig, tmp_path: Path) -> None:
-    lines = [line for line in sh_block(*QUICKSTART) if any(k in line for k in KNOWN_BROKEN)]
-    assert lines
-    run_lines(lines, elphel_rig, tmp_path)
