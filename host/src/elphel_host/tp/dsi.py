@@ -99,6 +99,24 @@ def write_dsi(
         )
 
 
+# A damaged TIFF fails deep inside tifffile with any of these (RuntimeError: for one,
+# pages whose shapes do not match their first page's, "incompatible keyframe").
+DAMAGED_TIFF_ERRORS = (
+    tifffile.TiffFileError,
+    struct.error,
+    EOFError,
+    OSError,
+    ValueError,
+    RuntimeError,
+    KeyError,
+    IndexError,
+    TypeError,
+    AttributeError,
+    AssertionError,
+    MemoryError,
+)
+
+
 def read_dsi(path: str | Path) -> tuple[dict[str, F32], dict[str, str]]:
     """Read a DSI written by :func:`write_dsi`: (layers, properties).
 
@@ -110,10 +128,7 @@ def read_dsi(path: str | Path) -> tuple[dict[str, F32], dict[str, str]]:
             meta = tif.imagej_metadata or {}
     except FileNotFoundError:
         raise
-    except (tifffile.TiffFileError, struct.error, EOFError, OSError, ValueError) as e:
-        # A damaged file fails deep inside tifffile with any of these.
-        raise InputFormatError(f"{path}: not a readable DSI TIFF ({e})") from e
-    except (KeyError, IndexError, TypeError, AttributeError, AssertionError, MemoryError) as e:
+    except DAMAGED_TIFF_ERRORS as e:
         raise InputFormatError(f"{path}: not a readable DSI TIFF ({e})") from e
     labels = meta.get("Labels")
     if isinstance(labels, str):

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
 from elphel_host.tp.bayer import BAYER_PATTERNS
+from elphel_host.tp.dsi import DAMAGED_TIFF_ERRORS
 
 # The DSI and ML_DATA files are dsi.py's; importable from here as they always were.
 from elphel_host.tp.dsi import read_dsi as read_dsi
@@ -334,7 +335,7 @@ def read_quad_dir(path: str | Path) -> QuadSet:
             raise InputFormatError(f"{source}: cameras[{i}].file {file} does not exist")
         try:
             img = tifffile.imread(file)
-        except (tifffile.TiffFileError, ValueError, OSError) as e:
+        except DAMAGED_TIFF_ERRORS as e:
             raise InputFormatError(
                 f"{file}: not a readable TIFF ({e}); allowed: a 16-bit raw frame"
             ) from e
