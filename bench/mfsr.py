@@ -38,7 +38,8 @@ import numpy as np
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.registration import register_frames
-from elphel_host.mfsr.robust import RobustConfig, reconstruct
+from elphel_host.mfsr.robust import reconstruct
+from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import area_downsample, make_burst, random_shifts, tilted_line_shifts
 
 IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")

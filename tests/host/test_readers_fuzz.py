@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from elphel_camd.config import ConfigError, load_settings
-from elphel_host.burst.io import read_manifest
+from elphel_host.burst.manifest import read_manifest
 from elphel_host.camera.events import SSEParser
 from elphel_host.errors import ElphelError, InputFormatError, StageProtocolError
 from elphel_host.stage.protocol import parse_reply, parse_status, seal, unseal

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from elphel_host.burst.capture import capture_quad_burst
 from elphel_host.burst.io import read_quad_burst
+from elphel_host.burst.quad_capture import capture_quad_burst
 from elphel_host.errors import InputFormatError
 from elphel_host.stage.positioning import MoveResult
 from elphel_host.tp.io import QuadManifest, quad_cameras

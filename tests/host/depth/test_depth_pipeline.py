@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from elphel_host.burst.io import read_manifest, read_quad_burst, write_manifest
+from elphel_host.burst.io import read_quad_burst
+from elphel_host.burst.manifest import read_manifest, write_manifest
 from elphel_host.cli import main
 from elphel_host.cloud.compare import compare_clouds
 from elphel_host.cloud.ply import read_ply

@@ -86,7 +86,7 @@ def test_bad_arguments_name_the_value(burst2):
 
 @pytest.mark.parametrize("aliases", [1, 4, 9, 16])
 def test_block_solver_matches_a_direct_solve(aliases):
-    from elphel_host.mfsr.forward import solve_blocks
+    from elphel_host.mfsr.ldl import solve_blocks
 
     rng = np.random.default_rng(aliases)
     c = rng.normal(size=(20, aliases)) + 1j * rng.normal(size=(20, aliases))

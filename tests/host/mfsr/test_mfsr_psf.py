@@ -13,7 +13,8 @@ from elphel_host.cli import main
 from elphel_host.mfsr.metrics import psnr
 from elphel_host.mfsr.psf import estimate_psf, parse_psf
 from elphel_host.mfsr.registration import register_frames
-from elphel_host.mfsr.robust import RobustConfig, reconstruct
+from elphel_host.mfsr.robust import reconstruct
+from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 
 

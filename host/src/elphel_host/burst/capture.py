@@ -4,14 +4,15 @@ An engine knows the hardware (closed-loop stage moves, the camera's next frame, 
 the runner (:class:`BurstRunner`) owns the order, the progress, cancelling, resuming, where
 frames go and what happens on failure. Each frame is written to its file first (temporary
 name, then rename) and then entered in the manifest (rewritten atomically through
-:mod:`elphel_host.burst.io`), so a crash or Ctrl-C at any moment leaves a valid burst
+:mod:`elphel_host.burst.manifest`), so a crash or Ctrl-C at any moment leaves a valid burst
 directory holding every frame captured so far exactly once; running the same capture again
 takes only the frames still missing. On any error, and on Ctrl-C, the hardware is stopped
 before the error goes on.
 
 :meth:`BurstRunner.start` runs a capture in the background and returns its handle
 (:class:`CaptureStatus`: ``progress``, ``done``, ``cancel()``, ``wait(timeout)``, callbacks);
-:meth:`BurstRunner.run`, or :func:`capture_burst`, blocks instead.
+:meth:`BurstRunner.run`, or :func:`capture_burst`, blocks instead. Quad bursts (a set of
+four frames at each position) are captured by :mod:`elphel_host.burst.quad_capture`.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
-from elphel_host.burst.io import (
+from elphel_host.burst.manifest import (
     MANIFEST,
     VERSION,
     FrameEntry,
@@ -365,151 +366,3 @@ def capture_burst(
     :class:`BurstRunner`; ``BurstRunner(...).start()`` runs the same in the background.
     """
     return BurstRunner(engine, positions_mm, out, **options).run()
-
-
-# --- Quad bursts --------------------------------------------------------------------------
-
-
-@dataclass
-class QuadRigEngine:
-    """A stage `Positioner` and a quad camera: one trigger-synchronised set per position.
-
-    Each set is taken as `elphel tp capture` takes one (`elphel_host.tp.capture`): the four
-    ports on one common trigger, the four frames of one trigger fetched and checked.
-    """
-
-    positioner: Positioner
-    camera: CameraInterface
-    layout: Any = None  # elphel_host.tp.layout.QuadLayout; None = ports 0..3 on the square
-    trigger_period_ms: float | None = None
-    timeout_s: float = 60.0
-    settle_s: float = 0.05
-
-    def move(self, position_mm: float) -> MoveResult:
-        return self.positioner.move_closed_loop(position_mm)
-
-    def acquire_quad(self) -> tuple[list[bytes], Any]:
-        """The four TIFFs (cameras 0..3) of one trigger and the set's quad manifest."""
-        import tempfile
-
-        from elphel_host.tp.capture import capture_quad
-
-        time.sleep(self.settle_s)
-        with tempfile.TemporaryDirectory(prefix="quad-set-") as tmp:
-            got = capture_quad(
-                self.camera,
-                Path(tmp) / "set",
-                layout=self.layout,
-                trigger_period_ms=self.trigger_period_ms,
-                timeout_s=self.timeout_s,
-            )
-            tiffs = [(got.path / cam.file).read_bytes() for cam in got.manifest.cameras]
-        return tiffs, got.manifest
-
-    def stop(self) -> None:
-        self.positioner.client.stop()
-
-
-class QuadEngine(Protocol):
-    """What the quad-burst runner needs from the hardware."""
-
-    def move(self, position_mm: float) -> MoveResult: ...
-
-    def acquire_quad(self) -> tuple[list[bytes], Any]: ...
-
-    def stop(self) -> None: ...
-
-
-QUAD_CAMERAS = ("cam0", "cam1", "cam2", "cam3")
-
-
-def capture_quad_burst(
-    engine: QuadEngine,
-    positions_mm: Sequence[float],
-    out: str | Path,
-    *,
-    start_mm: float,
-    top: Mapping[str, Any] | None = None,
-    optics: Mapping[str, Any] | None = None,
-    progress: ProgressCallback | None = None,
-) -> CaptureResult:
-    """Capture a quad burst: at each position one set of four frames, resumable.
-
-    ``out`` becomes a quad-burst directory: ``cam0`` .. ``cam3`` are burst directories
-    written as :class:`BurstRunner` writes one (frame file first, then the manifest entry),
-    and ``quad.json`` (positions, Bayer pattern, ``optics``) appears with the first set's
-    files, before their manifest entries.
-    A set counts as stored when all four cameras hold it; running the capture again takes
-    the sets still missing (a set that only some cameras hold is taken again).
-    """
-    from elphel_host.tp.io import MANIFEST as QUAD_MANIFEST
-    from elphel_host.tp.io import QuadCamera, QuadManifest
-
-    root = Path(out)
-    plan_key = {"start_mm": start_mm, "positions_mm": list(positions_mm)}
-    manifests: list[Manifest] = []
-    for name in QUAD_CAMERAS:
-        d = root / name
-        (d / "frames").mkdir(parents=True, exist_ok=True)
-        m = load_progress(d)
-        if m is None:
-            m = Manifest.from_json({"version": VERSION, "frames": [], **dict(top or {}),
-                                    "capture": plan_key, "quad_camera": int(name[3])})  # fmt: skip
-        elif m.extra.get("capture") != plan_key:
-            raise InputFormatError(
-                f"{d / MANIFEST}: holds a burst of another plan or start position; "
-                "choose a new --out or remove it"
-            )
-        manifests.append(m)
-    held = [
-        {e.index for e in m.frames if e.index is not None and (root / name / e.file).exists()}
-        for m, name in zip(manifests, QUAD_CAMERAS, strict=True)
-    ]
-    done = sorted(set.intersection(*held))
-    result = CaptureResult(root, skipped=list(done))
-    total = len(positions_mm)
-    t0 = time.monotonic()
-    try:
-        for i, rel in enumerate(positions_mm):
-            if i in done:
-                continue
-            target = start_mm + rel
-            moved = engine.move(target)
-            tiffs, quad = engine.acquire_quad()
-            name = f"frames/{i:04d}.tif"
-            for cam, data in zip(QUAD_CAMERAS, tiffs, strict=True):
-                write_atomic(root / cam / name, data, sync=True)
-            if not (root / QUAD_MANIFEST).exists():
-                qm = QuadManifest(
-                    cameras=tuple(
-                        QuadCamera(file=cam, position=quad.cameras[c].position,
-                                   fields={k: v for k, v in quad.cameras[c].fields.items()
-                                           if k in ("port", "sensor")})
-                        for c, cam in enumerate(QUAD_CAMERAS)
-                    ),
-                    bayer=quad.bayer,
-                    full_scale_dn=quad.full_scale_dn,
-                    optics=dict(optics) if optics else quad.optics,
-                )  # fmt: skip
-                qm.write(root)
-            for c, cam in enumerate(QUAD_CAMERAS):
-                fields = quad.cameras[c].fields
-                entry = FrameEntry(
-                    file=name, index=i, stage_mm=round(target, 6), caliper_mm=moved.caliper_mm,
-                    frame=fields.get("frame"), timestamp_ns=fields.get("timestamp_ns"),
-                )  # fmt: skip
-                # a set only some cameras held is replaced, never entered twice
-                kept = tuple(e for e in manifests[c].frames if e.index != i)
-                m = replace(replace(manifests[c], frames=kept).with_frame(entry), bayer=quad.bayer)
-                manifests[c] = m
-                write_manifest(root / cam, m, sync=True)
-            result.captured.append(i)
-            if progress is not None:
-                progress(len(done) + len(result.captured), total,
-                         f"set {i} at {moved.caliper_mm:.3f} mm")  # fmt: skip
-    except BaseException:
-        engine.stop()
-        raise
-    finally:
-        result.seconds = time.monotonic() - t0
-    return result

@@ -1,8 +1,9 @@
 """``elphel burst plan|capture``: plan a sub-pixel burst and capture it.
 
 The planning is :mod:`elphel_host.burst.plan`, the capture runner
-:mod:`elphel_host.burst.capture`, the files :mod:`elphel_host.burst.io`; this module
-parses the options, builds the rig from them and renders progress and results.
+:mod:`elphel_host.burst.capture` (quad bursts :mod:`elphel_host.burst.quad_capture`), the
+files :mod:`elphel_host.burst.manifest` and :mod:`elphel_host.burst.io`; this module parses
+the options, builds the rig from them and renders progress and results.
 """
 
 from __future__ import annotations
@@ -336,7 +337,7 @@ def _capture_summary(result: CaptureResult, frames: int, start_mm: float) -> dic
 
 def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     """``elphel burst capture --quad``: a quad-burst directory, resumable."""
-    from elphel_host.burst.capture import QuadRigEngine, capture_quad_burst
+    from elphel_host.burst.quad_capture import QuadRigEngine, capture_quad_burst
     from elphel_host.tp.layout import read_layout
 
     if args.fuse:

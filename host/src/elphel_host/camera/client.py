@@ -2,13 +2,13 @@
 
 What it decodes lives next to it: frames and multi-page bursts in
 :mod:`elphel_host.camera.frames`, the event stream in :mod:`elphel_host.camera.events`.
+When a failed request is sent again is :mod:`elphel_host.camera.retry`'s policy.
 """
 
 from __future__ import annotations
 
 import json
 import socket
-import time
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -24,6 +24,7 @@ from elphel_host.camera.frames import (
     read_tiff_pages,
 )
 from elphel_host.camera.frames import read_burst as read_burst  # re-exported: the older name
+from elphel_host.camera.retry import Backoff, retryable
 from elphel_host.camera.staging import Applied as Applied  # re-exported: its older home
 from elphel_host.camera.staging import Staging
 from elphel_host.closing import Closing
@@ -348,45 +349,6 @@ class CameraClient(Staging, Closing):
                     f"event stream from {self.url} ended and could not be reopened "
                     f"in {self.retry_s} s"
                 )
-
-
-# Methods whose repetition changes nothing more than the first did.
-IDEMPOTENT = frozenset({"GET", "HEAD", "OPTIONS", "PUT", "DELETE"})
-
-
-def retryable(method: str, error: httpx.TransportError) -> bool:
-    """Whether a request that failed so can be sent again safely.
-
-    Idempotent requests after any transport failure except a read timeout (the daemon
-    may be busy; waiting again would double the wait); others only when no connection
-    was made, i.e. the daemon never saw the request.
-    """
-    if isinstance(error, httpx.ConnectError | httpx.ConnectTimeout):
-        return True
-    return method.upper() in IDEMPOTENT and not isinstance(error, httpx.ReadTimeout)
-
-
-class Backoff:
-    """Exponential back-off (50 ms doubling to 1 s) within a budget of ``total_s``."""
-
-    def __init__(self, total_s: float) -> None:
-        self.total_s = total_s
-        self.reset()
-
-    def reset(self) -> None:
-        self.delay_s = 0.05
-        self.started: float | None = None
-
-    def wait(self) -> bool:
-        """Sleep before the next try; False (no sleep) once the budget is spent."""
-        now = time.monotonic()
-        if self.started is None:
-            self.started = now
-        if now - self.started + self.delay_s > self.total_s:
-            return False
-        time.sleep(self.delay_s)
-        self.delay_s = min(self.delay_s * 2, 1.0)
-        return True
 
 
 def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:

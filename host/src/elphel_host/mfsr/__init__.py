@@ -3,7 +3,9 @@
 * :mod:`~elphel_host.mfsr.registration` - validated ECC translation registration.
 * :mod:`~elphel_host.mfsr.baseline` - the published direct method (bicubic, ECC, median).
 * :mod:`~elphel_host.mfsr.forward`, :mod:`~elphel_host.mfsr.robust` - forward-model
-  reconstruction solved exactly in the Fourier domain, with Huber outlier rejection.
+  reconstruction solved exactly in the Fourier domain, with Huber outlier rejection;
+  :mod:`~elphel_host.mfsr.ldl` - its batched block solve;
+  :mod:`~elphel_host.mfsr.robust_config` - its options.
 * :mod:`~elphel_host.mfsr.fuse` - burst in, image out (mono and Bayer).
 * :mod:`~elphel_host.mfsr.stream` - the same fusion fed frame by frame while a burst is
   captured (``elphel burst capture --fuse``).

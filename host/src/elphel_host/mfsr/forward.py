@@ -19,9 +19,10 @@ matrix that is the same for every v. So the regularised least-squares problem
 
     min_x  sum_k |y_k - A_k x|^2 + lam * |grad x|^2
 
-splits into independent S^2 x S^2 Hermitian systems, one per LR frequency, solved here by
-a vectorised LDL^H. Frames are accumulated one chunk at a time into S^2 LR-size
-spectra, so memory grows with the output size, not with the number of frames.
+splits into independent S^2 x S^2 Hermitian systems, one per LR frequency, solved by a
+vectorised LDL^H (:mod:`elphel_host.mfsr.ldl`). Frames are accumulated one chunk at a time
+into S^2 LR-size spectra, so memory grows with the output size, not with the number of
+frames.
 
 Robustness: Huber regression by pseudo-data. After a solve, each frame's residual is
 computed; residuals beyond ``huber * sigma`` are clipped (and pixels outside a frame's
@@ -39,6 +40,7 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
+from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
@@ -292,44 +294,6 @@ class FourierSolver:
                 spec[np.ix_(iy, ix[keep])] = block if direct else np.conj(block)
         img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
         return np.ascontiguousarray(img, dtype=np.float32)
-
-
-def solve_blocks(D: NDArray[np.float32], G: C64, mu: NDArray[np.float32], b: C64) -> C64:
-    """Solve (D G D + diag(mu)) x = b for every pixel of the trailing axes (LDL^H).
-
-    The pivots d of a Hermitian matrix are real: they are kept as real arrays, which
-    halves the arithmetic of every product with them.
-    """
-    A = G.shape[0]
-    # lower triangle of M as L (unit diagonal implied) and the real pivots d
-    L: list[list[C64]] = [[D[a] * D[c] * G[a, c] for c in range(a)] for a in range(A)]
-    d: list[NDArray[np.float32]] = []
-    for a in range(A):
-        for c in range(a):
-            acc = L[a][c]
-            for e in range(c):
-                acc = acc - (L[a][e] * d[e]) * np.conj(L[c][e])
-            L[a][c] = acc / d[c]
-        piv = D[a] * D[a] * np.float32(G[a, a].real) + mu[a]
-        for e in range(a):
-            z = L[a][e]
-            piv = piv - d[e] * (z.real * z.real + z.imag * z.imag)
-        d.append(piv)
-    # forward: L y = b
-    y: list[C64] = []
-    for a in range(A):
-        acc = b[a]
-        for e in range(a):
-            acc = acc - L[a][e] * y[e]
-        y.append(acc)
-    # diagonal and backward: L^H x = D^-1 y
-    x: list[C64] = [np.zeros_like(b[0])] * A
-    for a in reversed(range(A)):
-        xa = y[a] / d[a]
-        for e in range(a + 1, A):
-            xa = xa - np.conj(L[e][a]) * x[e]
-        x[a] = np.asarray(xa, dtype=np.complex64)
-    return np.stack(x)
 
 
 class ModelSpectra:

@@ -19,11 +19,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.burst.io import Burst, check_bayer
+from elphel_host.burst.io import Burst
+from elphel_host.burst.manifest import check_bayer
 from elphel_host.mfsr.baseline import fuse_baseline
 from elphel_host.mfsr.frames import check_frames
 from elphel_host.mfsr.registration import FrameRegistration, register_frames
-from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig, psf_for, reconstruct, with_psf
+from elphel_host.mfsr.robust import psf_for, reconstruct, with_psf
+from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.mfsr.scale import check_scale
 
 F32 = NDArray[np.float32]

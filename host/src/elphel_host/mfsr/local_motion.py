@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from elphel_host.mfsr.fuse import fuse_registered
 from elphel_host.mfsr.registration import FrameRegistration
-from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig
+from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]

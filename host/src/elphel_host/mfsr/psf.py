@@ -37,8 +37,9 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import ForwardModel, FourierSolver, solve_blocks
+from elphel_host.mfsr.forward import ForwardModel, FourierSolver
 from elphel_host.mfsr.frames import aligned, central_window, check_frames, estimate_noise, padded
+from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]

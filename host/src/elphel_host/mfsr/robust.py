@@ -1,6 +1,7 @@
 """``robust`` fusion: registered frames -> forward-model reconstruction with outlier rejection.
 
-Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver):
+Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver,
+:mod:`elphel_host.mfsr.robust_config` for the options):
 
 1. Each frame is moved by the integer part of its shift onto the reference grid; the
    pixels it does not cover are marked invalid (filled, for the first solve only, with the
@@ -19,7 +20,7 @@ Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -39,86 +40,12 @@ from elphel_host.mfsr.frames import (
     estimate_noise,
     padded,
 )
-from elphel_host.mfsr.psf import MAX_SIGMA, PsfEstimate, check_kernel, estimate_psf
+from elphel_host.mfsr.psf import PsfEstimate, estimate_psf
+from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.mfsr.scale import check_scale
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
-
-
-@dataclass(frozen=True)
-class RobustConfig:
-    """Options of the robust reconstruction.
-
-    Parameters
-    ----------
-    passes
-        Robust passes after the first least-squares solve (each refines shifts and clips
-        outliers).
-    huber
-        Residuals beyond this many noise sigmas are clipped.
-    tau
-        Expected HR gradient standard deviation as a fraction of the image's range; a
-        smaller value smooths more.
-    blur_sigma
-        Extra Gaussian blur of the optics in HR px, deconvolved with the pixel aperture.
-    pad
-        Mirror padding in LR px around each frame.
-    refine
-        Refine shifts against the model in the robust passes.
-    refine_window
-        Frames larger than this (px) have their shifts refined on a central window of
-        this size, which costs a fraction of refining on the whole frame.
-    noise_sigma
-        Noise standard deviation in input units; None estimates it from the data.
-    estimate_psf
-        With ``blur_sigma`` 0: estimate the optics' Gaussian blur (and the prior's tau
-        with it) from the burst by cross-validation (:mod:`elphel_host.mfsr.psf`) and
-        reconstruct with it; False (default): the pixel aperture alone (or
-        ``psf_kernel``, or
-        ``blur_sigma`` as given). Off by default: it reads a scene's own softness as
-        blur too, which costs up to 10 dB on sharp, band-limited scenes (docs/mfsr.md).
-    psf_kernel
-        A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf.check_kernel`),
-        used in place of the Gaussian.
-    fit_noise
-        Estimate the noise from the residuals of a weakly regularised fit of the burst
-        (:func:`fit_noise`) when there are enough frames; False: from the reference frame
-        alone (:func:`estimate_noise`), which reads fine texture as noise.
-    """
-
-    passes: int = 1
-    huber: float = 3.0
-    tau: float = 0.04
-    blur_sigma: float = 0.0
-    pad: int = 16
-    refine: bool = True
-    refine_window: int = 384
-    noise_sigma: float | None = None
-    fit_noise: bool = True
-    estimate_psf: bool = False
-    psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
-
-    def __post_init__(self) -> None:
-        if self.passes < 0:
-            raise ValueError(f"passes={self.passes}; allowed: >= 0")
-        if not self.huber > 0:
-            raise ValueError(f"huber={self.huber}; allowed: > 0")
-        if not self.tau > 0:
-            raise ValueError(f"tau={self.tau}; allowed: > 0")
-        if not 0 <= self.blur_sigma <= MAX_SIGMA:
-            raise ValueError(f"blur_sigma={self.blur_sigma}; allowed: 0..{MAX_SIGMA} (HR px)")
-        if self.psf_kernel is not None:
-            object.__setattr__(self, "psf_kernel", check_kernel(self.psf_kernel, "psf_kernel"))
-            if self.blur_sigma > 0 or self.estimate_psf:
-                raise ValueError("psf_kernel: allowed only without blur_sigma and estimate_psf")
-        if self.pad < 0:
-            raise ValueError(f"pad={self.pad}; allowed: >= 0")
-        if self.refine_window < 32:
-            raise ValueError(f"refine_window={self.refine_window}; allowed: >= 32")
-
-
-DEFAULT_CONFIG = RobustConfig()
 
 
 # The noise fit: a central window has samples enough for a spread estimate, and a prior

@@ -9,7 +9,7 @@ reconstruction remains (:meth:`FusionStream.finish`).
 The result is the one ``elphel mfsr BURST_DIR`` computes on the finished directory, bit for
 bit: each frame is registered exactly as :func:`~elphel_host.mfsr.registration.register_frames`
 registers it within the whole burst (against frame 0, with the stage/optics prior of
-:meth:`~elphel_host.burst.io.Manifest.stage_prior_px`), frames are read and checked by
+:meth:`~elphel_host.burst.manifest.Manifest.stage_prior_px`), frames are read and checked by
 :func:`~elphel_host.burst.io.read_frame` as :func:`~elphel_host.burst.io.read_burst` reads
 them, and the reconstruction is
 :func:`~elphel_host.mfsr.fuse.fuse_registered`, as in ``fuse_frames``.
@@ -33,13 +33,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.burst.io import FrameEntry, Manifest, read_frame
+from elphel_host.burst.io import read_frame
+from elphel_host.burst.manifest import FrameEntry, Manifest
 from elphel_host.closing import Closing
 from elphel_host.errors import FusionError, InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, bayer_luma, fuse_registered, register_lumas
 from elphel_host.mfsr.output import fused_meta, write_image
 from elphel_host.mfsr.registration import FrameRegistration
-from elphel_host.mfsr.robust import DEFAULT_CONFIG, RobustConfig
+from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
 
 F32 = NDArray[np.float32]

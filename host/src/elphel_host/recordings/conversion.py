@@ -7,7 +7,7 @@
 - ``quad``: one quad directory ``<sec>_<usec>/`` per timestamp whose channels 0..3 are
   all there (``quad.json`` through `elphel_host.tp.io`, cam0..cam3 = channels 0..3);
 - ``burst``: one burst directory ``channel<N>/`` per channel, frames in time order
-  (``manifest.json`` through `elphel_host.burst.io`, frames ``frames/<stem>.tif``).
+  (``manifest.json`` through `elphel_host.burst.manifest`, frames ``frames/<stem>.tif``).
 
 A bad file is reported with the reason and skipped; the others are converted. Every file
 and directory appears whole or not at all (`elphel_host.fileio`), and a re-run skips
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from elphel_host.burst.io import MANIFEST as BURST_MANIFEST
-from elphel_host.burst.io import FrameEntry, Manifest, write_manifest
+from elphel_host.burst.manifest import MANIFEST as BURST_MANIFEST
+from elphel_host.burst.manifest import FrameEntry, Manifest, write_manifest
 from elphel_host.errors import ElphelError
 from elphel_host.fileio import replacing_directory
 from elphel_host.parallel import THREADS

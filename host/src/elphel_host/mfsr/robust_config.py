@@ -1,0 +1,90 @@
+"""Options of the robust reconstruction: one frozen, checked :class:`RobustConfig`.
+
+:func:`elphel_host.mfsr.robust.reconstruct` takes them; :data:`DEFAULT_CONFIG` is what it
+uses when given none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_host.mfsr.psf import MAX_SIGMA, check_kernel
+
+
+@dataclass(frozen=True)
+class RobustConfig:
+    """Options of the robust reconstruction.
+
+    Parameters
+    ----------
+    passes
+        Robust passes after the first least-squares solve (each refines shifts and clips
+        outliers).
+    huber
+        Residuals beyond this many noise sigmas are clipped.
+    tau
+        Expected HR gradient standard deviation as a fraction of the image's range; a
+        smaller value smooths more.
+    blur_sigma
+        Extra Gaussian blur of the optics in HR px, deconvolved with the pixel aperture.
+    pad
+        Mirror padding in LR px around each frame.
+    refine
+        Refine shifts against the model in the robust passes.
+    refine_window
+        Frames larger than this (px) have their shifts refined on a central window of
+        this size, which costs a fraction of refining on the whole frame.
+    noise_sigma
+        Noise standard deviation in input units; None estimates it from the data.
+    estimate_psf
+        With ``blur_sigma`` 0: estimate the optics' Gaussian blur (and the prior's tau
+        with it) from the burst by cross-validation (:mod:`elphel_host.mfsr.psf`) and
+        reconstruct with it; False (default): the pixel aperture alone (or
+        ``psf_kernel``, or
+        ``blur_sigma`` as given). Off by default: it reads a scene's own softness as
+        blur too, which costs up to 10 dB on sharp, band-limited scenes (docs/mfsr.md).
+    psf_kernel
+        A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf.check_kernel`),
+        used in place of the Gaussian.
+    fit_noise
+        Estimate the noise from the residuals of a weakly regularised fit of the burst
+        (:func:`~elphel_host.mfsr.robust.fit_noise`) when there are enough frames; False:
+        from the reference frame alone (:func:`~elphel_host.mfsr.frames.estimate_noise`),
+        which reads fine texture as noise.
+    """
+
+    passes: int = 1
+    huber: float = 3.0
+    tau: float = 0.04
+    blur_sigma: float = 0.0
+    pad: int = 16
+    refine: bool = True
+    refine_window: int = 384
+    noise_sigma: float | None = None
+    fit_noise: bool = True
+    estimate_psf: bool = False
+    psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.passes < 0:
+            raise ValueError(f"passes={self.passes}; allowed: >= 0")
+        if not self.huber > 0:
+            raise ValueError(f"huber={self.huber}; allowed: > 0")
+        if not self.tau > 0:
+            raise ValueError(f"tau={self.tau}; allowed: > 0")
+        if not 0 <= self.blur_sigma <= MAX_SIGMA:
+            raise ValueError(f"blur_sigma={self.blur_sigma}; allowed: 0..{MAX_SIGMA} (HR px)")
+        if self.psf_kernel is not None:
+            object.__setattr__(self, "psf_kernel", check_kernel(self.psf_kernel, "psf_kernel"))
+            if self.blur_sigma > 0 or self.estimate_psf:
+                raise ValueError("psf_kernel: allowed only without blur_sigma and estimate_psf")
+        if self.pad < 0:
+            raise ValueError(f"pad={self.pad}; allowed: >= 0")
+        if self.refine_window < 32:
+            raise ValueError(f"refine_window={self.refine_window}; allowed: >= 32")
+
+
+DEFAULT_CONFIG = RobustConfig()
