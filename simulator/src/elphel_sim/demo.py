@@ -6,20 +6,17 @@ calibrate the stage and check it against the simulator's truth; capture a sub-pi
 and fuse it; capture one trigger-synchronised set from the simulated quad camera
 (`elphel-sim up --scenario quad`) and compute its disparity map. Everything goes under
 ``out/`` with a summary a person can read (``summary.json`` and the printed lines).
+The rig and the user's tools the steps go through are in `elphel_sim.demo_rig`.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import signal
-import subprocess
 import sys
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,56 +26,7 @@ import numpy as np
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_map_picture, save_preview
 from elphel_sim.demo_report import burst_crops, reference_image
-
-
-class DemoError(RuntimeError):
-    """A demo step failed; the message says which and why."""
-
-
-@contextmanager
-def simulated_rig(
-    *, seed: int, scenario: str = "default", firmware: str = "camd"
-) -> Iterator[dict[str, Any]]:
-    """Run `elphel-sim up --json` in a child process; yield its announcement."""
-    command = ["up", "--json", "--seed", str(seed), "--scenario", scenario, "--firmware", firmware]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "elphel_sim.cli", *command],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        if not line:
-            raise DemoError(f"elphel-sim up exited with code {proc.wait()} before serving")
-        yield json.loads(line)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
-
-
-def step(message: str) -> None:
-    print(f"[demo] {message}", flush=True)
-
-
-def elphel(*args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
-    """Run an `elphel ... --json` command as a user would; return its JSON object."""
-    cmd = [sys.executable, "-m", "elphel_host.cli", *args, "--json"]
-    done = subprocess.run(
-        cmd, capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=1800
-    )
-    if done.returncode != 0:
-        raise DemoError(f"elphel {' '.join(args)}: {done.stderr.strip() or done.returncode}")
-    result: dict[str, Any] = json.loads(done.stdout)
-    return result
-
+from elphel_sim.demo_rig import DemoError, elphel, read_frame_metadata, simulated_rig, step
 
 # -- camera -----------------------------------------------------------------------------------
 
@@ -266,12 +214,6 @@ def burst_step(
         "compare": compare,
         "crops_png": str(crops),
     }
-
-
-def read_frame_metadata(path: Path) -> tuple[Any, dict[str, Any]]:
-    from elphel_host.camera.client import read_tiff_metadata
-
-    return read_tiff_metadata(path.read_bytes())
 
 
 # -- quad / tile processor --------------------------------------------------------------------

@@ -2,29 +2,27 @@
 
 `CameraService` detects the sensor on every port of a `Board`, runs a frame sequencer per
 port, keeps the common trigger settings in sync across ports, restores and saves the
-accepted parameters (`ParamStore`), captures frames with their metadata, gives raw register
-access and reports health. A PATCH of parameters enters here (`CameraService.set_params`)
-and leaves through the port's `PortSequencer`.
+accepted parameters (`ParamStore`), captures frames with their metadata (through its
+`FrameCapture`, in ``capture.py``), gives raw register access and reports health. A PATCH
+of parameters enters here (`CameraService.set_params`) and leaves through the port's
+`PortSequencer`.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import logging
 import threading
 import time
-from collections import Counter
-from collections.abc import Callable, Generator, Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Generator, Mapping
 from functools import partial
-from typing import Any, TypeVar
+from typing import Any
 
 from elphel_camd import __version__
 from elphel_camd.boards.base import Board, Frame
+from elphel_camd.capture import CapturePool, FrameCapture
 from elphel_camd.errors import (
     CameraError,
-    FrameNotAvailableError,
     I2CError,
     ParameterRangeError,
     PortError,
@@ -35,7 +33,6 @@ from elphel_camd.errors import (
     UnsupportedError,
 )
 from elphel_camd.events import EventHub
-from elphel_camd.frame_metadata import frame_metadata
 from elphel_camd.params import COMMON_TRIGGER_PARAMS, PARAMS
 from elphel_camd.sensors import SensorDriver, detect, register_file
 from elphel_camd.sensors.registers import Access, Register
@@ -43,52 +40,6 @@ from elphel_camd.sequencer import MAX_AHEAD, PortSequencer
 from elphel_camd.store import ParamStore
 
 log = logging.getLogger(__name__)
-
-T = TypeVar("T")
-
-
-class CaptureBusyError(CameraError):
-    """Too many captures are waiting for frames already (the capture wait pool is full)."""
-
-
-class CapturePool:
-    """The threads that wait for frames, apart from the pool that serves other requests.
-
-    A capture can wait a long time (a stopped trigger waits for its timeout); here such
-    waits take at most ``workers`` threads, and requests beyond ``max_waiting`` are refused
-    with `CaptureBusyError` instead of queueing without end, so parameter reads and writes
-    never wait for captures.
-
-    Parameters
-    ----------
-    workers
-        Threads that wait for frames (and form their images) at the same time.
-    max_waiting
-        Captures running or queued at most; one more is refused.
-    """
-
-    def __init__(self, workers: int = 16, max_waiting: int = 64) -> None:
-        self.workers = workers
-        self.max_waiting = max_waiting
-        self.waiting = 0
-        self._executor = ThreadPoolExecutor(workers, thread_name_prefix="camd-capture")
-
-    async def run(self, fn: Callable[[], T]) -> T:
-        """``fn()`` in a capture thread (CaptureBusyError if ``max_waiting`` are in)."""
-        if self.waiting >= self.max_waiting:
-            raise CaptureBusyError(
-                f"capture wait pool full: {self.waiting} captures are waiting for frames "
-                f"(limit {self.max_waiting}); retry later"
-            )
-        self.waiting += 1  # only the event loop's thread counts
-        try:
-            return await asyncio.get_running_loop().run_in_executor(self._executor, fn)
-        finally:
-            self.waiting -= 1
-
-    def close(self) -> None:
-        self._executor.shutdown(wait=False, cancel_futures=True)
-
 
 # Parameters that need a part of the board beyond the sensor (a board capability).
 _NEEDS = {
@@ -139,13 +90,7 @@ class CameraService:
         if store is not None:
             self._restore(store)
         self.capture_pool = CapturePool()
-        # Parameters of the frames a burst holds, taken when each frame starts: a held
-        # frame can be sent after the sequencer's history has forgotten it.
-        self._held_params: dict[int, dict[int, dict[str, int] | None]] = {
-            port: {} for port in self.sequencers
-        }
-        self._held_counts: dict[int, Counter[int]] = {port: Counter() for port in self.sequencers}
-        self._held_lock = threading.Lock()
+        self.frames = FrameCapture(board, self.sequencers, sensor=self.sensor, params=self.params)
         board.on_frame_sync(self._frame_sync)
 
     def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
@@ -153,12 +98,7 @@ class CameraService:
         if seq is None:
             return
         seq.on_frame_sync(frame, timestamp_ns)
-        held = self._held_params[port]
-        if frame in held:
-            params = self.params(port, frame=frame)
-            with self._held_lock:
-                if frame in held:
-                    held[frame] = params
+        self.frames.on_frame_sync(port, frame)
         errors = seq.errors
         if len(errors) > self._errors_seen[port]:
             for message in errors[self._errors_seen[port] :]:
@@ -348,96 +288,13 @@ class CameraService:
 
     def capture(self, port: int, *, frame: int | None = None) -> tuple[Frame, dict[str, Any]]:
         """The next frame of a port (or a recent one) and its metadata."""
-        driver = self.sensor(port)
-        self._check_frame(port, frame)
-        got = self.board.capture(port, frame=frame)
-        with self._held_lock:
-            params = self._held_params[port].get(got.frame)
-        if params is None:
-            params = self.params(port, frame=got.frame)
-        metadata = frame_metadata(
-            got, port=port, sensor=driver.model, bayer=driver.bayer, params=params
-        )
-        return got, metadata
-
-    def _check_frame(self, port: int, frame: int | None) -> None:
-        if frame is None:
-            return
-        newest = self.sequencers[port].this_frame
-        if frame > newest + MAX_AHEAD:
-            raise FrameNotAvailableError(
-                f"port {port}: frame {frame} is not taken yet (current frame {newest}; "
-                f"capture waits for at most {MAX_AHEAD} frames ahead)"
-            )
+        return self.frames.capture(port, frame=frame)
 
     def burst(
         self, port: int, count: int, *, frame: int | None = None
     ) -> Generator[tuple[Frame, dict[str, Any]], None, None]:
-        """``count`` consecutive frames of a port, from the next one (or from ``frame``).
-
-        On a board that can hold frames (``pin_frames``) every frame of the burst is held
-        from the start until the consumer has taken it, so a consumer slower than the
-        frame rate (a full-resolution burst over the network) still gets all of them.
-        Elsewhere a frame overwritten in the ring before it was fetched raises
-        `FrameNotAvailableError`. Either way the burst yields every frame or raises.
-        """
-        if count < 1:
-            raise ParameterRangeError("count", count, "1 or more")
-        pin = getattr(self.board, "pin_frames", None)
-        release = getattr(self.board, "release_frames", None)
-        if pin is None or release is None:
-            first = self.capture(port, frame=frame)
-            yield first
-            for k in range(1, count):
-                yield self.capture(port, frame=first[0].frame + k)
-            return
-        self.sensor(port)
-        self._check_frame(port, frame)
-        start = self._hold_params(port, count, frame)
-        done = start  # frames before this one are released
-        try:
-            pin(port, count, frame=start)
-        except BaseException:
-            self._release_params(port, range(start, start + count))
-            raise
-        try:
-            for k in range(count):
-                got = self.capture(port, frame=start + k)
-                yield got
-                release(port, [start + k])
-                self._release_params(port, [start + k])
-                done = start + k + 1
-        finally:
-            release(port, range(done, start + count))
-            self._release_params(port, range(done, start + count))
-
-    def _hold_params(self, port: int, count: int, frame: int | None) -> int:
-        """Keep the parameters of ``count`` frames from ``frame`` (or the next one)."""
-        seq = self.sequencers[port]
-        held = self._held_params[port]
-        counts = self._held_counts[port]
-        with seq.lock, self._held_lock:  # no frame starts in between
-            start = seq.this_frame + 1 if frame is None else frame
-            for n in range(start, start + count):
-                held.setdefault(n, None)
-                counts[n] += 1
-        for n in range(start, min(start + count, seq.this_frame + 1)):
-            with contextlib.suppress(FrameNotAvailableError):
-                params = self.params(port, frame=n)
-                with self._held_lock:
-                    held[n] = params
-        return start
-
-    def _release_params(self, port: int, frames: range | list[int]) -> None:
-        held = self._held_params[port]
-        counts = self._held_counts[port]
-        with self._held_lock:
-            for n in frames:
-                if counts[n] > 1:
-                    counts[n] -= 1
-                else:
-                    counts.pop(n, None)
-                    held.pop(n, None)
+        """``count`` consecutive frames of a port, each held until taken (`FrameCapture.burst`)."""
+        return self.frames.burst(port, count, frame=frame)
 
     # -- raw registers ---------------------------------------------------------------------
 

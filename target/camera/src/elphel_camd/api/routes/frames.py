@@ -23,7 +23,8 @@ from elphel_camd.api.deps import READS, WRITES, FrameQuery, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.api.models import FrameInfo
 from elphel_camd.boards.base import Frame
-from elphel_camd.service import CameraService, CaptureBusyError
+from elphel_camd.capture import CaptureBusyError
+from elphel_camd.service import CameraService
 
 log = logging.getLogger(__name__)
 
