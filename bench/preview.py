@@ -66,9 +66,10 @@ def serve(app: Any) -> tuple[uvicorn.Server, str, threading.Thread]:
 OTHER_CLIENTS = """
 import sys, threading, time, httpx
 url, frame, seconds, pause = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
+auth = {"Authorization": "Bearer " + sys.argv[5]}  # reads need the token, as by default
 done = []
 def run():
-    with httpx.Client(base_url=url, timeout=60) as c:
+    with httpx.Client(base_url=url, timeout=60, headers=auth) as c:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             c.get("/api/v1/ports/0/params").raise_for_status()
@@ -107,12 +108,12 @@ def main() -> None:
 
     server, url, thread = serve(create_app(camera, token=TOKEN))
     try:
-        with httpx.Client(base_url=url, timeout=60) as c:
+        with httpx.Client(base_url=url, timeout=60, headers=AUTH) as c:
             fetch_ms = []
             for _ in range(3):
                 for n, _, _ in frames:
                     t = time.perf_counter()
-                    r = c.post("/api/v1/ports/0/capture", params={"frame": n}, headers=AUTH)
+                    r = c.post("/api/v1/ports/0/capture", params={"frame": n})
                     r.raise_for_status()
                     fetch_ms.append((time.perf_counter() - t) * 1e3)
             # The endpoint itself, once per frame (a new frame is never in its cache).
@@ -129,6 +130,7 @@ def main() -> None:
                 str(frames[0][0]),
                 str(args.seconds),
                 str(PAUSE_S),
+                TOKEN,
             ],
             stdout=subprocess.PIPE,
             text=True,
