@@ -130,24 +130,32 @@ def test_every_invalid_value_is_422_or_409_naming_it_and_changes_nothing(shared_
 
 
 def test_read_only_unknown_and_malformed_bodies_are_422(client):
-    for body, parameter in (
-        ({"FRAME": 5}, "FRAME"),
-        ({"SENSOR": 1}, "SENSOR"),
-        ({"EXPOSURE": 5}, "EXPOSURE"),
-        ([1, 2], "body"),
-        ("x", "body"),
+    for body, parameter, error in (
+        ({"FRAME": 5}, "FRAME", "unknown_parameter"),
+        ({"SENSOR": 1}, "SENSOR", "unknown_parameter"),
+        ({"EXPOSURE": 5}, "EXPOSURE", "unknown_parameter"),
+        ({"EXPOS": -1}, "EXPOS", "parameter_range"),
+        ([1, 2], "body", "malformed_body"),
+        ("x", "body", "malformed_body"),
     ):
         r = client.patch("/api/v1/ports/0/params", json=body, headers=AUTH)
         assert r.status_code == 422, r.text
-        assert r.json()["parameter"] == parameter
+        assert (r.json()["parameter"], r.json()["error"]) == (parameter, error), r.text
     r = client.patch("/api/v1/ports/0/params", json={"FRAME": 5}, headers=AUTH)
     assert r.json()["allowed"] == "nothing: it is read-only"
-    r = client.patch(
-        "/api/v1/ports/0/params",
-        content=b"{not json",
-        headers={**AUTH, "content-type": "application/json"},
-    )
-    assert r.status_code == 422 and r.json()["parameter"] == "body"
+    # A body that is not JSON, or not even UTF-8, is malformed: no parameter's range error.
+    for method, path in (
+        ("PATCH", "/api/v1/ports/0/params"),
+        ("PUT", "/api/v1/ports/0/registers/1"),
+    ):
+        for content in (b"{not json", b'{"EXPOS": 5\xff}'):
+            r = client.request(
+                method, path, content=content, headers={**AUTH, "content-type": "application/json"}
+            )
+            assert r.status_code == 422, (method, content, r.text)
+            body = r.json()
+            assert body["error"] == "malformed_body" and body["parameter"] == "body", body
+            assert body["allowed"].startswith("a JSON object"), body
 
 
 def test_patch_persists_every_accepted_change(client, tmp_path):

@@ -42,12 +42,12 @@ def test_the_pages_capture_script_and_its_test_pass_in_a_project_of_their_own(
     tmp_path: Path,
 ) -> None:
     files = _blocks("python")
-    assert set(files) == {"capture_one.py", "test_capture_one.py"}
+    assert set(files) == {"capture_one.py", "test_capture_one.py", "test_faults.py"}
     for name, text in files.items():
         (tmp_path / name).write_text(text)
     done = _pytest_in(tmp_path, timeout=240)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert re.search(r"\b3 passed\b", done.stdout), done.stdout
+    assert re.search(r"\b5 passed\b", done.stdout), done.stdout
 
 
 def test_a_bad_rig_option_fails_the_test_with_one_line(tmp_path: Path) -> None:

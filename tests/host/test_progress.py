@@ -1,4 +1,4 @@
-"""cli_common.ProgressLine: bar, rate and time left on a terminal; plain lines elsewhere."""
+"""elphel_host.progress.ProgressLine: bar, rate and time left on a terminal; plain lines elsewhere."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from elphel_host.cli import main
-from elphel_host.cli_common import ProgressLine
+from elphel_host.progress import ProgressLine
 from tests.host.jp4.test_convert import record
 
 ANSI = re.compile(r"\x1b\[[0-9;]*m")

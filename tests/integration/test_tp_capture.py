@@ -54,7 +54,13 @@ def test_capture_then_tp_recovers_the_scene_disparities(quad_rig, tmp_path):
         "--geometry", str(tmp_path / "geometry.json"), "--json",
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
+    assert len(r.stdout.splitlines()) == 1
     result = json.loads(r.stdout)
+    # progress on stderr, a plain line per step (not a terminal: no bar, no \r)
+    steps = [line for line in r.stderr.splitlines() if line.startswith("tp capture: ")]
+    assert [s.split()[2] for s in steps] == [f"{i}/8" for i in range(1, 9)], r.stderr
+    assert sum("fetched" in s for s in steps) == 4 and "written" in steps[-1]
+    assert "left)" in steps[-2] and "\r" not in r.stderr and "━" not in r.stderr
     manifest = json.loads((quad / "quad.json").read_text())
     cams = manifest["cameras"]
     assert [c["port"] for c in cams] == [0, 1, 2, 3]
@@ -154,8 +160,11 @@ def test_frames_of_different_timestamps_are_refused_and_nothing_is_written(
         "--trigger-period-ms", "100",
     )  # fmt: skip
     assert r.returncode == 1 and r.stdout == ""
-    assert len(r.stderr.strip().splitlines()) == 1
-    assert "not of one trigger" in r.stderr and "+1.000 ms" in r.stderr
+    # the progress lines up to the fetch, then the one-line error
+    *steps, error = r.stderr.strip().splitlines()
+    assert steps and all(line.startswith("tp capture: ") for line in steps), r.stderr
+    assert steps[-1].startswith("tp capture: 7/8 ") and "fetched" in steps[-1]
+    assert error.startswith("elphel: ") and "not of one trigger" in error and "+1.000 ms" in error
     assert list(tmp_path.iterdir()) == []  # no quad dir, no temporary leftovers
     with CameraClient(url, "tok") as cam:
         after = {p: {k: cam.params(p)[k] for k in TRIGGER} for p in range(4)}

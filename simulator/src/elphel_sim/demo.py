@@ -26,7 +26,18 @@ import numpy as np
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_map_picture, save_preview
 from elphel_sim.demo_report import burst_crops, reference_image
-from elphel_sim.demo_rig import DemoError, elphel, read_frame_metadata, simulated_rig, step
+from elphel_sim.demo_rig import (
+    DEMO_PROGRESS,
+    DemoError,
+    elphel,
+    read_frame_metadata,
+    simulated_rig,
+    step,
+)
+
+# The `elphel` commands the demo runs (stage 2, burst 5, quad 2, stock NC393 2): the
+# progress bar counts them.
+COMMANDS = 11
 
 # -- camera -----------------------------------------------------------------------------------
 
@@ -313,6 +324,7 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
 
 def run(out: Path, *, seed: int) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
+    DEMO_PROGRESS.total = COMMANDS
     summary: dict[str, Any] = {"seed": seed}
     step("starting the simulated rig (elphel-sim up)")
     with simulated_rig(seed=seed) as rig:

@@ -4,6 +4,12 @@
 `elphel ... --json` command as a user types it, `read_frame_metadata` reads the metadata of
 a TIFF the CLI wrote, and `step` prints one line of the demo's account. Every step of
 `elphel_sim.demo` (`make demo`) goes through these; a failure is a `DemoError`.
+
+While a command runs, its own progress (what it writes on stderr) is relayed to the
+demo's progress line on stderr (`DEMO_PROGRESS`): on a terminal one updating line with a
+bar over the demo's commands, their rate and the time left, followed by the command's own
+line; when stderr is not a terminal, one plain line each. The account (`step`) stays on
+stdout.
 """
 
 from __future__ import annotations
@@ -13,10 +19,13 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+from elphel_host.progress import ProgressLine
 
 
 class DemoError(RuntimeError):
@@ -52,19 +61,84 @@ def simulated_rig(
             proc.stdout.close()
 
 
+class DemoProgress:
+    """The demo's progress on stderr: its `elphel` commands done of ``total``.
+
+    Each update also shows the running command's own latest progress line.
+    """
+
+    def __init__(self, line: ProgressLine | None = None, *, total: int = 0) -> None:
+        self.line = line if line is not None else ProgressLine()
+        self.total = total
+        self.done = 0
+
+    def relay(self, command: str, text: str) -> None:
+        """Show the running command's progress ``text`` (one of its stderr lines)."""
+        if self.total:
+            self.line.update(
+                f"demo: {self.done}/{self.total} commands; elphel {command}: {text}",
+                done=self.done,
+                total=self.total,
+            )
+
+    def command_done(self) -> None:
+        self.done += 1
+
+    def say(self, text: str) -> None:
+        """A line of the demo's account on stdout, after ending the progress line."""
+        self.line.end()
+        print(text, flush=True)
+
+
+DEMO_PROGRESS = DemoProgress()
+
+
 def step(message: str) -> None:
-    print(f"[demo] {message}", flush=True)
+    DEMO_PROGRESS.say(f"[demo] {message}")
 
 
 def elphel(*args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
-    """Run an `elphel ... --json` command as a user would; return its JSON object."""
+    """Run an `elphel ... --json` command as a user would; return its JSON object.
+
+    Its stderr (progress, then an error if it fails) goes to `DEMO_PROGRESS` line by
+    line while it runs.
+    """
     cmd = [sys.executable, "-m", "elphel_host.cli", *args, "--json"]
-    done = subprocess.run(
-        cmd, capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=1800
+    name = " ".join(a for a in args[:2] if not a.startswith(("-", "/")))
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, **(env or {})},
     )
-    if done.returncode != 0:
-        raise DemoError(f"elphel {' '.join(args)}: {done.stderr.strip() or done.returncode}")
-    result: dict[str, Any] = json.loads(done.stdout)
+    assert proc.stdout is not None and proc.stderr is not None
+    errors: list[str] = []
+
+    def follow(stream: Any) -> None:
+        for raw in stream:
+            text = raw.rstrip("\n")
+            errors.append(text)
+            if text and not text.startswith("elphel: "):
+                DEMO_PROGRESS.relay(name, text)
+
+    follower = threading.Thread(target=follow, args=(proc.stderr,), daemon=True)
+    follower.start()
+    try:
+        stdout = proc.stdout.read()
+        proc.wait(timeout=1800)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        follower.join(timeout=10)
+        proc.stdout.close()
+        proc.stderr.close()
+    DEMO_PROGRESS.command_done()
+    if proc.returncode != 0:
+        failed = [e for e in errors if e.startswith("elphel: ")] or errors
+        raise DemoError(f"elphel {' '.join(args)}: {' '.join(failed).strip() or proc.returncode}")
+    result: dict[str, Any] = json.loads(stdout)
     return result
 
 

@@ -2,7 +2,8 @@
 
 The camera board is served by the real daemon application (elphel_camd.api) on top of
 the simulated board. A second, loopback-only server is the simulator's own inspection
-endpoint (``sim_url``): it tells the truth the host cannot see, for tests and demos.
+endpoint (``sim_url``): it tells the truth the host cannot see, for tests and demos,
+and injects faults (`elphel_sim.faults`: ``{sim_url}/faults``).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from elphel_camd.serving import GracefulServer, server_config
 from elphel_camd.store import new_token
 from elphel_host.cloud.ply import ply_bytes
 from elphel_sim.board import SimCameraBoard
+from elphel_sim.faults import fault_router
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.relief import depth_map, surface_cloud
@@ -38,8 +40,9 @@ from elphel_sim.stock.server import consecutive_sockets, imgsrv_app, parsedit_ap
 
 
 def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> FastAPI:
-    """The inspection API: what the simulator knows to be true."""
+    """The inspection API: what the simulator knows to be true, and its fault hooks."""
     app = FastAPI(title="elphel-sim inspection")
+    app.include_router(fault_router(board, stage))
     lock = threading.Lock()
 
     @app.get("/stage")

@@ -47,7 +47,8 @@ class Rig:
     stage_url, stage_pty
         The stage's TCP URL and its pseudo-terminal.
     sim_url
-        The simulator's truth URL (``{sim_url}/stage``, ``{sim_url}/world``...).
+        The simulator's truth URL (``{sim_url}/stage``, ``{sim_url}/world``...) and its
+        fault hooks (``{sim_url}/faults``: `fault`, `faults`, `clear_faults`).
     scenario, seed, firmware
         What the rig was started with.
     """
@@ -60,6 +61,53 @@ class Rig:
     scenario: str
     seed: int
     firmware: str
+
+    def fault(self, kind: str, **options: int) -> list[dict[str, Any]]:
+        """Inject a fault into the running rig; return the faults now in effect.
+
+        ``kind`` is one of `~elphel_sim.faults.FAULT_KINDS`:
+
+        * ``"i2c_nak"`` (``port=0``, ``count=2``): the next ``count`` I2C transfers on
+          that sensor port's bus are not acknowledged. elphel-camd tries each transfer
+          twice, so the default 2 fails one access (1 is absorbed by its retry).
+        * ``"motor_stall"``: the stage motor stops following its step pulses.
+        * ``"stage_link_drop"``: the stage's TCP link goes down (the open connection is
+          cut, new ones too) until `clear_faults`.
+
+        Raises
+        ------
+        ValueError
+            An unknown kind or option, or a value the fault does not allow (the
+            simulator's message says which and what is allowed).
+        """
+        answer = self._faults_request("POST", json={"kind": kind, **options})
+        return list(answer["faults"])
+
+    def faults(self) -> list[dict[str, Any]]:
+        """The faults in effect (an ``i2c_nak``'s ``count`` is what is left of it)."""
+        return list(self._faults_request("GET")["faults"])
+
+    def clear_faults(self) -> None:
+        """Clear every fault: the buses answer, the motor moves, the stage link is back.
+
+        A stage client whose link was cut must reconnect (``StageClient.reconnect``).
+        """
+        self._faults_request("DELETE")
+
+    def _faults_request(self, method: str, **kwargs: Any) -> dict[str, Any]:
+        import httpx
+
+        r = httpx.request(method, f"{self.sim_url}/faults", timeout=10, **kwargs)
+        if r.status_code in (404, 422):
+            detail = r.json().get("detail")
+            if isinstance(detail, list):  # pydantic's errors: name the first
+                first = detail[0]
+                where = ".".join(str(x) for x in first.get("loc", ())[1:])
+                detail = f"{where or 'fault'}: {first.get('msg')}"
+            raise ValueError(f"elphel_rig fault {kwargs.get('json')}: {detail}")
+        r.raise_for_status()
+        answer: dict[str, Any] = r.json()
+        return answer
 
 
 @dataclass(frozen=True)

@@ -218,6 +218,7 @@ class SimStage:
             "min_mm_seen": float(m.min_mm_seen),
             "max_mm_seen": float(m.max_mm_seen),
             "stalled": m.stalled,
+            "link_down": self.board.link_down,
             "resets": self.board.resets,
             "virtual_s": self.board.clock.now_us / 1e6,
         }
@@ -231,6 +232,17 @@ class SimStage:
     def sim_drop_connection(self) -> None:
         """Cut the TCP connection(s), as a WiFi drop would."""
         self.board.drop_clients()
+
+    def sim_link_down(self, down: bool = True) -> None:
+        """Take the TCP link down (cut it now and every new connection) or bring it back."""
+        self.board.link_down = down
+        if down:
+            self.board.drop_clients()
+
+    @property
+    def link_down(self) -> bool:
+        """Whether `sim_link_down` holds the TCP link down."""
+        return self.board.link_down
 
     def sim_caliper_glitch(self, count: int = 1, kind: str = "bits") -> None:
         """Corrupt the next `count` caliper frames: 'bits', 'extra' or 'short'."""

@@ -16,10 +16,10 @@ from elphel_host.burst.capture import BurstRunner, capture_burst
 from elphel_host.burst.io import FrameInfo, read_burst
 from elphel_host.burst.manifest import FrameEntry, Manifest, read_manifest
 from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, write_plan
-from elphel_host.cli_common import ProgressLine
 from elphel_host.errors import CaptureTimeout, InputFormatError, ScaleError
 from elphel_host.fileio import partial_path
 from elphel_host.mfsr.scale import MAX_SCALE, check_scale
+from elphel_host.progress import ProgressLine
 from elphel_host.stage.positioning import MoveResult
 
 POSITIONS = [0.0, 0.01, 0.02, 0.03]

@@ -115,8 +115,16 @@ def test_several_bursts_in_parallel(tmp_path, burst2, capsys):
     out = tmp_path / "out"
     environ = dict(os.environ)
     assert main(["mfsr", *dirs, "--scale", "2", "--out", str(out), "--json"]) == 0
-    r = json.loads(capsys.readouterr().out)
+    stdout, stderr = capsys.readouterr()
+    assert len(stdout.splitlines()) == 1  # --json: the one object, progress elsewhere
+    r = json.loads(stdout)
+    assert [b["out"] for b in r["bursts"]] == [str(out / "a.tif"), str(out / "b.tif")]
     assert [b["used"] for b in r["bursts"]] == [6, 6]
+    # progress on stderr as each burst finishes: plain lines (not a terminal), rate, time left
+    lines = stderr.splitlines()
+    assert [line.split()[1] for line in lines] == ["0/2", "1/2", "2/2"], stderr
+    assert lines[-1].startswith("mfsr: 2/2 bursts fused (last: ") and "left)" in lines[-1]
+    assert "\r" not in stderr and "━" not in stderr
     assert (out / "a.tif").is_file() and (out / "b.tif").is_file()
     # The local cluster's single-threaded BLAS settings do not stay in this process.
     assert dict(os.environ) == environ

@@ -124,11 +124,6 @@ def test_camera_snap_sequence_and_limits(elphel_rig, core):
         core.setROI(1001, 700, 320, 240)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="elphel-camd rounds EXPOS at its upper limit up to whole rows (one µs over the "
-    "limit) and then refuses it when the state is checked again",
-)
 def test_exposure_upper_limit_is_taken(elphel_rig, core):
     load_elphel_devices(core, camera_url=elphel_rig.camera_url, token=elphel_rig.token)
     core.setROI(1000, 700, 320, 240)

@@ -19,7 +19,6 @@ from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, sensor_geom
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import (
     CAMERA_TOKEN_ENV,
-    ProgressLine,
     add_camera_options,
     add_json_option,
     add_sensor_port_option,
@@ -30,6 +29,7 @@ from elphel_host.cli_common import (
 )
 from elphel_host.errors import FusionError, InputFormatError, ScaleError
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
+from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.positioning import Positioner, StageModel
 

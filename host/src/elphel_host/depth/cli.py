@@ -11,11 +11,12 @@ import json
 from pathlib import Path
 from typing import Any
 
-from elphel_host.cli_common import ProgressLine, add_json_option, emit
+from elphel_host.cli_common import add_json_option, emit
 from elphel_host.depth.pipeline import MOTIONS, DepthConfig, read_and_run, write_fused_quad
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, write_depth_products
 from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.fuse import METHODS
+from elphel_host.progress import ProgressLine
 from elphel_host.tp.dsi import write_dsi
 
 

@@ -4,7 +4,7 @@
   --out OUT.tif [--float] [--json]`` writes the fused TIFF (16-bit DN, or float32) and a
   PNG preview next to it. With several burst directories ``--out`` is a directory, one
   ``<burst name>.tif`` each, and the bursts run in parallel on a Dask cluster (local by
-  default, or ``--scheduler tcp://host:8786``).
+  default, or ``--scheduler tcp://host:8786``), with progress on stderr as each finishes.
 * ``elphel mfsr compare BURST_DIR --scale S [--reference REF.tif] --out DIR`` runs
   bicubic, baseline and robust, scores them against the reference (PSNR, SSIM) and writes
   the three TIFFs, a ``compare.json`` and a side-by-side crops PNG.
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +31,7 @@ from elphel_host.mfsr.psf import parse_psf
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import save_preview
+from elphel_host.progress import ProgressLine
 
 
 def register(subparsers: Any) -> None:
@@ -173,13 +173,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Fuse each burst directory on a Dask cluster; results in the order given.
+
+    Progress (one step per burst, as each finishes) goes to stderr.
+    """
     try:
-        from dask.distributed import Client, LocalCluster
+        from dask.distributed import as_completed
     except ImportError as e:
         raise InputFormatError(
             "several burst directories need dask[distributed] (pip install 'dask[distributed]'); "
             "or fuse one directory per call"
         ) from e
+    from elphel_host.parallel import dask_client
+
     out_dir = Path(args.out)
     names = [Path(d).resolve().name for d in args.burst_dirs]
     if len(set(names)) != len(names):
@@ -188,38 +194,35 @@ def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
             "(each becomes <name>.tif in --out)"
         )
     outs = [str(out_dir / f"{n}.tif") for n in names]
-    cluster = None
-    # A local cluster's nannies set OMP/MKL/OPENBLAS_NUM_THREADS=1 (and more) in this
-    # process's environment for their workers; put it back afterwards, so that processes
-    # started later from here do not inherit single-threaded BLAS.
-    environ = dict(os.environ)
-    if args.scheduler:
-        client = Client(args.scheduler)
-    else:
-        cluster = LocalCluster(processes=True, threads_per_worker=1, dashboard_address=None)
-        client = Client(cluster)
+    total = len(outs)
+    results: list[dict[str, Any] | None] = [None] * total
+    line = ProgressLine()
+    line.update(f"mfsr: 0/{total} bursts fused", done=0, total=total)
     try:
-        futures = [
-            client.submit(
-                _fuse_one,
-                d,
-                args.scale,
-                args.method,
-                o,
-                args.float,
-                args.robust_config,
-                not args.no_prior,
-                pure=False,
-            )
-            for d, o in zip(args.burst_dirs, outs, strict=True)
-        ]
-        return [f.result() for f in futures]
+        with dask_client(args.scheduler) as client:
+            futures = {
+                client.submit(
+                    _fuse_one,
+                    d,
+                    args.scale,
+                    args.method,
+                    o,
+                    args.float,
+                    args.robust_config,
+                    not args.no_prior,
+                    pure=False,
+                ): i
+                for i, (d, o) in enumerate(zip(args.burst_dirs, outs, strict=True))
+            }
+            for done, future in enumerate(as_completed(futures), start=1):
+                i = futures[future]
+                results[i] = future.result()
+                line.update(
+                    f"mfsr: {done}/{total} bursts fused (last: {names[i]})", done=done, total=total
+                )
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-        os.environ.clear()
-        os.environ.update(environ)
+        line.end()
+    return [r for r in results if r is not None]
 
 
 def _crop(image: NDArray[np.float32], size: int) -> NDArray[np.float32]:

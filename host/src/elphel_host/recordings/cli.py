@@ -10,7 +10,8 @@ import argparse
 import sys
 from typing import Any
 
-from elphel_host.cli_common import ProgressLine, add_json_option, emit
+from elphel_host.cli_common import add_json_option, emit
+from elphel_host.progress import ProgressLine
 from elphel_host.recordings.conversion import convert
 
 

@@ -16,13 +16,13 @@ from typing import Any
 from elphel_host.cli_common import (
     DEFAULT_STAGE_MODEL,
     STAGE_URL_ENV,
-    ProgressLine,
     add_json_option,
     add_stage_model_option,
     add_stage_option,
     emit,
 )
 from elphel_host.errors import StageConnectionError
+from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.discovery import find_stage_boards
 from elphel_host.stage.positioning import Positioner, StageModel

@@ -3,9 +3,9 @@
 A GRBG sensor has green at (even row, even column), red at (even, odd), blue at
 (odd, even) and green at (odd, odd). Each colour is processed on its own sub-lattice of
 8x8 samples per 16x16 tile, so red and blue cost one quarter of a full-tile transform and
-green two quarters: this is the symmetry of reference section 3 (R/B need only CC, G only
-CC and SC), applied by never computing the zeros. Colour indices follow the reference:
-R = 0, B = 1, G = 2.
+green two quarters: this is the symmetry of a Bayer lattice under the CLT (R/B need only
+the cosine-cosine part, G only cosine-cosine and sine-cosine), applied by never computing
+the zeros. Colour indices follow Elphel's tile processor: R = 0, B = 1, G = 2.
 """
 
 from __future__ import annotations

@@ -21,8 +21,8 @@ Which port is which camera, and where it sits, is the :mod:`~elphel_host.tp.layo
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -46,6 +46,9 @@ AHEAD_FRAMES = 2  # the set is taken this many triggers after every port is sync
 # Metadata keys that are not frame parameters (kept per camera in quad.json anyway).
 _FRAME_KEYS = ("frame", "timestamp_ns", "port", "sensor", "bayer")
 
+#: ``progress(done, total, message)``: called after each step of a capture.
+CaptureProgress = Callable[[int, int, str], None]
+
 
 @dataclass(frozen=True)
 class QuadCapture:
@@ -68,6 +71,7 @@ def capture_quad(
     trigger_period_ms: float | None = None,
     force: bool = False,
     timeout_s: float = 60.0,
+    progress: CaptureProgress | None = None,
 ) -> QuadCapture:
     """Take one trigger-synchronised set from four sensor ports and write a quad directory.
 
@@ -88,6 +92,10 @@ def capture_quad(
         Replace an existing non-empty ``out``.
     timeout_s
         How long to wait for the ports' frames (the settings to take effect, the set).
+    progress
+        Called as ``progress(done, total, message)`` after each step: the common
+        trigger set, the ports synchronised, the set taken, each port's frame fetched
+        (most of the time: the frames are large) and the directory written.
 
     Returns
     -------
@@ -121,14 +129,23 @@ def capture_quad(
                 "allowed for a quad set: PF_HEIGHT=0"
             )
     master, period = choose_trigger(before, layout.ports, trigger_period_ms)
+    total = 4 + len(layout.ports)
+    step = progress or (lambda _done, _total, _message: None)
     deadline = time.monotonic() + timeout_s
     try:
         with on_common_trigger(camera, before, master=master, period=period) as applied:
+            step(1, total, f"common trigger set ({period / TICKS_PER_MS:g} ms, master {master})")
             # one frame past the change, so every port's latest frame is a triggered one
             _wait_for(camera, {p: f + 1 for p, f in applied.items()}, deadline, period)
+            step(2, total, "ports synchronised")
             frames = _pick_frames(camera, layout.ports, period)
             _wait_for(camera, frames, deadline, period)
-            captured = _fetch(camera, frames)
+            step(3, total, "set taken: " + ", ".join(f"port {p} #{f}" for p, f in frames.items()))
+
+            def fetched(port: int, done: int) -> None:
+                step(3 + done, total, f"port {port} frame {frames[port]} fetched")
+
+            captured = _fetch(camera, frames, on_fetched=fetched)
     except CameraHTTPError as e:
         if e.parameter != "TRIG_PERIOD":
             raise
@@ -144,6 +161,7 @@ def capture_quad(
     with replacing_directory(target) as tmp:
         write_quad_dir(tmp, manifest, [captured[port].tiff for port in layout.ports])
         check_target(target, force=force)  # again: it may have appeared meanwhile
+    step(total, total, f"written {target}")
     return QuadCapture(
         path=target,
         frames={p: captured[p].frame for p in layout.ports},
@@ -236,11 +254,24 @@ def _pick_frames(camera: CameraInterface, ports: tuple[int, ...], period: int) -
     return {p: newest + AHEAD_FRAMES + offset[p] for p in ports}
 
 
-def _fetch(camera: CameraInterface, frames: Mapping[int, int]) -> dict[int, CapturedFrame]:
-    """Fetch every port's frame from the ring buffer, all at once (none is overwritten)."""
+def _fetch(
+    camera: CameraInterface,
+    frames: Mapping[int, int],
+    *,
+    on_fetched: Callable[[int, int], None] | None = None,
+) -> dict[int, CapturedFrame]:
+    """Fetch every port's frame from the ring buffer, all at once (none is overwritten).
+
+    ``on_fetched(port, done)`` is called (on this thread) as each frame arrives.
+    """
     with ThreadPoolExecutor(max_workers=len(frames), thread_name_prefix="quad-fetch") as pool:
-        futures = {p: pool.submit(camera.capture, p, frame=f) for p, f in frames.items()}
-        return {p: fut.result() for p, fut in futures.items()}
+        futures = {pool.submit(camera.capture, p, frame=f): p for p, f in frames.items()}
+        got: dict[int, CapturedFrame] = {}
+        for future in as_completed(futures):
+            got[futures[future]] = future.result()
+            if on_fetched is not None:
+                on_fetched(futures[future], len(got))
+        return {p: got[p] for p in frames}
 
 
 def _check_set(

@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 
 from elphel_host.camera.backends import connect
-from elphel_host.cli_common import ProgressLine, add_camera_options, emit
+from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
+from elphel_host.progress import ProgressLine
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_dsi, write_ml_data
@@ -204,17 +205,26 @@ def run_capture(args: argparse.Namespace) -> int:
             + (hint if Path(CAPTURE, "quad.json").is_file() else "")
         )
     layout = read_layout(args.geometry) if args.geometry else None
+    line = ProgressLine()
+
+    def progress(done: int, total: int, message: str) -> None:
+        line.update(f"tp capture: {done}/{total} {message}", done=done, total=total)
+
     t0 = time.perf_counter()
     # A simulated board forms each full frame when it is fetched: allow it time.
-    with connect(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
-        got = capture_quad(
-            camera,
-            args.out,
-            layout=layout,
-            trigger_period_ms=args.trigger_period_ms,
-            force=args.force,
-            timeout_s=args.timeout,
-        )
+    try:
+        with connect(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+            got = capture_quad(
+                camera,
+                args.out,
+                layout=layout,
+                trigger_period_ms=args.trigger_period_ms,
+                force=args.force,
+                timeout_s=args.timeout,
+                progress=progress,
+            )
+    finally:
+        line.end()
     seconds = time.perf_counter() - t0
     cams = [cam.to_json() for cam in got.manifest.cameras]
     result: dict[str, Any] = {

@@ -15,7 +15,8 @@ class TpConfig:
         Absolute fat zero of the normalisation, in units of the CLT product of images
         scaled to full scale 1.0; frequencies much weaker than this are suppressed.
     lpf_sigma
-        Correlation LPF (reference section 5; 0 = none).
+        Correlation LPF: sigma of a Gaussian of the lag
+        (`~elphel_host.tp.correlation.lpf_mask`; 0 = none).
     lpf_sigma_rb
         Extra LPF of the red and blue correlations (0 = none). Red and blue are sampled
         every second pixel, so their spectra above a quarter of the sampling rate are

@@ -34,9 +34,10 @@ C64 = NDArray[np.complex64]
 
 
 def lpf_mask(sigma: float) -> NDArray[np.float64]:
-    """Frequency-domain LPF (reference section 5): Gaussian of the lag, as an 8x8 [kv][kh] mask.
+    """Frequency-domain LPF (Elphel's correlation LPF): Gaussian of the lag, as an 8x8 mask.
 
-    ``f(i, j) = exp(-(i^2 + j^2) / (2 sigma))`` (sigma not squared, as in the reference),
+    The mask is indexed [kv][kh]. ``f(i, j) = exp(-(i^2 + j^2) / (2 sigma))`` (sigma not
+    squared, as in Elphel's code),
     normalised, then converted with DCT-IIIe and scaled by 16. ``sigma = 0`` gives no
     filtering (all ones).
     """

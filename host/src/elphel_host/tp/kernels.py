@@ -1,13 +1,13 @@
-"""Aberration-correction kernels in the CLT domain (reference section 4).
+"""Aberration-correction kernels in the CLT domain (Elphel's per-tile deconvolution).
 
 A pixel-domain kernel k(dy, dx), |dy|, |dx| <= 7, becomes four 8x8 arrays so that the
 element-wise "tessarine" product of a tile's CLT with them is the CLT of the tile
 convolved with k: the kernel is split into its even/odd parts along each axis (odd parts
 index-shifted by one), each part goes through DCT-IIIe (even axes) or DST-IIIe (odd
 axes), and the result is scaled by 16 (so a unit impulse gives the identity). The
-odd-odd part uses the odd-odd sign pattern: the reference flags Elphel's Java (which
-uses the odd-in-x pattern there) as a probable bug, and the tests confirm that only the
-odd-odd pattern matches direct convolution.
+odd-odd part uses the odd-odd sign pattern: Elphel's Java uses the odd-in-x pattern
+there, probably a bug, and the tests confirm that only the odd-odd pattern matches
+direct convolution.
 
 In the complex form (:mod:`elphel_host.tp.clt`) the product is simply ``z * k`` for
 ``z1`` and ``z2`` separately.
@@ -28,7 +28,7 @@ _E = np.ones(N)
 _E[0] = _E[-1] = 0.5
 _E_S = np.ones(N)
 _E_S[-1] = 0.5
-#: DCT-IIIe and DST-IIIe of the reference (non-orthogonal; e_0 = e_7 = 1/2, e'_7 = 1/2).
+#: DCT-IIIe and DST-IIIe as Elphel defines them (non-orthogonal; e_0 = e_7 = 1/2, e'_7 = 1/2).
 C3E = np.sqrt(2.0 / N) * _E[None, :] * np.cos(np.pi * _m * (2 * _k + 1) / (2 * N))
 S3E = np.sqrt(2.0 / N) * _E_S[None, :] * np.sin(np.pi * (_m + 1) * (2 * _k + 1) / (2 * N))
 

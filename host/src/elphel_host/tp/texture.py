@@ -6,11 +6,12 @@ the correlation), transformed back with the unshifted window and overlap-added a
 8: the result is each camera's image re-rendered onto the virtual centre camera's grid
 at that disparity, without any resampling. Where the disparity is right the four images
 agree; the texture blends them with weights that fall where one camera disagrees
-(occlusion, glare) and an alpha that says how well they agree (reference section 8,
-simplified to per-pixel weights).
+(occlusion, glare) and an alpha that says how well they agree (Elphel's texture blend,
+simplified from per-tile to per-pixel weights).
 
 Bayer mosaics are demosaiced first (bilinear, per colour) so every colour is a full
-image; the reference transforms the sparse colour planes instead and interpolates after.
+image; Elphel's tile processor transforms the sparse colour planes instead and
+interpolates after.
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ def rendered_images(
     disparity
         Scalar or ``(tiles_y, tiles_x)`` disparity per tile.
     lpf_sigma
-        Optional LPF of the image (reference section 5; 0 = none).
+        Optional LPF of the image: sigma of the correlation's Gaussian
+        (`~elphel_host.tp.correlation.lpf_mask`; 0 = none).
 
     Returns
     -------

@@ -69,6 +69,11 @@ class SimI2CBus:
         """A stuck bus (SDA held low): every transfer fails until released."""
         self._stuck = stuck
 
+    @property
+    def sim_naks_pending(self) -> tuple[int, int | None]:
+        """NAKs still to come from `sim_nak` and the address they are for (None: any)."""
+        return self._nak_remaining, self._nak_address
+
     # -- the smbus2 interface ------------------------------------------------------------
 
     def i2c_rdwr(self, *i2c_msgs: i2c_msg) -> None:

@@ -3,12 +3,13 @@
 The register file and its fields come from the daemon's table (16-bit addresses,
 consecutive 16-bit registers two addresses apart).
 
-Timing (reference sections 2.4 and 3.3): a write to the window, the read mode (flips),
-the exposure or the frame/line length made during frame F shapes the image of frame F + 2
-in both free-run and snapshot mode (Elphel's MT9F002 needs 2 frames ahead in async mode
-too); colour gains reach frame F + 1; the slave mode reaches frame F + 2 in free-run and
-F + 1 once triggered. Other registers act at once. The exposure is clamped to one row less
-than the frame, as an SMIA sensor clamps coarse integration to its frame length.
+Timing (Elphel's MT9F002 driver: its exposure model and its table of frames ahead): a
+write to the window, the read mode (flips), the exposure or the frame/line length made
+during frame F shapes the image of frame F + 2 in both free-run and snapshot mode
+(Elphel's MT9F002 needs 2 frames ahead in async mode too); colour gains reach frame
+F + 1; the slave mode reaches frame F + 2 in free-run and F + 1 once triggered. Other
+registers act at once. The exposure is clamped to one row less than the frame, as an
+SMIA sensor clamps coarse integration to its frame length.
 """
 
 from __future__ import annotations

@@ -2,11 +2,12 @@
 
 The register file and its fields come from the daemon's table.
 
-Timing (datasheet facts, reference sections 1.2 and 1.4): in free-run, a write to the
-shutter width, the window, blanking or read modes made during frame F shapes the image of
-frame F + 2 (window changes cost a bubble frame); colour gains reach frame F + 1. In
-snapshot mode every frame-synchronised register reaches the next triggered frame.
-Registers outside these groups (reset, restart, test pattern, ...) act at once.
+Timing (the MT9P031/MT9P006 datasheet's "maintaining a constant frame rate"): in
+free-run, a write to the shutter width, the window, blanking or read modes made during
+frame F shapes the image of frame F + 2 (window changes cost a bubble frame); colour
+gains reach frame F + 1. In snapshot mode every frame-synchronised register reaches the
+next triggered frame. Registers outside these groups (reset, restart, test pattern, ...)
+act at once.
 """
 
 from __future__ import annotations

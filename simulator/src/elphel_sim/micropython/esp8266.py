@@ -63,6 +63,8 @@ class SimEsp8266:
         self.requested_tcp_port = tcp_port
         self.listener: _socket.socket | None = None
         self.clients: list[FakeSocket] = []
+        # While True the WiFi link is down: connections are cut as soon as they come.
+        self.link_down = False
         self.garble_in: Garbler = lambda data: data
         self.garble_out: Garbler = lambda data: data
         self.reset_cause = PWRON_RESET

@@ -82,6 +82,10 @@ class FakeSocket:
         conn.setblocking(False)
         fake = FakeSocket(self.board, conn)
         self.board.clients.append(fake)
+        if self.board.link_down:
+            # The firmware sees end-of-stream at once and closes it, as after a drop.
+            with contextlib.suppress(OSError):
+                conn.shutdown(_socket.SHUT_RDWR)
         return fake, addr
 
     def recv(self, n: int) -> bytes:

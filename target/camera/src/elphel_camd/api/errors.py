@@ -5,10 +5,12 @@ Errors are JSON ``{"detail": ..., "error": ...}``; a rejected value also names
 request the schema allows but the port refuses — its sensor's own limits (narrower than
 the schema's, which are the widest any sensor has), a window that does not fit the
 sensor, a frame the schedule cannot reach, a read-only register — is 409, with the same
-body. A missing port, sensor, register or frame is 404, a board without an image path
-501, a failing I2C bus or a state directory that cannot be written 503 (reads keep
-serving), a frame that does not come 504. Non-finite numbers in a rejected body are
-named as strings (``"NaN"``, ``"Infinity"``): JSON has no such numbers.
+body. A body that is not a JSON object (not JSON, not UTF-8, a list) is 422 with
+``"error": "malformed_body"`` and ``"parameter": "body"``. A missing port, sensor,
+register or frame is 404, a board without an image path 501, a failing I2C bus or a
+state directory that cannot be written 503 (reads keep serving), a frame that does not
+come 504. Non-finite numbers in a rejected body are named as strings (``"NaN"``,
+``"Infinity"``): JSON has no such numbers.
 """
 
 from __future__ import annotations
@@ -57,13 +59,19 @@ ERROR_STATUS: tuple[tuple[type[Exception], int, str], ...] = (
     (TimeoutError, 504, "timeout"),
 )
 
+# A body that is not a JSON object at all (not JSON, not UTF-8, a list or a string): the
+# request names no parameter, so it is not a parameter's range error. Still 422.
+MALFORMED_BODY = "malformed_body"
+MALFORMED_BODY_KINDS = ("json_invalid", "model_attributes_type", "dict_type")
+
 _DESCRIPTIONS = {
     401: "no or wrong bearer token",
     404: "no such port, sensor, register or frame",
     409: "allowed by the schema but refused by the port's sensor or state (its own limits, "
     "the window, the frame schedule, a read-only register); names what and why",
     413: "request body too large (names the limit)",
-    422: "invalid by the schema: names the parameter, the value and what is allowed",
+    422: "invalid by the schema: names the parameter, the value and what is allowed "
+    "(a body that is not a JSON object: error malformed_body, parameter body)",
     501: "the board has no image path",
     503: "the port's I2C bus fails, or the state directory cannot be written",
     504: "the frame did not come in time",
@@ -131,20 +139,28 @@ def validation_problem(exc: RequestValidationError) -> dict[str, Any]:
     loc = [str(part) for part in first.get("loc", ())]
     name = loc[-1] if len(loc) > 1 else (loc[0] if loc else "body")
     kind = str(first.get("type", ""))
-    if name == "body" or kind in ("json_invalid", "model_attributes_type", "dict_type"):
-        name, allowed = "body", "a JSON object"
-    elif loc and loc[0] == "body":
+    detail = "; ".join(f"{'.'.join(map(str, e.get('loc', ())))}: {e.get('msg')}" for e in errors)
+    if name == "body" or kind in MALFORMED_BODY_KINDS:
+        # not JSON: pydantic's input is a placeholder, not what was sent
+        sent = None if kind == "json_invalid" else first.get("input")
+        return {
+            "detail": f"the request body is not a JSON object ({detail}); allowed: a JSON object",
+            "error": MALFORMED_BODY,
+            "parameter": "body",
+            "value": json_safe(jsonable_encoder(sent, custom_encoder={bytes: repr})),
+            "allowed": "a JSON object",
+        }
+    if loc and loc[0] == "body":
         allowed = _allowed(name, kind)
     else:
         allowed = str(first.get("msg", "see the OpenAPI schema"))
     value = json_safe(jsonable_encoder(first.get("input"), custom_encoder={bytes: repr}))
-    detail = "; ".join(f"{'.'.join(map(str, e.get('loc', ())))}: {e.get('msg')}" for e in errors)
     given = first.get("input")
     if isinstance(given, float) and not math.isfinite(given):
         allowed = f"a finite number: {allowed}"
     return {
         "detail": f"{name}={value!r} is invalid ({detail}); allowed: {allowed}",
-        "error": "parameter_range" if kind != "extra_forbidden" else "unknown_parameter",
+        "error": "unknown_parameter" if kind == "extra_forbidden" else "parameter_range",
         "parameter": name,
         "value": value,
         "allowed": allowed,
@@ -177,7 +193,7 @@ def _on_http(request: Request, exc: Exception) -> JSONResponse:
             status_code=422,
             content={
                 "detail": f"the request body cannot be read: {exc.detail}",
-                "error": "parameter_range",
+                "error": MALFORMED_BODY,
                 "parameter": "body",
                 "value": None,
                 "allowed": "a JSON object (UTF-8)",

@@ -115,20 +115,39 @@ def check_window_and_modes(
     return height
 
 
+def rows_to_us(rows: int, *, row_s: float) -> int:
+    """EXPOS (µs) of an exposure of ``rows`` whole rows, as the daemon reports it."""
+    return round(rows * row_s * 1e6)
+
+
+def exposure_max_us(*, row_s: float, max_rows: int) -> int:
+    """The longest EXPOS at this row time: ``max_rows`` whole rows, as reported.
+
+    It is the value the daemon reports for that exposure, so writing it back is
+    accepted as it is (a limit rounded down instead would leave the longest exposure
+    reported one µs above the limit, and refused the next time the state is checked).
+    """
+    return rows_to_us(max_rows, row_s=row_s)
+
+
 def set_exposure_rows(
     s: dict[str, int], changed: frozenset[str], *, row_s: float, max_rows: int
 ) -> int:
-    """Fill VEXPOS and EXPOS (rounded to whole rows) from whichever of them was changed."""
+    """Fill VEXPOS and EXPOS (rounded to whole rows) from whichever of them was changed.
+
+    Any EXPOS up to `exposure_max_us` rounds to at most ``max_rows`` rows, and the
+    EXPOS reported for them is again within that limit.
+    """
     if {"EXPOS", "VEXPOS"} <= changed:
         raise ParameterRangeError("VEXPOS", s["VEXPOS"], "either EXPOS or VEXPOS, not both")
     if "VEXPOS" in changed:
         rows = s["VEXPOS"]
         check_range("VEXPOS", rows, 1, max_rows)
     else:
-        check_range("EXPOS", s["EXPOS"], 1, math.floor(max_rows * row_s * 1e6))
-        rows = max(1, round(s["EXPOS"] / (row_s * 1e6)))
+        check_range("EXPOS", s["EXPOS"], 1, exposure_max_us(row_s=row_s, max_rows=max_rows))
+        rows = min(max_rows, max(1, round(s["EXPOS"] / (row_s * 1e6))))
     s["VEXPOS"] = rows
-    s["EXPOS"] = round(rows * row_s * 1e6)
+    s["EXPOS"] = rows_to_us(rows, row_s=row_s)
     return rows
 
 

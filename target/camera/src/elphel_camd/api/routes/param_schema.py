@@ -9,7 +9,6 @@ and the port's driver; the browser page builds its controls from this answer.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from fastapi import APIRouter
@@ -19,7 +18,7 @@ from elphel_camd.api.deps import READS, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.params import PARAMS, TRIG_VALUES
 from elphel_camd.sensors import lepton35
-from elphel_camd.sensors.aptina import AptinaSensor
+from elphel_camd.sensors.aptina import AptinaSensor, exposure_max_us
 from elphel_camd.sensors.base import SensorDriver
 from elphel_camd.sensors.lepton35 import Lepton35
 
@@ -56,7 +55,7 @@ def _limits(driver: SensorDriver, state: dict[str, int]) -> dict[str, tuple[int,
             out[gain] = (driver.gain_min, driver.gain_max)
         row_s = driver.row_time_s(state["WOI_WIDTH"])
         out["VEXPOS"] = (1, driver.exposure_rows_max)
-        out["EXPOS"] = (1, math.floor(driver.exposure_rows_max * row_s * 1e6))
+        out["EXPOS"] = (1, exposure_max_us(row_s=row_s, max_rows=driver.exposure_rows_max))
     elif isinstance(driver, Lepton35):
         out.update(WOI_LEFT=(0, 0), WOI_TOP=(0, 0), WOI_WIDTH=(lepton35.WIDTH, lepton35.WIDTH))
         out["WOI_HEIGHT"] = (lepton35.HEIGHT, lepton35.HEIGHT_TELEMETRY)

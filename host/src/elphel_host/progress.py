@@ -1,0 +1,103 @@
+"""The progress line of long-running programs: a bar, the rate and the time left.
+
+`ProgressLine` draws on a stream (stderr by default) one updating line with a rich bar
+when the stream is a terminal, else one plain line per update. It is for programs' edges
+only, the `elphel` CLI and the simulator's demo; library code reports progress through
+callbacks and never draws.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+import time
+from collections.abc import Callable
+from typing import TextIO
+
+BAR_WIDTH = 24
+
+
+def _clock(seconds: float) -> str:
+    m, sec = divmod(round(seconds), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{sec:02d}" if h else f"{m}:{sec:02d}"
+
+
+class ProgressLine:
+    """Progress of a long command on stderr: one updating line on a terminal, else a line each.
+
+    Given ``done`` and ``total``, the line carries the rate and the time left; on a
+    terminal, rich draws a bar before it. stdout stays for the result (one JSON object
+    with --json), so progress never mixes with it.
+    """
+
+    def __init__(
+        self, stream: TextIO | None = None, *, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._open = False
+        self._clock = clock
+        self._start: tuple[float, int] | None = None
+
+    def rate_text(self, done: int, total: int) -> str:
+        """``"2.0/s, 0:04 left"`` since the first update (empty until something is done)."""
+        now = self._clock()
+        if self._start is None or done < self._start[1]:
+            self._start = (now, done)
+        t0, d0 = self._start
+        if now <= t0 or done <= d0:
+            return ""
+        rate = (done - d0) / (now - t0)
+        return f"{rate:.3g}/s, {_clock(max(total - done, 0) / rate)} left"
+
+    def _bar(self, done: int, total: int) -> str:
+        """The progress bar of rich, ``BAR_WIDTH`` cells, as terminal text (colours included)."""
+        from rich.console import Console
+        from rich.progress_bar import ProgressBar
+
+        console = Console(
+            file=io.StringIO(), force_terminal=True, color_system="standard", width=BAR_WIDTH
+        )
+        with console.capture() as captured:
+            console.print(
+                ProgressBar(total=total, completed=min(max(done, 0), total), width=BAR_WIDTH),
+                end="",
+            )
+        return captured.get()
+
+    def update(self, text: str, *, done: int | None = None, total: int | None = None) -> None:
+        """Show ``text`` as the current state (replacing the previous one on a terminal).
+
+        With ``done`` of ``total`` (``text`` names the counts), the rate and the time
+        left follow it, and a terminal shows a bar before it.
+        """
+        if done is not None and total:
+            rate = self.rate_text(done, total)
+            if rate:
+                text = f"{text} ({rate})"
+            if self.tty:
+                text = f"{self._bar(done, total)} {text}"
+        if self.tty:
+            self.stream.write(f"\r{text}\x1b[K")
+            self._open = True
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def end(self) -> None:
+        """Finish the updating line (a no-op when not on a terminal)."""
+        if self._open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._open = False
+
+    def say(self, prefix: str) -> Callable[[str], None]:
+        """A callback printing ``prefix + message`` as a line of its own."""
+
+        def print_line(message: str) -> None:
+            self.end()
+            self.stream.write(f"{prefix}{message}\n")
+            self.stream.flush()
+
+        return print_line

@@ -1,0 +1,96 @@
+"""The demo's progress: its commands' own progress relayed to one line on stderr.
+
+`make demo` runs `elphel ... --json` commands; while one runs, what it writes on stderr
+(its progress) is shown on the demo's progress line: a bar over the demo's commands with
+the rate and the time left on a terminal, plain lines otherwise. stdout keeps the
+demo's account (``[demo] ...``) and nothing else.
+"""
+
+from __future__ import annotations
+
+import ast
+import io
+import re
+from pathlib import Path
+
+import pytest
+
+from elphel_host.progress import ProgressLine
+from elphel_sim import demo, demo_rig
+from elphel_sim.demo_rig import DemoError, DemoProgress, elphel, step
+from tests.host.jp4.test_convert import record
+
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+class Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def use(monkeypatch: pytest.MonkeyPatch, stream: io.StringIO, total: int) -> DemoProgress:
+    progress = DemoProgress(ProgressLine(stream), total=total)
+    monkeypatch.setattr(demo_rig, "DEMO_PROGRESS", progress)
+    return progress
+
+
+def convert(tmp_path: Path, out: str = "o") -> dict:
+    """`elphel jp4 convert` of six frames: a command that shows its progress."""
+    record(tmp_path / "rec", 3, (0, 1))
+    return elphel("jp4", "convert", str(tmp_path / "rec"), "--out", str(tmp_path / out))
+
+
+def test_a_pipe_gets_the_commands_progress_as_plain_lines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    pipe = io.StringIO()
+    progress = use(monkeypatch, pipe, total=4)
+    progress.done = 1
+    result = convert(tmp_path)
+    assert result["layout"] == "files"  # the command's JSON, parsed
+    lines = pipe.getvalue().splitlines()
+    assert lines[0].startswith("demo: 1/4 commands; elphel jp4 convert: converting 1/6")
+    assert lines[-1].startswith("demo: 1/4 commands; elphel jp4 convert: converting 6/6")
+    assert "left)" in lines[-1]  # the command's own rate and time left
+    assert "\r" not in pipe.getvalue() and "━" not in pipe.getvalue()
+    assert progress.done == 2
+    step("next")
+    assert capsys.readouterr().out == "[demo] next\n"  # the account alone on stdout
+
+
+def test_a_terminal_gets_one_updating_line_with_a_bar_ended_by_the_account(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    tty = Tty()
+    use(monkeypatch, tty, total=2)
+    convert(tmp_path, "one")
+    convert(tmp_path, "two")  # in the second the demo's own rate and time left appear
+    step("converted")
+    updates = [ANSI.sub("", u) for u in tty.getvalue().split("\x1b[K")[:-1]]
+    assert all(u.startswith("\r") for u in updates) and len(updates) >= 12
+    assert updates[0].startswith("\r" + "━" * 24 + " demo: 0/2 commands; elphel jp4 convert")
+    last = updates[-1]
+    assert re.search(r"demo: 1/2 commands; .* \(\S+/s, \d+:\d\d left\)$", last), last
+    assert last.count(" left)") == 2, last  # the command's rate, then the demo's
+    assert tty.getvalue().endswith("\x1b[K\n")  # the line is ended before the account
+    assert capsys.readouterr().out == "[demo] converted\n"
+
+
+def test_a_failed_command_is_a_demo_error_with_its_message(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    use(monkeypatch, io.StringIO(), total=1)
+    with pytest.raises(DemoError) as failed:
+        elphel("mfsr", str(tmp_path), "--scale", "2", "--out", str(tmp_path / "x.tif"))
+    message = str(failed.value)
+    assert message.startswith(f"elphel mfsr {tmp_path}") and "elphel: " in message
+
+
+def test_the_bar_counts_every_command_of_the_demo() -> None:
+    tree = ast.parse(Path(demo.__file__).read_text())
+    calls = [
+        n
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == "elphel"
+    ]
+    assert len(calls) == demo.COMMANDS
