@@ -1,4 +1,4 @@
-"""elphel_host.progress.ProgressLine: bar, rate and time left on a terminal; plain lines elsewhere."""
+"""ProgressLine (elphel_host.progress): bar, rate and time left on a terminal; plain lines else."""
 
 from __future__ import annotations
 
