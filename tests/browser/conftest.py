@@ -1,8 +1,12 @@
-"""Browser tests: Debian's headless Chromium driven by Playwright against `elphel-sim up`.
+"""Browser tests: the page in Debian's headless Chromium and Firefox against `elphel-sim up`.
 
-Chromium is /usr/bin/chromium (Debian's ``chromium`` package) unless ``ELPHEL_CHROMIUM``
-names another binary. Without it the tests fail, so CI cannot pass them silently; set
-``ELPHEL_BROWSER_TESTS=skip`` to skip them on a machine that has no Chromium.
+Chromium (test_page.py) is driven by Playwright: /usr/bin/chromium (Debian's ``chromium``
+package) unless ``ELPHEL_CHROMIUM`` names another binary. Firefox (test_firefox.py) is
+driven over the WebDriver BiDi it serves itself (bidi.py, firefox.py; Debian has no
+geckodriver, and Playwright drives only its own patched Firefox build): /usr/bin/firefox-esr
+(Debian's ``firefox-esr`` package) unless ``ELPHEL_FIREFOX`` names another binary. Without
+a browser its tests fail, so CI cannot pass them silently; set ``ELPHEL_BROWSER_TESTS=skip``
+to skip them on a machine that has no browser.
 """
 
 from __future__ import annotations
@@ -11,27 +15,40 @@ import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import httpx
 import pytest
 
 from elphel_sim.pytest_plugin import Rig, start_rig, stop_rig
 
+if TYPE_CHECKING:
+    from tests.browser.bidi import Session
+
 CHROMIUM = os.environ.get("ELPHEL_CHROMIUM", "/usr/bin/chromium")
+FIREFOX = os.environ.get("ELPHEL_FIREFOX", "/usr/bin/firefox-esr")
 DOCS_IMG = Path(__file__).resolve().parents[2] / "docs" / "img"
 
 
-def _chromium() -> str:
-    path = shutil.which(CHROMIUM) or (CHROMIUM if os.access(CHROMIUM, os.X_OK) else None)
+def _browser_binary(name: str, wanted: str, package: str, variable: str) -> str:
+    path = shutil.which(wanted) or (wanted if os.access(wanted, os.X_OK) else None)
     if path is None:
         if os.environ.get("ELPHEL_BROWSER_TESTS") == "skip":
-            pytest.skip(f"no Chromium at {CHROMIUM} and ELPHEL_BROWSER_TESTS=skip")
+            pytest.skip(f"no {name} at {wanted} and ELPHEL_BROWSER_TESTS=skip")
         pytest.fail(
-            f"no Chromium at {CHROMIUM}: install Debian's chromium package (or set "
-            "ELPHEL_CHROMIUM; ELPHEL_BROWSER_TESTS=skip skips these tests)",
+            f"no {name} at {wanted}: install Debian's {package} package (or set "
+            f"{variable}; ELPHEL_BROWSER_TESTS=skip skips these tests)",
             pytrace=False,
         )
     return path
+
+
+def _chromium() -> str:
+    return _browser_binary("Chromium", CHROMIUM, "chromium", "ELPHEL_CHROMIUM")
+
+
+def _firefox() -> str:
+    return _browser_binary("Firefox", FIREFOX, "firefox-esr", "ELPHEL_FIREFOX")
 
 
 @pytest.fixture(scope="package")
@@ -46,6 +63,31 @@ def browser() -> Iterator[object]:
         b = pw.chromium.launch(executable_path=executable, headless=True)
         yield b
         b.close()
+
+
+@pytest.fixture(scope="package")
+def firefox(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Session]:
+    """Headless Firefox ESR and one WebDriver BiDi session with it (see firefox.py)."""
+    executable = _firefox()
+    from tests.browser.bidi import Session
+    from tests.browser.firefox import Firefox
+
+    process = Firefox(executable, tmp_path_factory.mktemp("firefox"))
+    try:
+        session = Session(process.url)
+        try:
+            yield session
+        finally:
+            session.close_browser()
+    finally:
+        process.stop()
+
+
+def rest(rig: Rig, path: str) -> Any:
+    """A public read of the daemon's REST API (``path`` after /api/v1)."""
+    r = httpx.get(f"{rig.camera_url}/api/v1{path}", timeout=30)
+    r.raise_for_status()
+    return r.json()
 
 
 def rig_of(scenario: str, *, public_reads: bool = True) -> Iterator[Rig]:

@@ -16,15 +16,9 @@ from urllib.parse import urlsplit
 import httpx
 import pytest
 
-from tests.browser.conftest import DOCS_IMG, rig_of, small_window
+from tests.browser.conftest import DOCS_IMG, rest, rig_of, small_window
 
 pytestmark = pytest.mark.slow
-
-
-def rest(rig: Any, path: str) -> Any:
-    r = httpx.get(f"{rig.camera_url}/api/v1{path}", timeout=30)
-    r.raise_for_status()
-    return r.json()
 
 
 class Opened:

@@ -28,7 +28,8 @@ export async function request(path, { method = "GET", body, signal, query } = {}
   const t = token();
   if (t) headers.Authorization = `Bearer ${t}`;
   if (body !== undefined) headers["Content-Type"] = "application/json";
-  const url = API + path + (query ? `?${new URLSearchParams(query)}` : "");
+  const search = new URLSearchParams(query || {}).toString();
+  const url = API + path + (search ? `?${search}` : "");
   const answer = await fetch(url, {
     method,
     headers,

@@ -147,8 +147,9 @@ async function histogramLoop() {
     await new Promise((r) => setTimeout(r, 1500));
     if (state.quad || state.frame === undefined) continue;
     try {
-      const h = await json(`/ports/${state.port}/histogram`, { query: { frame: String(state.frame) } });
-      drawHistogram(h);
+      // the newest frame's (its number is in the caption): the one on view may have left
+      // the ring buffer by the time this asks, when the view lags behind the sensor
+      drawHistogram(await json(`/ports/${state.port}/histogram`));
     } catch (e) {
       $("hist-text").textContent = e instanceof NeedsToken ? "histogram: needs the token" : `histogram: ${e.message}`;
     }
