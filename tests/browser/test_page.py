@@ -334,3 +334,51 @@ def test_the_lepton_view_is_false_colour_with_a_celsius_scale(browser):
             page.screenshot(path=str(DOCS_IMG / "browser-lepton.png"), full_page=True)
         finally:
             o.close()
+
+
+def settles(check: Any, seconds: float = 5.0) -> bool:
+    """Whether ``check()`` comes true within ``seconds`` (a change "now" is in effect
+    from the next frame)."""
+    deadline = time.monotonic() + seconds
+    while not check():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def test_on_a_tablet_the_page_is_one_column_without_sideways_scrolling(browser, default_rig):
+    # A 10-inch tablet held upright, with touch: the view above the controls, both the
+    # screen's width, and a tapped control takes effect as a clicked one does.
+    context = browser.new_context(
+        viewport={"width": 820, "height": 1180}, has_touch=True, is_mobile=True
+    )
+    try:
+        page = context.new_page()
+        page.goto(default_rig.camera_url + "/")
+        page.fill("#token", default_rig.token)
+        page.tap("#token-form button[type=submit]")
+        page.wait_for_selector("#live[data-frame]", timeout=60_000)
+        page.wait_for_selector("[name=FLIPH]:not([disabled])", timeout=30_000)
+        layout = page.evaluate(
+            """() => {
+                const r = (id) => document.getElementById(id).getBoundingClientRect();
+                return {scroll: document.documentElement.scrollWidth, width: innerWidth,
+                        view: r("single").toJSON(), controls: r("controls").toJSON()};
+            }"""
+        )
+        assert layout["scroll"] <= layout["width"]
+        view, controls = layout["view"], layout["controls"]
+        assert view["bottom"] <= controls["top"]  # one column: the view first
+        for box in (view, controls):
+            assert box["width"] >= 0.9 * layout["width"] - 40
+        before = rest(default_rig, "/ports/0/params")["FLIPH"]
+        with page.expect_response(lambda r: r.request.method == "PATCH") as patched:
+            page.tap("input[name=FLIPH]")
+        assert patched.value.status == 200
+        assert settles(lambda: rest(default_rig, "/ports/0/params")["FLIPH"] == 1 - before)
+        with page.expect_response(lambda r: r.request.method == "PATCH"):
+            page.tap("input[name=FLIPH]")  # back as it was, for the other tests
+        assert settles(lambda: rest(default_rig, "/ports/0/params")["FLIPH"] == before)
+    finally:
+        context.close()
