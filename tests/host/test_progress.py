@@ -97,6 +97,7 @@ def test_stage_calibrate_reports_each_run_on_stderr(
     assert len(out.splitlines()) == 1 and "mm_per_step" in json.loads(out)
     runs = [line for line in err.splitlines() if line.startswith("calibrate: run ")]
     assert [r.split(":")[1] for r in runs] == [" run 1/2", " run 2/2"], err
+    assert runs[-1].endswith("left)"), err  # the rate and the time left, as a bar has
 
 
 def test_stage_move_shows_the_caliper_on_the_way(

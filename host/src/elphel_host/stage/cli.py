@@ -158,8 +158,17 @@ def _stop(args: argparse.Namespace) -> int:
 def _calibrate(args: argparse.Namespace) -> int:
     model_path = Path(args.model)
     with StageClient(_url(args)) as client:
-        pos = Positioner(client, StageModel(), log=ProgressLine().say("calibrate: "))
-        cal = pos.calibrate(span_mm=args.span_mm, start_mm=args.start_mm, repeats=args.repeats)
+        line = ProgressLine()
+        pos = Positioner(client, StageModel(), log=line.say("calibrate: "))
+        cal = pos.calibrate(
+            span_mm=args.span_mm,
+            start_mm=args.start_mm,
+            repeats=args.repeats,
+            progress=lambda done, total, text: line.update(
+                f"calibrate: {text}", done=done, total=total
+            ),
+        )
+        line.end()
     pos.model.save(model_path)
     result = {
         "mm_per_step": cal.mm_per_step,

@@ -197,11 +197,13 @@ class Positioner:
         repeats: int = 3,
         home_first: bool = True,
         readings: int = 4,
+        progress: Callable[[int, int, str], None] | None = None,
     ) -> Calibration:
         """Measure mm/step: long moves approached from one side, repeated.
 
         Each end of a run is the mean of `readings` caliper readings, so a frame's display
-        noise does not land whole in the run's mm/step.
+        noise does not land whole in the run's mm/step. ``progress(done, total, message)``
+        is called before the first run and after each (else each run is logged).
         """
         if repeats < 2:
             raise ValueError(f"repeats {repeats}; need at least 2 for a spread")
@@ -225,13 +227,16 @@ class Positioner:
         overshoot = max(20, round(0.3 / nominal))
         runs: list[float] = []
         points: list[tuple[int, float]] = []
+        report = progress or (lambda done, total, message: self.log(message))
+        if progress is not None:
+            progress(0, repeats, f"0/{repeats} runs")
         for i in range(repeats):
             c0 = self._approach(s0, overshoot, readings)
             c1 = self._goto(s1, readings)
             mps = (c1 - c0) / (s1 - s0)
             runs.append(mps)
             points.extend([(s0, c0), (s1, c1)])
-            self.log(f"run {i + 1}/{repeats}: {mps:.7f} mm/step")
+            report(i + 1, repeats, f"run {i + 1}/{repeats}: {mps:.7f} mm/step")
             self.last_dir = 1
         mean = statistics.fmean(runs)
         spread = statistics.stdev(runs)
