@@ -49,8 +49,8 @@ def test_a_pipe_gets_the_commands_progress_as_plain_lines(
     result = convert(tmp_path)
     assert result["layout"] == "files"  # the command's JSON, parsed
     lines = pipe.getvalue().splitlines()
-    assert lines[0].startswith("demo: 1/4 commands; elphel jp4 convert: converting 1/6")
-    assert lines[-1].startswith("demo: 1/4 commands; elphel jp4 convert: converting 6/6")
+    assert lines[0].startswith("demo: 1/4 commands · elphel jp4 convert: converting 1/6")
+    assert re.match(r"demo: 1/4 commands .*· elphel jp4 convert: converting 6/6", lines[-1])
     assert "left)" in lines[-1]  # the command's own rate and time left
     assert "\r" not in pipe.getvalue() and "━" not in pipe.getvalue()
     assert progress.done == 2
@@ -68,10 +68,11 @@ def test_a_terminal_gets_one_updating_line_with_a_bar_ended_by_the_account(
     step("converted")
     updates = [ANSI.sub("", u) for u in tty.getvalue().split("\x1b[K")[:-1]]
     assert all(u.startswith("\r") for u in updates) and len(updates) >= 12
-    assert updates[0].startswith("\r" + "━" * 24 + " demo: 0/2 commands; elphel jp4 convert")
+    assert updates[0].startswith("\r" + "━" * 24 + " demo: 0/2 commands · elphel jp4 convert")
     last = updates[-1]
-    assert re.search(r"demo: 1/2 commands; .* \(\S+/s, \d+:\d\d left\)$", last), last
-    assert last.count(" left)") == 2, last  # the command's rate, then the demo's
+    # the demo's count with its rate and time left, then the command's own
+    assert re.search(r"demo: 1/2 commands \(\S+/s, \d+:\d\d left\) · elphel jp4 convert: ", last)
+    assert last.endswith(" left)") and last.count(" left)") == 2, last
     assert tty.getvalue().endswith("\x1b[K\n")  # the line is ended before the account
     assert capsys.readouterr().out == "[demo] converted\n"
 

@@ -66,11 +66,14 @@ class ProgressLine:
             )
         return captured.get()
 
-    def update(self, text: str, *, done: int | None = None, total: int | None = None) -> None:
+    def update(
+        self, text: str, *, done: int | None = None, total: int | None = None, detail: str = ""
+    ) -> None:
         """Show ``text`` as the current state (replacing the previous one on a terminal).
 
         With ``done`` of ``total`` (``text`` names the counts), the rate and the time
-        left follow it, and a terminal shows a bar before it.
+        left follow it, and a terminal shows a bar before it. ``detail`` comes last,
+        after the rate (e.g. the progress of one step of the counted whole).
         """
         if done is not None and total:
             rate = self.rate_text(done, total)
@@ -78,6 +81,8 @@ class ProgressLine:
                 text = f"{text} ({rate})"
             if self.tty:
                 text = f"{self._bar(done, total)} {text}"
+        if detail:
+            text = f"{text} · {detail}"
         if self.tty:
             self.stream.write(f"\r{text}\x1b[K")
             self._open = True

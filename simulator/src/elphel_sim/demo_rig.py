@@ -76,9 +76,10 @@ class DemoProgress:
         """Show the running command's progress ``text`` (one of its stderr lines)."""
         if self.total:
             self.line.update(
-                f"demo: {self.done}/{self.total} commands; elphel {command}: {text}",
+                f"demo: {self.done}/{self.total} commands",
                 done=self.done,
                 total=self.total,
+                detail=f"elphel {command}: {text}",
             )
 
     def command_done(self) -> None:
