@@ -106,6 +106,8 @@ class SimAptinaChip(SimLatchedChip, SimSensor):
             bayer=self.bayer,
         )
         intrinsics = context.intrinsics
+        # A still scene seen again from the same pose and window reuses its radiance (the
+        # renderer's cache); exposure, gains, flips and this frame's noise are applied here.
         rgb = render_strips(
             context.world,
             intrinsics,

@@ -1,14 +1,22 @@
 """The renderer: camera model -> sensor image.
 
 `radiance` integrates the scene's radiance over each pixel's footprint (sub-pixel exact,
-moving planes at each strip's time); `sensor` reads it out as a sensor does (Bayer
+moving planes at each strip's time; a frame of a still scene seen again from the same
+pose is reused from `RADIANCE_CACHE`); `sensor` reads it out as a sensor does (Bayer
 mosaic, per-colour gains, exposure, shot and read noise, 12- or 14-bit quantisation,
 flips). Everything a caller needs is importable from here.
 """
 
 from __future__ import annotations
 
-from elphel_sim.render.radiance import Intrinsics, Window, render_radiance, render_strips
+from elphel_sim.render.radiance import (
+    RADIANCE_CACHE,
+    Intrinsics,
+    RadianceCache,
+    Window,
+    render_radiance,
+    render_strips,
+)
 from elphel_sim.render.sensor import (
     BAYER_PATTERNS,
     Readout,
@@ -21,7 +29,9 @@ from elphel_sim.render.sensor import (
 
 __all__ = [
     "BAYER_PATTERNS",
+    "RADIANCE_CACHE",
     "Intrinsics",
+    "RadianceCache",
     "Readout",
     "SensorModel",
     "Window",

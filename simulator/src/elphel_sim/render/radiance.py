@@ -11,11 +11,19 @@ ones.
 
 Sensor coordinates: pixel (row r, column c) of the full array covers [c, c+1) x [r, r+1);
 its centre is (c + 0.5, r + 0.5). The principal point defaults to the array centre.
+
+`render_strips` (how a simulated Bayer sensor's frames are formed) keeps its recent
+results in a `RadianceCache`: a frame of a scene where nothing can have moved since an
+earlier frame, seen from the same pose through the same window, reuses that frame's
+radiance. `render_radiance` always renders.
 """
 
 from __future__ import annotations
 
+import threading
 import weakref
+from collections import OrderedDict
+from collections.abc import Hashable
 from dataclasses import dataclass
 
 import numpy as np
@@ -248,12 +256,154 @@ def render_radiance(
     return _render(world, intrinsics, pose, win, np.array([t_now], dtype=np.float64))[0]
 
 
+_Entry = tuple[tuple[Plane, ...], FloatArray]  # the planes keyed by identity, the radiance
+
+
+class RadianceCache:
+    """Recent results of `render_strips`, bounded by bytes, least recently used out first.
+
+    An entry is keyed by everything the radiance depends on, taken when the frame is
+    rendered: the scene's planes (by identity, in order; the entry holds them so that their
+    ids cannot be reused by other planes) and background, the intrinsics, the pose's
+    position and rotation, the window, and the strip times. When no plane moves (every
+    ``velocity_mm_s`` is zero) and the times are finite the radiance does not depend on
+    time, so then only the number of strips counts; with a moving plane the times
+    themselves are part of the key. Replacing or adding a plane, changing the background,
+    moving the camera (the carriage) or the window therefore misses. Changing a texture's
+    array in place is not seen (the filtered-texture cache does not see it either).
+
+    Entries are read-only arrays (``render_strips`` hands out read-only views of them).
+    The cache holds at most ``max_bytes`` of arrays, but always its newest entry. Safe to
+    use from several threads; two threads missing the same key at once both render.
+
+    Parameters
+    ----------
+    max_bytes
+        Bound of the arrays held, in bytes.
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        if max_bytes < 0:
+            raise ValueError(f"max_bytes={max_bytes}; allowed: >= 0")
+        self.max_bytes = max_bytes
+        self.hits = 0
+        self.misses = 0
+        self._lock = threading.Lock()
+        self._entries: OrderedDict[Hashable, _Entry] = OrderedDict()
+        self._nbytes = 0
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._entries)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays held."""
+        with self._lock:
+            return self._nbytes
+
+    def clear(self) -> None:
+        """Drop every entry (the hit and miss counts stay)."""
+        with self._lock:
+            self._entries.clear()
+            self._nbytes = 0
+
+    def get(self, key: Hashable) -> FloatArray | None:
+        """The read-only radiance stored under ``key``, or None."""
+        with self._lock:
+            entry = self._entries.get(key)
+            if entry is None:
+                self.misses += 1
+                return None
+            self._entries.move_to_end(key)
+            self.hits += 1
+            return entry[1]
+
+    def put(self, key: Hashable, planes: tuple[Plane, ...], radiance: FloatArray) -> None:
+        """Store ``radiance`` (made read-only) under ``key``, holding on to ``planes``."""
+        radiance.flags.writeable = False
+        with self._lock:
+            old = self._entries.pop(key, None)
+            if old is not None:
+                self._nbytes -= old[1].nbytes
+            self._entries[key] = (planes, radiance)
+            self._nbytes += radiance.nbytes
+            while self._nbytes > self.max_bytes and len(self._entries) > 1:
+                _, (_, evicted) = self._entries.popitem(last=False)
+                self._nbytes -= evicted.nbytes
+
+
+#: The cache `render_strips` uses by default: two full MT9P006 frames (115 MiB each).
+RADIANCE_CACHE = RadianceCache(max_bytes=256 * 1024 * 1024)
+
+
+def _array_key(a: FloatArray) -> tuple[str, tuple[int, ...], bytes]:
+    a = np.asarray(a)
+    return a.dtype.str, a.shape, a.tobytes()
+
+
+def _strips_key(
+    world: World, intrinsics: Intrinsics, pose: Pose, win: Window, times: FloatArray
+) -> tuple[tuple[Plane, ...], Hashable]:
+    """The scene's planes now and the key of everything `_render` reads (see RadianceCache)."""
+    planes = tuple(world.scene.planes)
+    static = not any(any(p.velocity_mm_s) for p in planes) and bool(np.isfinite(times).all())
+    when = ("strips", times.size) if static else ("times", times.tobytes())
+    key = (
+        tuple(id(p) for p in planes),
+        # Bytes, not values: -0.0 and 0.0 fill the image with different bits.
+        np.float64(float(world.scene.background)).tobytes(),
+        repr(intrinsics),
+        _array_key(pose.position_mm),
+        _array_key(pose.rotation),
+        win,
+        when,
+    )
+    return planes, key
+
+
 def render_strips(
-    world: World, intrinsics: Intrinsics, pose: Pose, *, window: Window, times_s: FloatArray
+    world: World,
+    intrinsics: Intrinsics,
+    pose: Pose,
+    *,
+    window: Window,
+    times_s: FloatArray,
+    cache: RadianceCache | None = RADIANCE_CACHE,
 ) -> FloatArray:
-    """The same window seen at several times (photo-finish strips), shape (K, H, W, 3)."""
+    """The same window seen at several times (photo-finish strips).
+
+    Parameters
+    ----------
+    world
+        The scene; moving planes are where they are at each strip's time.
+    intrinsics, pose
+        The camera.
+    window
+        ``(left, top, width, height)`` in array pixels.
+    times_s
+        Scene time of each strip.
+    cache
+        Where recent results are kept and looked up (see `RadianceCache`: a frame of an
+        unchanged, still scene from the same pose and window is rendered once); None
+        renders every time. The result is the same bits either way.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, shape (strips, height, width, 3): linear RGB radiance, read-only.
+    """
     win = _check_window(intrinsics, window)
     times = np.asarray(times_s, dtype=np.float64).ravel()
     if times.size == 0:
         raise ValueError("times_s is empty; allowed: one or more times")
-    return _render(world, intrinsics, pose, win, times)
+    if cache is None:
+        out = _render(world, intrinsics, pose, win, times)
+        out.flags.writeable = False
+        return out
+    planes, key = _strips_key(world, intrinsics, pose, win, times)
+    found = cache.get(key)
+    if found is None:
+        found = _render(world, intrinsics, pose, win, times)
+        cache.put(key, planes, found)
+    return found.view()

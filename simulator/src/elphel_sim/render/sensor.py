@@ -145,7 +145,8 @@ def read_out(
     ----------
     radiance
         ``(strips, height, width, 3)`` linear RGB radiance of the window read out
-        (`render_strips` of ``readout.window_on(intrinsics)``), one entry per strip.
+        (`render_strips` of ``readout.window_on(intrinsics)``), one entry per strip;
+        only read (it may be the read-only radiance `render_strips` keeps for reuse).
     readout
         The window's origin on the array (it sets the Bayer phase), the exposure, the
         per-colour gains, the flips and the colour filter.
