@@ -265,7 +265,7 @@ STAGE_MODEL = {"mm_per_step": 0.00125, "offset_mm": 1.5, "backlash_mm": 0.01}
     )
 )
 def test_stage_model_reader_works_or_names_the_file(content):
-    from elphel_host.stage.positioning import StageModel
+    from elphel_host.stage.model import StageModel
 
     with tempfile.TemporaryDirectory() as tmp:
         path = write(Path(tmp), "stage.json", content)

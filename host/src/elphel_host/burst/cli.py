@@ -31,7 +31,8 @@ from elphel_host.errors import FusionError, InputFormatError, ScaleError
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
 from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
-from elphel_host.stage.positioning import Positioner, StageModel
+from elphel_host.stage.model import StageModel
+from elphel_host.stage.positioning import Positioner
 
 
 def register(subparsers: Any) -> None:

@@ -19,7 +19,8 @@ from pymmcore_plus.experimental.unicore import StageDevice
 
 from elphel_host.errors import StageBusyError, StageError
 from elphel_host.stage.client import MoveStatus, StageClient
-from elphel_host.stage.positioning import Positioner, StageModel
+from elphel_host.stage.model import StageModel
+from elphel_host.stage.positioning import Positioner
 
 
 class MoveStopped(StageError):  # noqa: N818 - an outcome, like StageTimeout

@@ -5,7 +5,8 @@ millimetres, calibration, backlash measurement and caliper closed-loop moves.
 """
 
 from elphel_host.stage.client import Identity, MoveStatus, StageClient
-from elphel_host.stage.positioning import Calibration, MoveResult, Positioner, StageModel
+from elphel_host.stage.model import StageModel
+from elphel_host.stage.positioning import Calibration, MoveResult, Positioner
 from elphel_host.stage.protocol import StageStatus
 
 __all__ = [

@@ -25,7 +25,8 @@ from elphel_host.errors import StageConnectionError
 from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.discovery import find_stage_boards
-from elphel_host.stage.positioning import Positioner, StageModel
+from elphel_host.stage.model import StageModel
+from elphel_host.stage.positioning import Positioner
 
 DEFAULT_MODEL = DEFAULT_STAGE_MODEL  # the older name, kept for scripts
 

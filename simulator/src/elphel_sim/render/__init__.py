@@ -9,14 +9,8 @@ flips). Everything a caller needs is importable from here.
 
 from __future__ import annotations
 
-from elphel_sim.render.radiance import (
-    RADIANCE_CACHE,
-    Intrinsics,
-    RadianceCache,
-    Window,
-    render_radiance,
-    render_strips,
-)
+from elphel_sim.render.radiance import Intrinsics, Window, render_radiance, render_strips
+from elphel_sim.render.radiance_cache import RADIANCE_CACHE, RadianceCache
 from elphel_sim.render.sensor import (
     BAYER_PATTERNS,
     Readout,
