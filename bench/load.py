@@ -21,6 +21,11 @@ frames dropped (ring fetches of a frame that should still be there and gaps in t
 numbers the listeners saw), the frame rate the listeners saw against the nominal one, and
 whether the stalled listener was dropped while the others lost nothing.
 
+The clients speak HTTP/1.1 over asyncio streams, one keep-alive connection each
+(``bench/_http.py``): the load generator shares the machine with the daemon, and a
+heavier client (httpx takes several times the CPU per request) would take the CPU the
+daemon's latency is measured with.
+
 Usage: python bench/load.py [--duration 600] [--clients 50] [--listeners 20]
 """
 
@@ -44,7 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import httpx
+from _http import Answer, Connection, TransportError  # bench/_http.py
 
 from elphel_host.camera.events import SSEParser
 
@@ -156,33 +161,40 @@ class Shared:
 
 
 async def timed(
-    stats: Stats, endpoint: str, call: Any, *, expect: tuple[int, ...] = (200,)
-) -> httpx.Response | None:
+    stats: Stats,
+    endpoint: str,
+    conn: Connection,
+    method: str,
+    path: str,
+    *,
+    expect: tuple[int, ...] = (200,),
+    **kwargs: Any,
+) -> Answer | None:
     t0 = time.perf_counter()
     try:
-        r: httpx.Response = await call()
-    except httpx.HTTPError as e:
-        stats.record(endpoint, type(e).__name__, 0.0, False)
-        stats.unexpected.append(f"{endpoint}: {type(e).__name__}: {e}")
+        r = await conn.request(method, path, **kwargs)
+    except TransportError as e:
+        stats.record(endpoint, "TransportError", 0.0, False)
+        stats.unexpected.append(f"{endpoint}: {e}")
         return None
     ms = (time.perf_counter() - t0) * 1e3
-    stats.record(endpoint, r.status_code, ms, r.status_code in expect)
-    if r.status_code not in expect and len(stats.unexpected) < 20:
-        stats.unexpected.append(f"{endpoint}: {r.status_code} {r.text[:200]}")
+    stats.record(endpoint, r.status, ms, r.status in expect)
+    if r.status not in expect and len(stats.unexpected) < 20:
+        stats.unexpected.append(f"{endpoint}: {r.status} {r.text[:200]}")
     return r
 
 
-async def reader(http: httpx.AsyncClient, shared: Shared, stats: Stats, think_s: float) -> None:
+async def reader(conn: Connection, shared: Shared, stats: Stats, think_s: float) -> None:
     while time.monotonic() < shared.stop_at:
         if random.random() < 0.8:
-            await timed(stats, "GET params", lambda: http.get(f"{API}/ports/0/params"))
+            await timed(stats, "GET params", conn, "GET", f"{API}/ports/0/params")
         else:
-            await timed(stats, "GET info", lambda: http.get(f"{API}/info"))
+            await timed(stats, "GET info", conn, "GET", f"{API}/info")
         await asyncio.sleep(think_s)
 
 
 async def writer(
-    http: httpx.AsyncClient, shared: Shared, stats: Stats, think_s: float, index: int
+    conn: Connection, shared: Shared, stats: Stats, think_s: float, index: int
 ) -> None:
     k = 0
     while time.monotonic() < shared.stop_at:
@@ -192,31 +204,40 @@ async def writer(
         r = await timed(
             stats,
             "PATCH params",
-            lambda value=value: http.patch(f"{API}/ports/0/params", json={"GAINR": value}),
+            conn,
+            "PATCH",
+            f"{API}/ports/0/params",
+            json_body={"GAINR": value},
         )
-        if r is not None and r.status_code == 200:
+        if r is not None and r.status == 200:
             shared.patch_answered[value] = time.monotonic()
         await asyncio.sleep(think_s)
 
 
-async def capturer(http: httpx.AsyncClient, shared: Shared, stats: Stats, think_s: float) -> None:
+async def capturer(conn: Connection, shared: Shared, stats: Stats, think_s: float) -> None:
     while time.monotonic() < shared.stop_at:
-        await timed(stats, "POST capture (full)", lambda: http.post(f"{API}/ports/0/capture"))
+        await timed(stats, "POST capture (full)", conn, "POST", f"{API}/ports/0/capture")
         await asyncio.sleep(think_s)
 
 
-async def ring_fetcher(
-    http: httpx.AsyncClient, shared: Shared, stats: Stats, think_s: float
-) -> None:
+async def ring_fetcher(conn: Connection, shared: Shared, stats: Stats, think_s: float) -> None:
     while time.monotonic() < shared.stop_at:
-        frame_now = (await http.get(f"{API}/ports/0/frame")).json()["frame"]
+        try:
+            frame_now = (await conn.request("GET", f"{API}/ports/0/frame")).json()["frame"]
+        except TransportError as e:
+            stats.record("GET frame", "TransportError", 0.0, False)
+            stats.unexpected.append(f"GET frame: {e}")
+            continue
         frame = max(1, frame_now - RING_BACK)
         r = await timed(
             stats,
             "POST capture (ring)",
-            lambda frame=frame: http.post(f"{API}/ports/0/capture", params={"frame": frame}),
+            conn,
+            "POST",
+            f"{API}/ports/0/capture",
+            params={"frame": frame},
         )
-        if r is not None and r.status_code == 404:
+        if r is not None and r.status == 404:
             oldest = ring_oldest(r)
             if oldest is not None and frame < oldest:
                 # Asked for while in the ring, but the request reached the capture after
@@ -227,7 +248,7 @@ async def ring_fetcher(
         await asyncio.sleep(think_s)
 
 
-def ring_oldest(r: httpx.Response) -> int | None:
+def ring_oldest(r: Answer) -> int | None:
     """The oldest frame in the ring named by a 404 ``(frames A..B)``, if it names one."""
     detail = r.json().get("detail", "")
     if "(frames " not in detail:
@@ -247,17 +268,19 @@ class Listener:
 
 async def listen(url: str, shared: Shared, out: Listener) -> None:
     parser = SSEParser()
-    timeout = httpx.Timeout(30, read=None)
+    conn = Connection(url, AUTH)
     try:
-        async with (
-            httpx.AsyncClient(base_url=url, headers=AUTH, timeout=timeout) as http,
-            http.stream("GET", f"{API}/events", params={"types": "frame,params"}) as r,
-        ):
-            if r.status_code != 200:
-                out.ended_early = f"HTTP {r.status_code}"
-                return
-            async for line in r.aiter_lines():
-                event = parser.feed(line)
+        status, headers, _ = await conn.send(
+            "GET", f"{API}/events", params={"types": "frame,params"}
+        )
+        if status != 200:
+            out.ended_early = f"HTTP {status}"
+            return
+        pending = b""
+        async for chunk in conn.body_chunks(headers):
+            *lines, pending = (pending + chunk).split(b"\n")
+            for raw in lines:
+                event = parser.feed(raw.decode().rstrip("\r"))
                 if event is None:
                     continue
                 now = time.monotonic()
@@ -275,8 +298,10 @@ async def listen(url: str, shared: Shared, out: Listener) -> None:
                     return
         if time.monotonic() < shared.stop_at:
             out.ended_early = "stream ended"
-    except httpx.HTTPError as e:
-        out.ended_early = f"{type(e).__name__}: {e}"
+    except TransportError as e:
+        out.ended_early = str(e)
+    finally:
+        conn.close()
 
 
 def open_stalled(url: str) -> socket.socket:
@@ -308,23 +333,34 @@ def stalled_was_dropped(sock: socket.socket) -> bool:
 
 async def idle_figures(url: str, repeat: int) -> dict[str, Any]:
     """Capture, ring fetch and PATCH times with nothing else running (the peer)."""
-    async with httpx.AsyncClient(base_url=url, headers=AUTH, timeout=120) as http:
-        full, ring, patch = [], [], []
+
+    async def ok(method: str, path: str, **kwargs: Any) -> Answer:
+        r = await conn.request(method, path, **kwargs)
+        if r.status != 200:
+            raise RuntimeError(f"idle {method} {path}: {r.status} {r.text[:200]}")
+        return r
+
+    conn = Connection(url, AUTH)
+    full, ring, patch = [], [], []
+    try:
+        # Untimed: the simulator renders a scene's first frame from scratch; later frames
+        # reuse its radiance, as every capture under load does.
+        await ok("POST", f"{API}/ports/0/capture")
         for _ in range(repeat):
             t0 = time.perf_counter()
-            r = await http.post(f"{API}/ports/0/capture")
+            await ok("POST", f"{API}/ports/0/capture")
             full.append((time.perf_counter() - t0) * 1e3)
-            r.raise_for_status()
-            frame = (await http.get(f"{API}/ports/0/frame")).json()["frame"] - RING_BACK
+            frame = (await ok("GET", f"{API}/ports/0/frame")).json()["frame"] - RING_BACK
             t0 = time.perf_counter()
-            (await http.post(f"{API}/ports/0/capture", params={"frame": frame})).raise_for_status()
+            await ok("POST", f"{API}/ports/0/capture", params={"frame": frame})
             ring.append((time.perf_counter() - t0) * 1e3)
         for i in range(50):
             t0 = time.perf_counter()
-            r = await http.patch(f"{API}/ports/0/params", json={"GAINR": 0x10000 + i})
+            await ok("PATCH", f"{API}/ports/0/params", json_body={"GAINR": 0x10000 + i})
             patch.append((time.perf_counter() - t0) * 1e3)
-            r.raise_for_status()
-        fps = (await http.get(f"{API}/ports/0/params")).json()["FP1000S"] / 1000
+        fps = (await ok("GET", f"{API}/ports/0/params")).json()["FP1000S"] / 1000
+    finally:
+        conn.close()
     return {
         "capture_full_ms": round(percentile(full, 50), 1),
         "capture_ring_ms": round(percentile(ring, 50), 1),
@@ -339,7 +375,6 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
     stats = Stats()
     shared = Shared(stop_at=time.monotonic() + args.duration)
     think_s = args.think_ms / 1000
-    limits = httpx.Limits(max_connections=args.clients + 10)
     # Forming a full-resolution frame takes seconds of CPU in the simulator: a few capture
     # clients keep it busy; the others exercise the request path.
     n_full = n_ring = args.captures
@@ -355,21 +390,28 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
         await asyncio.sleep(mark_s)
         rss["minute_2" if mark_s == 120.0 else f"at_{round(mark_s)}_s"] = rss_mb(pid)
 
-    async with httpx.AsyncClient(base_url=url, headers=AUTH, timeout=120, limits=limits) as http:
-        tasks = [asyncio.create_task(listen(url, shared, out)) for out in listeners]
-        await asyncio.sleep(0.5)
-        tasks.append(asyncio.create_task(sample_rss()))
-        tasks += [asyncio.create_task(reader(http, shared, stats, think_s)) for _ in range(n_read)]
-        tasks += [
-            asyncio.create_task(writer(http, shared, stats, think_s, i)) for i in range(n_write)
-        ]
-        tasks += [
-            asyncio.create_task(capturer(http, shared, stats, think_s)) for _ in range(n_full)
-        ]
-        tasks += [
-            asyncio.create_task(ring_fetcher(http, shared, stats, think_s)) for _ in range(n_ring)
-        ]
+    conns: list[Connection] = []
+
+    def conn() -> Connection:
+        conns.append(Connection(url, AUTH))
+        return conns[-1]
+
+    tasks = [asyncio.create_task(listen(url, shared, out)) for out in listeners]
+    await asyncio.sleep(0.5)
+    tasks.append(asyncio.create_task(sample_rss()))
+    tasks += [asyncio.create_task(reader(conn(), shared, stats, think_s)) for _ in range(n_read)]
+    tasks += [
+        asyncio.create_task(writer(conn(), shared, stats, think_s, i)) for i in range(n_write)
+    ]
+    tasks += [asyncio.create_task(capturer(conn(), shared, stats, think_s)) for _ in range(n_full)]
+    tasks += [
+        asyncio.create_task(ring_fetcher(conn(), shared, stats, think_s)) for _ in range(n_ring)
+    ]
+    try:
         await asyncio.gather(*tasks)
+    finally:
+        for c in conns:
+            c.close()
     elapsed = time.monotonic() - started
     rss["end"] = rss_mb(pid)
     dropped_stalled = stalled_was_dropped(stalled)

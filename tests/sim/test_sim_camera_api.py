@@ -2,6 +2,7 @@
 
 import io
 import json
+import time
 
 import numpy as np
 import pytest
@@ -120,6 +121,22 @@ def test_sim_board_is_registered_for_the_daemon():
     factories = board_factories()
     assert factories["sim"] is make_sim_board
     assert "i2c" in factories
+
+
+def test_the_daemons_sim_board_starts_no_frame_before_the_daemon_sees_it():
+    # Frame 1 used to start before the service subscribed: the first capture then named a
+    # frame whose parameters the daemon never recorded (404, "no longer kept").
+    board = make_sim_board()
+    try:
+        time.sleep(0.2)
+        assert board.fpga[0].frame == 0
+        service = CameraService(board)
+        deadline = time.monotonic() + 10
+        while service.sequencers[0].this_frame < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert service.params(0, frame=1)["FRAME"] == 1
+    finally:
+        board.close()
 
 
 def test_stuck_bus_surfaces_as_503_naming_the_port(board):

@@ -76,6 +76,7 @@ class SimCameraBoard:
         self._clock: threading.Thread | None = None
         self._stop = threading.Event()
         self._closed = False
+        self._clock_on_subscribe = False  # start_clock at the first on_frame_sync
         self._forming = threading.Lock()
         # Frames a multi-frame capture holds until sent: port -> frame -> record (None
         # until the frame is taken). They stay here after leaving the ring buffer.
@@ -109,6 +110,9 @@ class SimCameraBoard:
     def on_frame_sync(self, callback: FrameSync) -> None:
         """Call ``callback(port, frame, timestamp_ns)`` at every frame start."""
         self._subscribers.append(callback)
+        if self._clock_on_subscribe:
+            self._clock_on_subscribe = False
+            self.start_clock()
 
     def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
         """FPGA-side settings of a function, taking effect at the state's target frame."""
@@ -385,7 +389,11 @@ SimBoard = SimCameraBoard
 def make_sim_board(
     *, scenario: str = "default", seed: int = 0, noise: bool = True
 ) -> SimCameraBoard:
-    """Entry point for ``elphel-camd --board sim`` (options from ``--config``)."""
+    """Entry point for ``elphel-camd --board sim`` (options from ``--config``).
+
+    The frame clock starts when the daemon subscribes to the frame syncs: a frame started
+    before would be one whose parameters the daemon never recorded.
+    """
     board = SimCameraBoard(build(scenario, seed=seed), seed=seed, noise=noise)
-    board.start_clock()
+    board._clock_on_subscribe = True
     return board
