@@ -276,42 +276,25 @@ def camera_spectra(
     cols = np.clip((left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span)
     rows = np.clip((top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span)
     s0, s1, s2 = cells.strides
+    npl = cells.shape[2]
+    # planes first in the view, so the gathered copy is already plane-major (no transpose)
     view = np.lib.stride_tricks.as_strided(
         cells,
-        shape=(cells.shape[0] - span + 1, cells.shape[1] - span + 1, span, span, cells.shape[2]),
-        strides=(s0, s1, s0, s1, s2),
+        shape=(cells.shape[0] - span + 1, cells.shape[1] - span + 1, npl, span, span),
+        strides=(s0, s1, s2, s0, s1),
         writeable=False,
     )
-    gathered = view[rows, cols]  # (T, v, u, planes)
-    npl = cells.shape[2]
     n_plane = span * span
-    if npl == 1:
-        samples = gathered.reshape(t, n_plane)
-    else:
-        samples = np.empty((t, npl, n_plane), dtype=np.float32)
-        samples[...] = gathered.reshape(t, n_plane, npl).transpose(0, 2, 1)
-        samples = samples.reshape(t, npl * n_plane)
+    samples = view[rows, cols].reshape(t, npl * n_plane)  # (T, planes * v * u)
     # the window: 4 fixed windows per start parity, combined by the tile's shift
     a = np.pi / TILE
     cy, sy = np.cos(a * shift_y), np.sin(a * shift_y)
     cx, sx = np.cos(a * shift_x), np.sin(a * shift_x)
     coef = np.stack([cy * cx, cy * sx, sy * cx, sy * sx], axis=1).astype(np.float32)
     parity = par_y * c + par_x
-    uniform_shift = bool(np.ptp(shift_x) == 0 and np.ptp(shift_y) == 0)  # e.g. a first pass
-    if uniform_shift and np.ptp(parity) == 0:
-        p0 = int(parity[0]) * 4
-        samples *= coef[:1] @ tr.windows[p0 : p0 + 4]
-    else:
-        spread = np.zeros((t, tr.windows.shape[0]), dtype=np.float32)
-        np.put_along_axis(spread, parity[:, None] * 4 + np.arange(4), coef, axis=1)
-        samples *= spread @ tr.windows
-    one = slice(0, 1) if uniform_shift and np.ptp(parity) == 0 else slice(None)
-    flat_samples = samples
-    outs = []
-    for planes, mat in tr.blocks:
-        part = flat_samples[:, planes.start * n_plane : planes.stop * n_plane]
-        outs.append((part @ mat).view(np.complex64))
     # one rotation by the fractional shift (and the cell offset), shared by all colours
+    uniform = bool(np.ptp(shift_x) == 0 and np.ptp(shift_y) == 0 and np.ptp(parity) == 0)
+    one = slice(0, 1) if uniform else slice(None)  # e.g. a first pass: one shift for all
     shifts = np.stack([shift_x[one] - par_x[one], shift_y[one] - par_y[one]], axis=1).astype(
         np.float32
     )
@@ -319,14 +302,31 @@ def camera_spectra(
     phase = np.empty(ang.shape, dtype=np.complex64)
     phase.real = np.cos(ang)
     phase.imag = np.sin(ang)
-    f = tr.fset.size
-    phase3 = phase.reshape(-1, 2, f)
+    phase3 = phase.reshape(-1, 2, tr.fset.size)
+    if uniform:
+        # the one window and the one rotation go into the matrices: no pass over the tiles
+        p0 = int(parity[0]) * 4
+        window = (coef[:1] @ tr.windows[p0 : p0 + 4])[0]
+        mats = []
+        for (planes, mat), n in zip(tr.blocks, tr.colour_sizes, strict=True):
+            m = mat * window[planes.start * n_plane : planes.stop * n_plane, None]
+            m.view(np.complex64)[...] *= phase3[0, :, :n].reshape(1, 2 * n)
+            mats.append(m)
+    else:
+        spread = np.zeros((t, tr.windows.shape[0]), dtype=np.float32)
+        np.put_along_axis(spread, parity[:, None] * 4 + np.arange(4), coef, axis=1)
+        samples *= spread @ tr.windows
+        mats = [mat for _, mat in tr.blocks]
     result = []
-    for colour, n in enumerate(tr.colour_sizes):
-        z = outs[colour].reshape(t, 2, n)
+    for colour, ((planes, _), mat, n) in enumerate(
+        zip(tr.blocks, mats, tr.colour_sizes, strict=True)
+    ):
+        part = samples[:, planes.start * n_plane : planes.stop * n_plane]
+        z = (part @ mat).view(np.complex64).reshape(t, 2, n)
         if kernels is not None and kernel_index is not None:
             z *= kernels[colour][kernel_index][:, :, :n]
-        z *= phase3[:, :, :n]
+        if not uniform:
+            z *= phase3[:, :, :n]
         result.append(z)
     return result
 
