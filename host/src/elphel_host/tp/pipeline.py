@@ -236,27 +236,29 @@ def _measure_chunk(
     t0 = time.perf_counter()
     prof = pair_profiles(p, prep.profiles)  # (T, pairs, lags)
     t0 = _record("correlation", t0)
-    groups = {"": list(config.pairs)}
-    if full:
-        groups.update({"_hor": [0, 1], "_vert": [2, 3], "_diag": [4, 5]})
+    # every group of pairs at once: a mean over pairs is one product with a (groups, pairs) matrix
+    names = ("", "_hor", "_vert", "_diag") if full else ("",)
+    members = [list(config.pairs), [0, 1], [2, 3], [4, 5]][: len(names)]
+    mean = np.zeros((len(names), prof.shape[1]), dtype=np.float32)
+    for g, m in enumerate(members):
+        mean[g, m] = 1.0 / len(m)
+    nl = prep.profiles.lags.size
+    combined = mean @ prof  # (T, groups, samples)
+    levelled = mean @ (prof[:, :, :nl] / prep.envelope)
+    lag_min = (config.min_disparity - target)[:, None]
+    t0 = _record("correlation", t0)
+    idx = integer_max(combined, prep.profiles, lag_min=lag_min, select=levelled)
+    t0 = _record("argmax", t0)
+    pos, val, idx = subpixel_max(
+        combined, prep.profiles, lag_min=lag_min, select=levelled, index=idx
+    )
     out: dict[str, F32] = {}
-    for suffix, members in groups.items():
-        combined = prof[:, members].mean(axis=1)
-        nl = prep.profiles.lags.size
-        levelled = (prof[:, members, :nl] / prep.envelope[members]).mean(axis=1)
-        lag_min = config.min_disparity - target
-        t0 = _record("correlation", t0)
-        idx = integer_max(combined, prep.profiles, lag_min=lag_min, select=levelled)
-        t0 = _record("argmax", t0)
-        pos, val, idx = subpixel_max(
-            combined, prep.profiles, lag_min=lag_min, select=levelled, index=idx
-        )
-        out["residual" + suffix] = pos
-        out["strength" + suffix] = val
-        if suffix == "":
-            out["residual_cm"] = windowed_centroid(combined, prep.profiles, idx)
-            out["levelled"] = levelled
-        t0 = _record("subpixel", t0)
+    for g, suffix in enumerate(names):
+        out["residual" + suffix] = pos[:, g]
+        out["strength" + suffix] = val[:, g]
+    out["residual_cm"] = windowed_centroid(combined[:, 0], prep.profiles, idx[:, 0])
+    out["levelled"] = levelled[:, 0]
+    _record("subpixel", t0)
     return out
 
 
