@@ -1,8 +1,5 @@
 """The simulated camera board: I2C buses with chips, FPGA timing and trigger, image path.
 
-Per port a simulated I2C bus with a chip, the FPGA's frame timing and trigger, and an
-image path.
-
 It implements the daemon's `Board` protocol, so the real daemon runs on it unchanged; the
 daemon finds it as ``--board sim`` through the ``elphel_camd.boards`` entry point.
 
@@ -28,7 +25,9 @@ from elphel_sim.chips.lepton35 import SimLepton35
 from elphel_sim.chips.mt9f002 import SimMT9F002
 from elphel_sim.chips.mt9p006 import SimMT9P006
 from elphel_sim.chips.sensor import SimSensor
+from elphel_sim.forming import FormingProcess
 from elphel_sim.fpga import Camsync, FrameRecord, PortFPGA
+from elphel_sim.frame_clock import FrameClock
 from elphel_sim.scenarios import PortSpec, Scenario, build
 
 FrameSync = Callable[[int, int, int], None]
@@ -53,12 +52,19 @@ class SimCameraBoard:
         Seed of the sensor noise (each frame of each port draws from its own stream).
     noise
         False renders the noise-free expectation (exact tests).
+    forming
+        Where images are formed: ``"thread"`` in the capturing thread, or ``"process"`` in
+        a child process (`elphel_sim.forming`), leaving this process's CPU to the daemon.
     """
 
     name = "sim"
     capabilities = frozenset({"frames", "capture", "trigger", "photofinish"})
 
-    def __init__(self, scenario: Scenario, *, seed: int = 0, noise: bool = True) -> None:
+    def __init__(
+        self, scenario: Scenario, *, seed: int = 0, noise: bool = True, forming: str = "thread"
+    ) -> None:
+        if forming not in ("thread", "process"):
+            raise ValueError(f"forming={forming!r}; allowed: thread, process")
         self.world = scenario.world
         self.seed = seed
         self.noise = noise
@@ -73,11 +79,11 @@ class SimCameraBoard:
         self._timestamp_skew_ns: dict[int, int] = {}
         self._truth: dict[int, OrderedDict[int, dict[str, object]]] = {}
         self._cond = threading.Condition(threading.RLock())
-        self._clock: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._clock: FrameClock | None = None
         self._closed = False
         self._clock_on_subscribe = False  # start_clock at the first on_frame_sync
         self._forming = threading.Lock()
+        self._former = FormingProcess() if forming == "process" else None
         # Frames a multi-frame capture holds until sent: port -> frame -> record (None
         # until the frame is taken). They stay here after leaving the ring buffer.
         self._pins: dict[int, dict[int, FrameRecord | None]] = {}
@@ -187,6 +193,8 @@ class SimCameraBoard:
             self._closed = True
             self._cond.notify_all()
         self.stop_clock()
+        if self._former is not None:
+            self._former.close()
 
     # -- time ------------------------------------------------------------------------------
 
@@ -339,15 +347,19 @@ class SimCameraBoard:
                 return record.image
             spec = self.ports[record.port]
             form_image = self.chips[record.port].form_image
-        rng = np.random.default_rng([self.seed, record.port, record.frame]) if self.noise else None
+        seed = [self.seed, record.port, record.frame] if self.noise else None
         # One frame is formed at a time: forming is CPU-bound, and several at once only
         # take the interpreter from the frame clock and the daemon's request handling.
         with self._forming:
             if record.image is not None:
                 return record.image
-            image = form_image(
-                record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
-            )
+            if self._former is not None:
+                image = self._former.form(spec, record, self.world.scene, seed)
+            else:
+                rng = None if seed is None else np.random.default_rng(seed)
+                image = form_image(
+                    record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+                )
         with self._cond:
             if record.image is None:
                 record.image = image
@@ -355,30 +367,19 @@ class SimCameraBoard:
 
     # -- real time -------------------------------------------------------------------------
 
+    def next_start_s(self) -> float:
+        """Virtual time of the next frame start on any port (inf: none will start)."""
+        with self._cond:
+            return min((f.next_start_s for f in self.fpga.values()), default=math.inf)
+
     def start_clock(self, *, time_scale: float = 1.0) -> None:
         """Run virtual time against the wall clock in a thread (``time_scale`` x real time)."""
-        if self._clock is not None:
-            return
-        self._stop.clear()
-        origin_wall, origin_sim = time.monotonic(), self.now_s
-
-        def run() -> None:
-            while not self._stop.is_set():
-                with self._cond:
-                    due = min((f.next_start_s for f in self.fpga.values()), default=math.inf)
-                wait = (due - origin_sim) / time_scale - (time.monotonic() - origin_wall)
-                if math.isinf(wait) or wait > 0:
-                    self._stop.wait(0.05 if math.isinf(wait) else min(wait, 0.05))
-                    continue
-                self.sim_step()
-
-        self._clock = threading.Thread(target=run, name="sim-frame-clock", daemon=True)
-        self._clock.start()
+        if self._clock is None:
+            self._clock = FrameClock(self, now_s=self.now_s, time_scale=time_scale)
 
     def stop_clock(self) -> None:
         if self._clock is not None:
-            self._stop.set()
-            self._clock.join(timeout=5)
+            self._clock.stop()
             self._clock = None
 
 
@@ -394,6 +395,6 @@ def make_sim_board(
     The frame clock starts when the daemon subscribes to the frame syncs: a frame started
     before would be one whose parameters the daemon never recorded.
     """
-    board = SimCameraBoard(build(scenario, seed=seed), seed=seed, noise=noise)
+    board = SimCameraBoard(build(scenario, seed=seed), seed=seed, noise=noise, forming="process")
     board._clock_on_subscribe = True
     return board

@@ -1,0 +1,174 @@
+"""Frames' images formed in a child process, as a camera's sensor and FPGA form them.
+
+The simulated board forms a frame's image when a capture asks for it: seconds of CPU for
+a full frame of a scene seen for the first time, about 0.4 s when its radiance is reused.
+Formed in the daemon's process, that CPU and the interpreter lock are taken from the
+request handling, which on a camera never does this work. `FormingProcess` does it in
+one child process instead: a frame's record goes there, its pixels come back through
+the pipe. The pixels are the same as formed in the daemon's process (the same chips, the
+same per-frame noise seed); `SimCameraBoard(..., forming="process")` uses it.
+
+The child keeps its own copy of the scene. It is sent again when the scene's planes or
+background change (planes compared by identity, as the radiance cache keys them);
+changing a texture's array in place is not seen.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+from dataclasses import replace
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from elphel_camd.errors import CaptureUnavailableError
+from elphel_sim.fpga import FrameRecord
+from elphel_sim.scenarios import PortSpec
+from elphel_sim.world import Scene, World
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT_S = 120.0  # the child imports NumPy and SciPy first
+
+
+def _serve(conn: Connection) -> None:
+    """The child: form images until the pipe closes."""
+    from elphel_sim.board import SIM_SENSORS
+
+    # The sensor and FPGA never take a camera's CPU: here they yield it to the daemon.
+    os.nice(10)
+    chips: dict[str, Any] = {}
+    world: World | None = None
+    conn.send(("ready",))
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError):
+            return
+        if message is None:
+            return
+        if message[0] == "scene":
+            world = World(scene=message[1])
+            continue
+        _, spec, record, seed = message
+        try:
+            if world is None:
+                raise RuntimeError("no scene was sent")
+            chip = chips.get(spec.model) or chips.setdefault(spec.model, SIM_SENSORS[spec.model]())
+            rng = None if seed is None else np.random.default_rng(seed)
+            image = np.ascontiguousarray(
+                chip.form_image(
+                    record, world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+                )
+            )
+        except Exception as e:  # reported to the board, which raises it for the capture
+            conn.send(("error", f"{type(e).__name__}: {e}"))
+            continue
+        conn.send(("image", image.shape, image.dtype.str))
+        conn.send_bytes(image.reshape(-1).view(np.uint8))
+
+
+class FormingProcess:
+    """One child process forming the images of a board's frames, one at a time.
+
+    Started at once (the child boots while the daemon does); a child that died is started
+    again at the next frame. Safe to call from several threads: they take turns.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._conn: Connection | None = None
+        self._process: subprocess.Popen[bytes] | None = None
+        self._scene_key: tuple[Any, ...] | None = None
+        self._scene_planes: tuple[object, ...] = ()  # held so that their ids stay theirs
+        self._start()
+
+    def _start(self) -> None:
+        # A plain child interpreter (not multiprocessing's spawn, which would import the
+        # parent's main script again), talking over one end of a socket pair.
+        parent, child = socket.socketpair()
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", "elphel_sim.forming", str(child.fileno())],
+            pass_fds=(child.fileno(),),
+            stdin=subprocess.DEVNULL,
+        )
+        child.close()
+        self._conn = Connection(parent.detach())
+        self._scene_key = None
+        self._ready = False
+
+    def _stop(self) -> None:
+        if self._conn is not None:
+            with contextlib.suppress(OSError):
+                self._conn.send(None)
+            self._conn.close()
+        if self._process is not None:
+            try:
+                self._process.wait(timeout=2)
+            except subprocess.TimeoutExpired:
+                self._process.kill()
+                self._process.wait(timeout=2)
+        self._conn = self._process = None
+
+    def close(self) -> None:
+        with self._lock:
+            self._stop()
+
+    def form(
+        self, spec: PortSpec, record: FrameRecord, scene: Scene, seed: list[int] | None
+    ) -> NDArray[Any]:
+        """The image of a frame of port ``spec``, with noise seeded by ``seed`` (None: none)."""
+        with self._lock:
+            if self._conn is None or self._process is None or self._process.poll() is not None:
+                self._stop()
+                self._start()
+            assert self._conn is not None
+            try:
+                return self._form(self._conn, spec, record, scene, seed)
+            except (EOFError, OSError) as e:
+                self._stop()
+                raise CaptureUnavailableError(
+                    f"port {record.port}: the image-forming process ended while forming "
+                    f"frame {record.frame} ({type(e).__name__}); it restarts at the next frame"
+                ) from e
+
+    def _form(
+        self,
+        conn: Connection,
+        spec: PortSpec,
+        record: FrameRecord,
+        scene: Scene,
+        seed: list[int] | None,
+    ) -> NDArray[Any]:
+        if not self._ready:
+            if not conn.poll(START_TIMEOUT_S):
+                raise EOFError("the image-forming process did not start")
+            conn.recv()
+            self._ready = True
+        planes = tuple(scene.planes)
+        key = (tuple(id(p) for p in planes), np.float64(float(scene.background)).tobytes())
+        if key != self._scene_key:
+            conn.send(("scene", scene))
+            self._scene_key, self._scene_planes = key, planes
+        conn.send(("form", spec, replace(record, image=None), seed))
+        answer = conn.recv()
+        if answer[0] == "error":
+            raise CaptureUnavailableError(
+                f"port {record.port}: forming frame {record.frame} failed: {answer[1]}"
+            )
+        _, shape, dtype = answer
+        image = np.empty(shape, dtype=np.dtype(dtype))
+        conn.recv_bytes_into(image.reshape(-1).view(np.uint8))
+        return image
+
+
+if __name__ == "__main__":
+    _serve(Connection(int(sys.argv[1])))
