@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import itertools
+import json
 import threading
 import time
 from collections import deque
@@ -47,6 +49,12 @@ class Event:
     id: int
     type: str
     data: dict[str, Any]
+
+    @functools.cached_property
+    def sse(self) -> bytes:
+        """The event as a server-sent event: encoded once, whatever the number of streams."""
+        data = json.dumps(self.data, separators=(",", ":"))
+        return f"id: {self.id}\nevent: {self.type}\ndata: {data}\n\n".encode()
 
 
 @dataclass
@@ -116,7 +124,8 @@ class Subscription:
         if callback is not None:
             callback()
 
-    def _pop(self) -> Event | None:
+    def pop(self) -> Event | None:
+        """The next queued event, or None if none is queued (never waits)."""
         with self._cond:
             return self._queue.popleft() if self._queue else None
 
@@ -127,7 +136,7 @@ class Subscription:
         while True:
             if self.overflowed or self.closed:
                 return None
-            event = self._pop()
+            event = self.pop()
             if event is not None:
                 return event
             self._wakeup.clear()

@@ -166,6 +166,11 @@ class CameraService:
                 log.error("saved common trigger settings not restored: %s", e)
 
     @property
+    def saves_wait_for_disk(self) -> bool:
+        """Whether each accepted change is flushed to the disk before it is answered."""
+        return self.store is not None and self.store.sync_each
+
+    @property
     def scheduled(self) -> bool:
         """Whether changes can be scheduled on frames (the board delivers frame syncs)."""
         return "frames" in self.board.capabilities

@@ -54,6 +54,11 @@ def write_atomic(path: Path, data: bytes, *, mode: int = 0o644, sync: bool = Tru
         fsync_path(path.parent)
 
 
+def _journal_line(text: bytes) -> bytes:
+    """A journal line: the state's JSON, a tab and its CRC-32 in hex."""
+    return text + b"\t%08x\n" % zlib.crc32(text)
+
+
 def fsync_path(path: Path) -> None:
     """Flush a file's or a directory's data and metadata to the disk."""
     fd = os.open(path, os.O_RDONLY)
@@ -185,7 +190,7 @@ class ParamStore:
     def save(self, port: int, sensor: str, params: Mapping[str, int]) -> None:
         body = {"version": PARAMS_VERSION, "port": port, "sensor": sensor, "params": dict(params)}
         text = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
-        line = text + b"\t%08x\n" % zlib.crc32(text)
+        line = _journal_line(text)
         lock = self._locks.get(port) or self._locks.setdefault(port, threading.Lock())
         with lock:
             try:
@@ -218,25 +223,40 @@ class ParamStore:
     def _compact(self, port: int) -> None:
         """Write the last state as the snapshot, then restart the journal from the newest line.
 
-        The snapshot is written (and flushed, milliseconds) without the port's lock, so
-        saves go on meanwhile. Under the lock, the journal is replaced (a new file with
-        the newest line, renamed over it) — saves that came in between are not lost, and
-        steady writes cannot postpone the compaction. A kill at any step leaves either the
-        old journal or the new one, each ending with the newest acknowledged state.
+        The snapshot and the new journal are written and flushed (milliseconds) without the
+        port's lock, so saves go on meanwhile. Under the lock the new journal gets the
+        saves that came in between and is renamed over the old one: microseconds, so steady
+        writes cannot postpone the compaction and a save never waits for the disk. A kill at
+        any step leaves either the old journal or the new one, each ending with the newest
+        acknowledged state.
         """
         lock = self._locks[port]
         with lock:
             text = self._last[port]
         write_atomic(self.path(port), text, sync=True)
-        with lock:
-            newest = self._last[port]
-            line = newest + b"\t%08x\n" % zlib.crc32(newest)
-            path = self.journal_path(port)
-            write_atomic(path, line, sync=True)
-            flags = os.O_WRONLY | os.O_APPEND | getattr(os, "O_CLOEXEC", 0)
-            fd = os.open(path, flags)
-            os.close(self._journals[port])
-            self._journals[port] = fd
+        path = self.journal_path(port)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            os.fchmod(fd, 0o644)
+            os.write(fd, _journal_line(text))
+            os.fsync(fd)
+            with lock:
+                newest = self._last[port]
+                if newest != text:
+                    os.write(fd, _journal_line(newest))
+                    if self.sync_each:
+                        os.fsync(fd)
+                os.replace(tmp, path)
+                flags = os.O_WRONLY | os.O_APPEND | getattr(os, "O_CLOEXEC", 0)
+                old, self._journals[port] = self._journals[port], os.open(path, flags)
+            os.close(old)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+        finally:
+            os.close(fd)
+        fsync_path(path.parent)
 
     def _flush(self, ports: set[int]) -> None:
         # Without the port's lock: an fsync takes milliseconds, a save must not wait for it.

@@ -39,7 +39,7 @@ _TIFF_CONTENT = {"image/tiff": {"schema": {"type": "string", "format": "binary"}
     dependencies=READS,
     responses=error_responses(401, 404),
 )
-def get_frame(service: Service, port: PortPath) -> JSONResponse:
+async def get_frame(service: Service, port: PortPath) -> JSONResponse:
     """The current frame number of a port and when it started."""
     seq = service.sequencer(port)
     return JSONResponse(

@@ -9,7 +9,6 @@ concurrent writers are ordered, and the last write of a parameter wins.
 
 from __future__ import annotations
 
-import contextlib
 from typing import Annotated
 
 from fastapi import APIRouter, Query
@@ -17,6 +16,7 @@ from fastapi.responses import JSONResponse
 
 from elphel_camd.api.deps import READS, WRITES, FrameQuery, PortPath, Service
 from elphel_camd.api.errors import error_responses
+from elphel_camd.api.locked import run_locked
 from elphel_camd.api.models import Params, ParamsPatch, PatchResult
 from elphel_camd.errors import FrameNotAvailableError, ParameterRangeError, UnsupportedError
 from elphel_camd.params import COMMON_TRIGGER_PARAMS
@@ -47,15 +47,19 @@ def parse_frame(frame: str | None, ahead: int | None) -> tuple[int | None, int |
     dependencies=READS,
     responses=error_responses(401, 404, 422, 503),
 )
-def get_params(service: Service, port: PortPath, frame: FrameQuery = None) -> JSONResponse:
+async def get_params(service: Service, port: PortPath, frame: FrameQuery = None) -> JSONResponse:
     """Parameters in effect now, or for a recent frame or one up to 14 frames ahead."""
     seq = service.sequencer(port)
-    if frame is not None and frame > seq.this_frame + MAX_AHEAD:
-        raise FrameNotAvailableError(
-            f"port {port}: frame {frame} is beyond the schedule (current frame "
-            f"{seq.this_frame}; parameters are known up to {MAX_AHEAD} frames ahead)"
-        )
-    return JSONResponse(service.params(port, frame=frame))
+
+    def read() -> dict[str, int]:
+        if frame is not None and frame > seq.this_frame + MAX_AHEAD:
+            raise FrameNotAvailableError(
+                f"port {port}: frame {frame} is beyond the schedule (current frame "
+                f"{seq.this_frame}; parameters are known up to {MAX_AHEAD} frames ahead)"
+            )
+        return service.params(port, frame=frame)
+
+    return JSONResponse(await run_locked([seq.lock], read))
 
 
 @router.patch(
@@ -64,7 +68,7 @@ def get_params(service: Service, port: PortPath, frame: FrameQuery = None) -> JS
     dependencies=WRITES,
     responses=error_responses(401, 404, 409, 413, 422, 503),
 )
-def patch_params(
+async def patch_params(
     service: Service,
     port: PortPath,
     changes: ParamsPatch,  # type: ignore[valid-type]
@@ -84,9 +88,14 @@ def patch_params(
     # The ports set_params locks, in its order, held until the answer is read.
     common = any(name in values for name in COMMON_TRIGGER_PARAMS)
     ports = sorted(service.sequencers) if common else [port]
-    with contextlib.ExitStack() as held:
-        for p in ports:
-            held.enter_context(service.sequencers[p].lock)
+
+    def write() -> dict[str, object]:
         target = service.set_params(port, values, frame=absolute, ahead=relative)
         params = service.params(port, frame=target) if service.scheduled else service.params(port)
-    return JSONResponse({"frame": target, "params": params})
+        return {"frame": target, "params": params}
+
+    # Without frame syncs the change is written to the sensor at once, and a save synced
+    # to the disk each time waits for it: both in a worker thread.
+    on_loop = service.scheduled and not service.saves_wait_for_disk
+    locks = [service.sequencers[p].lock for p in ports]
+    return JSONResponse(await run_locked(locks, write, on_loop=on_loop))
