@@ -54,11 +54,12 @@ def test_a_changed_scene_is_sent_again(boards):
 def test_a_child_dead_between_frames_is_started_again(boards):
     _, there = boards
     there.capture(LEPTON)
-    child = there._former._process
+    (former,) = there._former.processes
+    child = former._process
     os.kill(child.pid, signal.SIGKILL)
     child.wait(timeout=10)
     assert there.capture(LEPTON).image.shape == (120, 160)
-    assert there._former._process.pid != child.pid
+    assert there._former.processes == [former] and former.pid != child.pid
 
 
 def test_a_child_dying_while_it_forms_fails_that_capture_only():
@@ -74,8 +75,9 @@ def test_a_child_dying_while_it_forms_fails_that_capture_only():
 
         worker = threading.Thread(target=capture)
         worker.start()
-        child = board._former._process
         time.sleep(1.0)  # a full frame of a new scene takes seconds to form
+        (former,) = board._former.processes
+        child = former._process
         os.kill(child.pid, signal.SIGKILL)
         worker.join(timeout=60)
         assert "port 0" in outcome["error"] and "image-forming process ended" in outcome["error"]
@@ -85,10 +87,34 @@ def test_a_child_dying_while_it_forms_fails_that_capture_only():
 
 def test_close_ends_the_child():
     board = SimCameraBoard(build("mixed", seed=4), seed=4, forming="process")
+    assert board._former.processes == []  # started at the first frame formed
     board.capture(LEPTON)
-    child = board._former._process
+    (former,) = board._former.processes
+    child = former._process
     board.close()
     assert child.poll() is not None
+
+
+def test_frames_asked_for_at_once_form_in_two_children_at_most(boards):
+    here, there = boards
+    wanted = [there.fpga[LEPTON].frame + k for k in (1, 2, 3, 4)]
+    there.sim_advance(frames=5, port=LEPTON)
+    here.sim_advance(frames=5, port=LEPTON)
+    barrier = threading.Barrier(len(wanted))
+    got = {}
+
+    def capture(frame):
+        barrier.wait()
+        got[frame] = there.capture(LEPTON, frame=frame).image
+
+    threads = [threading.Thread(target=capture, args=(f,)) for f in wanted]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert len(there._former.processes) == 2
+    for frame in wanted:
+        np.testing.assert_array_equal(got[frame], here.capture(LEPTON, frame=frame).image)
 
 
 def test_the_daemons_board_forms_in_a_child_and_unknown_modes_are_refused():

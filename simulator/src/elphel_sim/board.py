@@ -25,7 +25,7 @@ from elphel_sim.chips.lepton35 import SimLepton35
 from elphel_sim.chips.mt9f002 import SimMT9F002
 from elphel_sim.chips.mt9p006 import SimMT9P006
 from elphel_sim.chips.sensor import SimSensor
-from elphel_sim.forming import FormingProcess
+from elphel_sim.forming import FormingPool
 from elphel_sim.fpga import Camsync, FrameRecord, PortFPGA
 from elphel_sim.frame_clock import FrameClock
 from elphel_sim.scenarios import PortSpec, Scenario, build
@@ -83,7 +83,7 @@ class SimCameraBoard:
         self._closed = False
         self._clock_on_subscribe = False  # start_clock at the first on_frame_sync
         self._forming = threading.Lock()
-        self._former = FormingProcess() if forming == "process" else None
+        self._former = FormingPool() if forming == "process" else None
         # Frames a multi-frame capture holds until sent: port -> frame -> record (None
         # until the frame is taken). They stay here after leaving the ring buffer.
         self._pins: dict[int, dict[int, FrameRecord | None]] = {}
@@ -348,14 +348,14 @@ class SimCameraBoard:
             spec = self.ports[record.port]
             form_image = self.chips[record.port].form_image
         seed = [self.seed, record.port, record.frame] if self.noise else None
-        # One frame is formed at a time: forming is CPU-bound, and several at once only
-        # take the interpreter from the frame clock and the daemon's request handling.
-        with self._forming:
-            if record.image is not None:
-                return record.image
-            if self._former is not None:
-                image = self._former.form(spec, record, self.world.scene, seed)
-            else:
+        if self._former is not None:  # child processes, side by side
+            image = self._former.form(spec, record, self.world.scene, seed)
+        # In this process one frame is formed at a time: forming is CPU-bound, and several
+        # at once only take the interpreter from the frame clock and the request handling.
+        else:
+            with self._forming:
+                if record.image is not None:
+                    return record.image
                 rng = None if seed is None else np.random.default_rng(seed)
                 image = form_image(
                     record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng

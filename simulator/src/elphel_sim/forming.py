@@ -6,7 +6,8 @@ Formed in the daemon's process, that CPU and the interpreter lock are taken from
 request handling, which on a camera never does this work. `FormingProcess` does it in
 one child process instead: a frame's record goes there, its pixels come back through
 the pipe. The pixels are the same as formed in the daemon's process (the same chips, the
-same per-frame noise seed); `SimCameraBoard(..., forming="process")` uses it.
+same per-frame noise seed). `SimCameraBoard(..., forming="process")` uses a `FormingPool`
+of them, so that a full capture and a ring fetch asked for at once form side by side.
 
 The child keeps its own copy of the scene. It is sent again when the scene's planes or
 background change (planes compared by identity, as the radiance cache keys them);
@@ -82,6 +83,8 @@ class FormingProcess:
     Started at once (the child boots while the daemon does); a child that died is started
     again at the next frame. Safe to call from several threads: they take turns.
     """
+
+    pid = property(lambda self: None if self._process is None else self._process.pid)
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -172,3 +175,45 @@ class FormingProcess:
 
 if __name__ == "__main__":
     _serve(Connection(int(sys.argv[1])))
+
+
+class FormingPool:
+    """Up to ``size`` `FormingProcess` children: frames asked for at once form side by side.
+
+    A child is started when every started one is busy (one capture at a time uses one).
+    """
+
+    def __init__(self, size: int = 2) -> None:
+        if size < 1:
+            raise ValueError(f"size={size}; allowed: >= 1")
+        self.size = size
+        self._lock = threading.Lock()
+        self._free: list[FormingProcess] = []
+        self._all: list[FormingProcess] = []
+        self._available = threading.Semaphore(size)
+
+    @property
+    def processes(self) -> list[FormingProcess]:
+        with self._lock:
+            return list(self._all)
+
+    def form(
+        self, spec: PortSpec, record: FrameRecord, scene: Scene, seed: list[int] | None
+    ) -> NDArray[Any]:
+        """As `FormingProcess.form`, in a child that is free now."""
+        with self._available:
+            with self._lock:
+                if self._free:
+                    former = self._free.pop()
+                else:
+                    former = FormingProcess()
+                    self._all.append(former)
+            try:
+                return former.form(spec, record, scene, seed)
+            finally:
+                with self._lock:
+                    self._free.append(former)
+
+    def close(self) -> None:
+        for former in self.processes:
+            former.close()
