@@ -21,8 +21,8 @@ from elphel_sim.scenarios import build
 LEPTON = 2  # the mixed scenario's 160x120 Lepton: quick to form
 
 
-@pytest.fixture
-def boards():
+@pytest.fixture(scope="module")
+def boards():  # shared: each test leaves both boards in the same state
     here = SimCameraBoard(build("mixed", seed=4), seed=4)
     there = SimCameraBoard(build("mixed", seed=4), seed=4, forming="process")
     yield here, there
