@@ -17,7 +17,6 @@ changing a texture's array in place is not seen.
 from __future__ import annotations
 
 import contextlib
-import logging
 import os
 import socket
 import subprocess
@@ -34,8 +33,6 @@ from elphel_camd.errors import CaptureUnavailableError
 from elphel_sim.fpga import FrameRecord
 from elphel_sim.scenarios import PortSpec
 from elphel_sim.world import Scene, World
-
-log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 120.0  # the child imports NumPy and SciPy first
 
@@ -74,7 +71,7 @@ def _serve(conn: Connection) -> None:
             conn.send(("error", f"{type(e).__name__}: {e}"))
             continue
         conn.send(("image", image.shape, image.dtype.str))
-        conn.send_bytes(image.reshape(-1).view(np.uint8))
+        conn.send_bytes(image.data.cast("B"))
 
 
 class FormingProcess:
@@ -84,7 +81,10 @@ class FormingProcess:
     again at the next frame. Safe to call from several threads: they take turns.
     """
 
-    pid = property(lambda self: None if self._process is None else self._process.pid)
+    @property
+    def pid(self) -> int | None:
+        """The child's process id (None while none runs)."""
+        return None if self._process is None else self._process.pid
 
     def __init__(self) -> None:
         self._lock = threading.Lock()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Sequence
+from types import TracebackType
 from typing import Protocol, TypeVar
 
 from starlette.concurrency import run_in_threadpool
@@ -30,7 +31,13 @@ class Lock(Protocol):
 
     def __enter__(self) -> bool: ...
 
-    def __exit__(self, *exc: object) -> None: ...
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+        /,
+    ) -> None: ...
 
 
 async def run_locked(locks: Sequence[Lock], work: Callable[[], T], *, on_loop: bool = True) -> T:
