@@ -16,6 +16,7 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+from urllib.parse import urlsplit
 
 import httpx
 import pytest
@@ -81,6 +82,13 @@ def firefox(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Session]:
             session.close_browser()
     finally:
         process.stop()
+
+
+def outside_requests(urls: list[str], camera_url: str) -> list[str]:
+    """The requested URLs that leave the camera's origin (blob: and data: URLs stay)."""
+    origin = urlsplit(camera_url)[:2]
+    fetched = [u for u in urls if not u.startswith(("blob:", "data:"))]
+    return [u for u in fetched if urlsplit(u)[:2] != origin]
 
 
 def rest(rig: Rig, path: str) -> Any:

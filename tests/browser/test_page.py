@@ -11,12 +11,11 @@ import math
 import time
 from collections.abc import Iterator
 from typing import Any
-from urllib.parse import urlsplit
 
 import httpx
 import pytest
 
-from tests.browser.conftest import DOCS_IMG, rest, rig_of, small_window
+from tests.browser.conftest import DOCS_IMG, outside_requests, rest, rig_of, small_window
 
 pytestmark = pytest.mark.slow
 
@@ -58,10 +57,7 @@ def test_page_loads_without_console_errors_or_outside_requests(browser, default_
         o.page.wait_for_selector("[name=EXPOS]", state="attached")
         time.sleep(2)  # the histogram and the event log start
         assert o.errors == []
-        origin = urlsplit(default_rig.camera_url)
-        outside = [u for u in o.requests if not u.startswith(("blob:", "data:"))]
-        outside = [u for u in outside if urlsplit(u)[:2] != origin[:2]]
-        assert outside == []
+        assert outside_requests(o.requests, default_rig.camera_url) == []
         assert any("/preview.mjpeg" in u for u in o.requests)
     finally:
         o.close()
