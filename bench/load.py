@@ -14,12 +14,14 @@ with nothing else running (the peer the loaded figures are compared with, as rat
   daemon served the request late, it did not drop a frame;
 - ``--listeners`` event-stream listeners (default 20), one of which never reads.
 
-Reported: per-endpoint p50/p99 and answers by status, 5xx and unexpected 4xx counts, the
-daemon's RSS at start, at minute 2 (or a fifth of the run, if shorter) and at the end,
-event-stream lag (PATCH answered -> its params event received by each reading listener),
-frames dropped (ring fetches of a frame that should still be there and gaps in the frame
-numbers the listeners saw), the frame rate the listeners saw against the nominal one, and
-whether the stalled listener was dropped while the others lost nothing.
+Reported: the daemon's HTTP parser and event loop (httptools or h11, uvloop or asyncio:
+what the interpreter running this has installed), per-endpoint p50/p99 and answers by
+status, 5xx and unexpected 4xx counts, the daemon's RSS at start, at minute 2 (or a
+fifth of the run, if shorter) and at the end, event-stream lag (PATCH answered -> its
+params event received by each reading listener), frames dropped (ring fetches of a frame
+that should still be there and gaps in the frame numbers the listeners saw), the frame
+rate the listeners saw against the nominal one, and whether the stalled listener was
+dropped while the others lost nothing.
 
 The clients speak HTTP/1.1 over asyncio streams, one keep-alive connection each
 (``bench/_http.py``): the load generator shares the machine with the daemon, and a
@@ -102,6 +104,12 @@ def daemon(state: Path, event_queue: int = 256) -> Iterator[tuple[str, int]]:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def http_stack(log: Path) -> str:
+    """The HTTP parser and event loop the daemon logged at start ("httptools, uvloop")."""
+    line = log.read_text().split("listening on ", 1)[1].split("\n", 1)[0]
+    return line.split("HTTP: ", 1)[1].rstrip(")") if "HTTP: " in line else "unknown"
 
 
 def rss_mb(pid: int) -> float:
@@ -523,6 +531,7 @@ def main() -> int:
         ),
     ):
         result = asyncio.run(run_load(args, url, pid))
+        result["daemon_http"] = http_stack(Path(tmp) / "state" / "daemon.log")
     print(json.dumps(result))
     return 0
 

@@ -105,6 +105,43 @@ def test_one_fan_out_per_batch_not_per_subscriber():
         loop.close()
 
 
+def test_async_get_waits_for_an_event_or_the_timeout_and_leaves_nothing_behind():
+    hub = EventHub(16)
+
+    async def scenario() -> None:
+        loop = asyncio.get_running_loop()
+        sub = hub.subscribe(["params"], loop=loop)
+        # Nothing published: None after the timeout, not before.
+        start = loop.time()
+        assert await sub.get(0.2) is None
+        assert 0.19 <= loop.time() - start < 1.0
+        # Published from another thread while waiting: returned at once, in order.
+        timer = threading.Timer(0.05, lambda: [hub.publish("params", {"k": k}) for k in range(3)])
+        timer.start()
+        start = loop.time()
+        first = await sub.get(5.0)
+        assert first is not None and first.data == {"k": 0} and loop.time() - start < 1.0
+        assert [(await sub.get(5.0)).data["k"] for _ in range(2)] == [1, 2]
+        # An event of another type wakes nothing: the wait still ends at its timeout.
+        loop.call_later(0.05, hub.publish, "frame", {"port": 0})
+        assert await sub.get(0.2) is None
+        # A cancelled wait leaves no waiter and no timer; the next get works.
+        task = asyncio.create_task(sub.get(30.0))
+        await asyncio.sleep(0.05)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        assert sub._waiter is None
+        hub.publish("params", {"k": 9})
+        assert (await sub.get(5.0)).data == {"k": 9}
+        # Closing the hub ends a wait at once.
+        loop.call_later(0.05, hub.close)
+        start = loop.time()
+        assert await sub.get(30.0) is None and loop.time() - start < 1.0
+
+    asyncio.run(scenario())
+
+
 def test_subscriber_limit_and_overflow():
     hub = EventHub(4, max_subscribers=2)
     loop = asyncio.new_event_loop()

@@ -191,7 +191,7 @@ build_camera = build_service  # the old name
 def main(argv: Sequence[str] | None = None) -> int:
     from elphel_camd.api import create_app
     from elphel_camd.api.deps import TokenSource
-    from elphel_camd.serving import GracefulServer, server_config
+    from elphel_camd.serving import GracefulServer, http_stack, server_config
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["token"]:
@@ -240,16 +240,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             app,
             log_level=settings.log_level,
             access_log=settings.access_log,
-            h11_max_incomplete_event_size=settings.max_header_bytes,
+            max_head_bytes=settings.max_header_bytes,
             **tls,
         )
         scheme = "https" if tls else "http"
         log.info(
-            "listening on %s://%s:%d (reads %s)",
+            "listening on %s://%s:%d (reads %s; HTTP: %s)",
             scheme,
             host,
             port,
             "public" if settings.reads_public else "need the token",
+            http_stack(config),
         )
         GracefulServer(config, on_shutdown=[service.events.close]).run(sockets=[sock])
     except OSError as e:

@@ -57,6 +57,11 @@ class Event:
         return f"id: {self.id}\nevent: {self.type}\ndata: {data}\n\n".encode()
 
 
+def _settle(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)
+
+
 @dataclass
 class Subscription:
     """One subscriber's bounded queue, filled by `EventHub.publish`.
@@ -79,7 +84,7 @@ class Subscription:
     interrupt: Callable[[], None] | None = None
     _queue: deque[Event] = field(default_factory=deque)
     _cond: threading.Condition = field(default_factory=threading.Condition)
-    _wakeup: asyncio.Event | None = None
+    _waiter: asyncio.Future[None] | None = None  # what `get` awaits, on the loop
 
     def wants(self, event: Event) -> bool:
         if event.type not in self.types:
@@ -116,8 +121,8 @@ class Subscription:
         if self.loop is None:
             with self._cond:
                 self._cond.notify_all()
-        elif self._wakeup is not None:
-            self._wakeup.set()
+        elif self._waiter is not None and not self._waiter.done():
+            self._waiter.set_result(None)
 
     def _interrupt(self) -> None:
         callback, self.interrupt = self.interrupt, None
@@ -131,19 +136,25 @@ class Subscription:
 
     async def get(self, timeout_s: float) -> Event | None:
         """The next event; None after ``timeout_s`` without one, or once closed or overflowed."""
-        if self._wakeup is None:
-            self._wakeup = asyncio.Event()
+        # A bare future and a timer: asyncio.wait_for would make a task per wait, and a
+        # stream waits once per event (thousands a second across the streams under load).
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout_s
         while True:
             if self.overflowed or self.closed:
                 return None
             event = self.pop()
             if event is not None:
                 return event
-            self._wakeup.clear()
-            try:
-                await asyncio.wait_for(self._wakeup.wait(), timeout_s)
-            except TimeoutError:
+            if loop.time() >= deadline:
                 return None
+            waiter = self._waiter = loop.create_future()
+            timer = loop.call_at(deadline, _settle, waiter)
+            try:
+                await waiter
+            finally:
+                timer.cancel()
+                self._waiter = None
 
     def get_blocking(self, timeout_s: float) -> Event | None:
         """The next event, waiting in this thread up to ``timeout_s``."""

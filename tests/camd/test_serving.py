@@ -1,0 +1,102 @@
+"""The HTTP server's bounds hold with either of uvicorn's HTTP/1.1 parsers.
+
+The daemon serves with httptools (C, a dependency) and falls back to h11 (pure Python)
+where httptools is missing; the request deadline, the head size limit, keep-alive and the
+event stream's cut work the same with both.
+"""
+
+import contextlib
+import socket
+import time
+
+import httpx
+import pytest
+
+from elphel_camd import serving
+from elphel_camd.events import EventHub
+from elphel_camd.service import CameraService
+from elphel_sim.board import SimCameraBoard
+from elphel_sim.scenarios import build
+
+from .served import serve
+
+
+@pytest.fixture(params=["httptools", "h11"])
+def parser(request, monkeypatch):
+    if request.param == "h11":
+        monkeypatch.setattr(serving, "_httptools_protocol", lambda: None)
+    else:
+        assert serving._httptools_protocol() is not None, "httptools is a dependency"
+    return request.param
+
+
+@pytest.fixture
+def service():
+    board = SimCameraBoard(build("default", seed=4), seed=4)
+    cam = CameraService(board, events=EventHub(16, replay=64, max_subscribers=4))
+    yield cam
+    cam.close()
+
+
+def port_of(url: str) -> int:
+    return int(url.rsplit(":", 1)[1])
+
+
+def read_all(sock: socket.socket, timeout_s: float = 5.0) -> bytes:
+    """Everything the server sends until it closes the connection."""
+    sock.settimeout(timeout_s)
+    chunks = []
+    with contextlib.suppress(ConnectionResetError):
+        while chunk := sock.recv(65536):
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def test_the_parser_in_use_is_the_one_asked_for(parser):
+    assert serving.http_stack(serving.server_config(object())) in (
+        f"{parser}, uvloop",
+        f"{parser}, asyncio",
+    )
+
+
+def test_half_open_and_slow_requests_are_dropped(parser, service):
+    with serve(service, request_timeout_s=1.0, idle_timeout_s=1.0) as srv:
+        silent = socket.create_connection(("127.0.0.1", port_of(srv.url)))
+        slow = socket.create_connection(("127.0.0.1", port_of(srv.url)))
+        slow.sendall(b"GET /api/v1/info HTTP/1.1\r\nHost: camera\r\n")  # never finished
+        start = time.monotonic()
+        for s in (silent, slow):
+            assert read_all(s) == b""
+            s.close()
+        assert time.monotonic() - start < 3
+        assert httpx.get(srv.url + "/api/v1/info", timeout=5).status_code == 200
+
+
+def test_a_head_over_the_limit_is_answered_400_and_closed(parser, service):
+    with serve(service, max_head_bytes=4096) as srv:
+        big = socket.create_connection(("127.0.0.1", port_of(srv.url)))
+        pad = b"".join(b"X-Pad-%02d: " % i + b"a" * 52 + b"\r\n" for i in range(100))
+        # 100 x 64 bytes of headers: past 4 KiB before the head ends.
+        big.sendall(b"GET /api/v1/info HTTP/1.1\r\nHost: camera\r\n" + pad)
+        answer = read_all(big)
+        big.close()
+        assert answer.startswith(b"HTTP/1.1 400")
+        # A head within the limit, padded to just under it, is served.
+        small = {"X-Pad": "a" * 3500}
+        assert httpx.get(srv.url + "/api/v1/info", headers=small, timeout=5).status_code == 200
+
+
+def test_keep_alive_and_pipelined_requests_are_each_answered(parser, service):
+    with serve(service) as srv:
+        sock = socket.create_connection(("127.0.0.1", port_of(srv.url)))
+        one = b"GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+        last = b"GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+        sock.sendall(one * 4 + last)
+        answer = read_all(sock)
+        sock.close()
+        assert answer.count(b"HTTP/1.1 200") == 5
+        # Requests on one connection, each after its answer: the head count starts over.
+        with httpx.Client(base_url=srv.url, timeout=5) as client:
+            for _ in range(50):
+                r = client.get("/api/v1/info", headers={"X-Pad": "a" * 2000})
+                assert r.status_code == 200
