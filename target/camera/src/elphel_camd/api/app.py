@@ -26,6 +26,7 @@ from fastapi.responses import HTMLResponse
 from elphel_camd import __version__
 from elphel_camd.api.deps import ApiOptions, TokenSource
 from elphel_camd.api.errors import add_error_handlers
+from elphel_camd.api.fast_path import ParamsFastPath
 from elphel_camd.api.middleware import BodyLimit, HostAllowList
 from elphel_camd.api.models import EVENT_SCHEMA, Problem
 from elphel_camd.api.routes import ROUTERS, page, param_schema
@@ -49,6 +50,7 @@ def create_app(
     keepalive_s: float = 15.0,
     allowed_hosts: Sequence[str] | None = None,
     cors_origins: Sequence[str] = (),
+    fast_path: bool = True,
 ) -> FastAPI:
     """Build the API for a camera service.
 
@@ -72,6 +74,9 @@ def create_app(
         carry; None checks nothing (in-process clients), ``["*"]`` allows any.
     cors_origins
         Origins whose browser pages may call the API (CORS); none by default.
+    fast_path
+        Answer plain GET/PATCH of a port's params without FastAPI's per-request work
+        (`elphel_camd.api.fast_path`; the same answers). False only to compare.
     """
     source = token if isinstance(token, TokenSource) else TokenSource(token)
     if read_protected is not None:
@@ -90,6 +95,8 @@ def create_app(
     )
     app.state.service = service
     app.state.options = ApiOptions(token=source, public_reads=public_reads, keepalive_s=keepalive_s)
+    if fast_path:
+        app.add_middleware(ParamsFastPath)  # added first: the innermost, under every limit
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
     if cors_origins:
         app.add_middleware(

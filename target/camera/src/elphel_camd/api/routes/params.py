@@ -21,6 +21,7 @@ from elphel_camd.api.models import Params, ParamsPatch, PatchResult
 from elphel_camd.errors import FrameNotAvailableError, ParameterRangeError, UnsupportedError
 from elphel_camd.params import COMMON_TRIGGER_PARAMS
 from elphel_camd.sequencer import MAX_AHEAD
+from elphel_camd.service import CameraService
 
 router = APIRouter()
 
@@ -49,17 +50,7 @@ def parse_frame(frame: str | None, ahead: int | None) -> tuple[int | None, int |
 )
 async def get_params(service: Service, port: PortPath, frame: FrameQuery = None) -> JSONResponse:
     """Parameters in effect now, or for a recent frame or one up to 14 frames ahead."""
-    seq = service.sequencer(port)
-
-    def read() -> dict[str, int]:
-        if frame is not None and frame > seq.this_frame + MAX_AHEAD:
-            raise FrameNotAvailableError(
-                f"port {port}: frame {frame} is beyond the schedule (current frame "
-                f"{seq.this_frame}; parameters are known up to {MAX_AHEAD} frames ahead)"
-            )
-        return service.params(port, frame=frame)
-
-    return JSONResponse(await run_locked([seq.lock], read))
+    return JSONResponse(await read_params(service, port, frame))
 
 
 @router.patch(
@@ -84,6 +75,32 @@ async def patch_params(
     """Set parameters (all or none), now or at a frame; answers the frame they take effect."""
     absolute, relative = parse_frame(frame, ahead)
     values = changes.model_dump(exclude_unset=True)  # type: ignore[attr-defined]
+    return JSONResponse(await write_params(service, port, values, absolute, relative))
+
+
+async def read_params(service: CameraService, port: int, frame: int | None) -> dict[str, int]:
+    """What ``GET params`` answers (also called by `elphel_camd.api.fast_path`)."""
+    seq = service.sequencer(port)
+
+    def read() -> dict[str, int]:
+        if frame is not None and frame > seq.this_frame + MAX_AHEAD:
+            raise FrameNotAvailableError(
+                f"port {port}: frame {frame} is beyond the schedule (current frame "
+                f"{seq.this_frame}; parameters are known up to {MAX_AHEAD} frames ahead)"
+            )
+        return service.params(port, frame=frame)
+
+    return await run_locked([seq.lock], read)
+
+
+async def write_params(
+    service: CameraService,
+    port: int,
+    values: dict[str, int],
+    absolute: int | None,
+    relative: int | None,
+) -> dict[str, object]:
+    """What ``PATCH params`` does and answers (also called by `elphel_camd.api.fast_path`)."""
     service.sequencer(port)  # 404 first
     # The ports set_params locks, in its order, held until the answer is read.
     common = any(name in values for name in COMMON_TRIGGER_PARAMS)
@@ -98,4 +115,4 @@ async def patch_params(
     # to the disk each time waits for it: both in a worker thread.
     on_loop = service.scheduled and not service.saves_wait_for_disk
     locks = [service.sequencers[p].lock for p in ports]
-    return JSONResponse(await run_locked(locks, write, on_loop=on_loop))
+    return await run_locked(locks, write, on_loop=on_loop)
