@@ -114,6 +114,8 @@ class _RequestDeadline(_Protocol):
 class TimedH11Protocol(_RequestDeadline, H11Protocol):
     """uvicorn's pure-Python HTTP/1.1 protocol (h11) with the request deadline."""
 
+    parser_name = "h11"
+
 
 def _httptools_protocol() -> type[Any] | None:
     """The httptools protocol of uvicorn with the request deadline, if httptools imports.
@@ -133,6 +135,7 @@ def _httptools_protocol() -> type[Any] | None:
         connection is answered 400 and closed.
         """
 
+        parser_name = "httptools"
         max_head_bytes = MAX_HEAD_BYTES
 
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
@@ -251,8 +254,7 @@ def server_config(
 
 def http_stack(config: uvicorn.Config) -> str:
     """Which HTTP parser and event loop ``config`` serves with, e.g. "httptools, uvloop"."""
-    http = config.http
-    parser = "httptools" if isinstance(http, type) and "HttpTools" in http.__name__ else "h11"
+    parser = getattr(config.http, "parser_name", "h11")
     loop = config.loop
     if loop == "auto":
         loop = "uvloop" if importlib.util.find_spec("uvloop") is not None else "asyncio"
