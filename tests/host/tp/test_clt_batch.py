@@ -43,11 +43,9 @@ def fast(
     image: np.ndarray, pattern: str | None, at: TilePlacement
 ) -> tuple[list[np.ndarray], batch.CameraTransform]:
     weights = colour_masks(pattern, TpConfig())
-    tr = batch.camera_transform(
-        pattern, weights, green_band=TpConfig().green_band, pad=PAD, row_stride=W + 2 * PAD
-    )
-    flat = batch.padded_mosaic(image, PAD, bayer=pattern is not None)
-    return [np.asarray(z) for z in batch.camera_spectra(flat, tr, at)], tr
+    tr = batch.camera_transform(pattern, weights, green_band=TpConfig().green_band, pad=PAD)
+    cells = batch.image_cells(image, tr)
+    return [np.asarray(z) for z in batch.camera_spectra(cells, tr, at)], tr
 
 
 def compact(full: np.ndarray, fset: batch.FrequencySet, n: int) -> np.ndarray:

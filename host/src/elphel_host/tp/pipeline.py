@@ -30,8 +30,7 @@ from elphel_host.tp.clt.batch import (
     camera_spectra,
     camera_transform,
     expand,
-    mosaic_cells,
-    padded_mosaic,
+    image_cells,
 )
 from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
 from elphel_host.tp.correlation import (
@@ -139,18 +138,14 @@ def colour_masks(bayer: str | None, config: TpConfig) -> NDArray[np.float32]:
 def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad:
     """Prepare an image set for passes whose tiles move at most ``reach_px`` pixels."""
     pad = 2 * math.ceil((reach_px + 16) / 2)  # even: keeps the Bayer parity
-    w = quad.images.shape[2] + 2 * pad
     transform = camera_transform(
         quad.bayer,
         colour_masks(quad.bayer, config),
         green_band=config.green_band,
         pad=pad,
-        row_stride=w,
     )
     cells = parallel_map(
-        lambda img: mosaic_cells(padded_mosaic(img, pad, bayer=quad.bayer is not None), transform),
-        list(quad.images),
-        threads=config.threads,
+        lambda img: image_cells(img, transform), list(quad.images), threads=config.threads
     )
     ty, tx = quad.tiles
     lags = np.arange(-config.radius, config.radius + 1, dtype=np.float64)

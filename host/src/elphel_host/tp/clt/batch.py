@@ -9,7 +9,7 @@ definition):
   4x4 lowest, below their lattice's alias band; green: ``kh + kv <= green_band``; mono:
   all 64). The box of red/blue frequencies comes first in the frequency list, so red and
   blue are a prefix of green.
-* The mosaic is regrouped once per image by Bayer cell (:func:`mosaic_cells`: per cell
+* The mosaic is regrouped once per image by Bayer cell (:func:`image_cells`: per cell
   its four pixels side by side, in colour order), so a batch of tiles is gathered by one
   strided indexing operation. The gathered footprint is cell-aligned: 9x9 cells per tile
   (a tile starting on an odd pixel starts one pixel into its first cell), so every tile
@@ -79,7 +79,6 @@ class CameraTransform:
     blocks: tuple[tuple[slice, F32], ...]  # per colour: planes, matrix (n, 2*2*F_c)
     windows: F32  # (parities * 4, planes * span^2): fixed windows per start parity
     angles: F32  # (2, 2F): rotation angle per (shift_x, shift_y) for (which, f)
-    row_stride: int
     pad: int
 
 
@@ -110,7 +109,6 @@ def camera_transform(
     *,
     green_band: int,
     pad: int,
-    row_stride: int,
 ) -> CameraTransform:
     """Prepare the transform matrices of a sensor.
 
@@ -124,8 +122,6 @@ def camera_transform(
         Green (and mono: ignored) frequency band, ``kh + kv <= green_band``.
     pad
         Even padding of the mosaic, pixels.
-    row_stride
-        Width of the padded mosaic.
     """
     if pad % 2:
         raise ValueError(f"pad={pad}; allowed: even (keeps the Bayer parity)")
@@ -171,47 +167,33 @@ def camera_transform(
         blocks=tuple(blocks),
         windows=_window_tables(cell, span, plane_rows, plane_cols).astype(np.float32),
         angles=angles.astype(np.float32),
-        row_stride=row_stride,
         pad=pad,
     )
 
 
-def padded_mosaic(image: NDArray[np.floating], pad: int, *, bayer: bool) -> F32:
-    """The image padded by ``pad`` pixels and flattened row-major.
+def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
+    """One camera's image, padded by ``tr.pad`` pixels, by cell: ``(rows/c, cols/c, planes)``.
 
-    Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1).
-    """
-    img = np.asarray(image, dtype=np.float32)
-    if bayer:
-        if pad % 2:
-            raise ValueError(f"pad={pad}; allowed: even for a Bayer mosaic")
-        # same-parity clamp = the first (last) two rows/columns repeated
-        rows = np.concatenate(
-            [np.tile(img[:2], (pad // 2, 1)), img, np.tile(img[-2:], (pad // 2, 1))]
-        )
-        full = np.concatenate(
-            [np.tile(rows[:, :2], (1, pad // 2)), rows, np.tile(rows[:, -2:], (1, pad // 2))],
-            axis=1,
-        )
-    else:
-        full = np.pad(img, pad, mode="edge")
-    out: F32 = np.ascontiguousarray(full).ravel()
-    return out
-
-
-def mosaic_cells(flat: F32, tr: CameraTransform) -> F32:
-    """A :func:`padded_mosaic` regrouped by cell: ``(rows/c, cols/c, planes)``.
-
-    Plane p of cell (i, j) is the pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
+    Plane p of cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
     (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
     are a few contiguous runs and a batch of tiles is gathered by one indexing operation.
+    Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
+    in cells, that is the border cell repeated.
     """
-    c = tr.cell
-    img = np.asarray(flat, dtype=np.float32).reshape(-1, tr.row_stride)
-    if img.shape[0] % c or img.shape[1] % c:
-        raise ValueError(f"padded mosaic {img.shape}; allowed: multiples of {c}")
-    planes = [img[r::c, q::c] for r, q in zip(tr.plane_rows, tr.plane_cols, strict=True)]
-    out: F32 = np.ascontiguousarray(np.stack(planes, axis=-1))
+    img = np.asarray(image, dtype=np.float32)
+    c, pc = tr.cell, tr.pad // tr.cell
+    h, w = img.shape[0] // c, img.shape[1] // c
+    if img.ndim != 2 or img.shape[0] % c or img.shape[1] % c:
+        raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
+    grid = img.reshape(h, c, w, c)
+    out = np.empty((h + 2 * pc, w + 2 * pc, tr.plane_rows.size), dtype=np.float32)
+    inner = out[pc : pc + h, pc : pc + w]
+    for p, (r, q) in enumerate(zip(tr.plane_rows, tr.plane_cols, strict=True)):
+        inner[:, :, p] = grid[:, r, :, q]
+    out[:pc] = out[pc]
+    out[pc + h :] = out[pc + h - 1]
+    out[:, :pc] = out[:, pc : pc + 1]
+    out[:, pc + w :] = out[:, pc + w - 1 : pc + w]
     return out
 
 
@@ -242,7 +224,7 @@ def _window_tables(
 
 
 def camera_spectra(
-    mosaic: F32,
+    cells: F32,
     tr: CameraTransform,
     at: TilePlacement,
     *,
@@ -258,15 +240,13 @@ def camera_spectra(
 
     Parameters
     ----------
-    mosaic
-        :func:`mosaic_cells` of the camera (prepare it once per image), or the
-        :func:`padded_mosaic` itself (regrouped on every call).
+    cells
+        :func:`image_cells` of the camera (prepare it once per image).
     tr
         :func:`camera_transform` of the sensor.
     at
         Where the camera's tiles lie on the sensor.
     """
-    cells = mosaic_cells(mosaic, tr) if mosaic.ndim == 1 else mosaic
     c, span = tr.cell, tr.span
     left_x, shift_x, top_y, shift_y = at.left_x, at.shift_x, at.top_y, at.shift_y
     t = left_x.shape[0]
