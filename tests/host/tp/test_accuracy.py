@@ -131,3 +131,31 @@ def test_no_refinement_reports_the_first_pass() -> None:
     inner = (slice(2, -2), slice(2, -2))
     assert abs(np.median(dsi["disparity"][inner]) - 0.8) < 0.1
     assert np.isfinite(dsi["disparity_hor"]).all()
+
+
+def test_a_coarse_first_pass_measures_the_same_tiles_and_keeps_the_accuracy(
+    rendered: tuple[Path, simquad.TileTruth],
+) -> None:
+    q = fourier_quad(96, 1.3, bayer="GRBG", noise=0.01)
+    config = processor.TpConfig(threads=1)
+    every = processor.measure(q, np.zeros(q.tiles), config=config, full=False)
+    coarse = processor.measure(q, np.zeros(q.tiles), config=config, full=False, step=2)
+    assert coarse["residual"].shape == ((q.tiles[0] + 1) // 2, (q.tiles[1] + 1) // 2)
+    for k in ("residual", "strength", "levelled"):
+        assert np.allclose(coarse[k], every[k][::2, ::2], atol=1e-5), k
+    with pytest.raises(ValueError, match="first_pass_step=0"):
+        processor.TpConfig(first_pass_step=0)
+    # the DSI of the rendered quad: within noise of a first pass over every tile
+    root, truth = rendered
+    quad = io.read_quad_dir(root).quad
+    err = {
+        step: processor.disparity_map(quad, config=processor.TpConfig(first_pass_step=step))[
+            "disparity"
+        ]
+        - truth.disparity
+        for step in (1, 2)
+    }
+    for name in ("fronto_0.37", "fronto_5.2", "slanted"):
+        m = (truth.label == truth.names.index(name)) & truth.interior
+        rms = {step: np.sqrt(np.mean(e[m] ** 2)) for step, e in err.items()}
+        assert rms[2] <= rms[1] + 0.005, (name, rms)

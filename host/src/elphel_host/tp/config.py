@@ -30,6 +30,11 @@ class TpConfig:
         Correlation reach in pixels of residual disparity per pass.
     refine_passes
         Passes after the first, each re-centred on the disparity measured so far.
+    first_pass_step
+        The first pass measures every n-th tile along each axis (1 = every tile); the
+        tiles between take their first-pass correlation from the nearest measured one.
+        Only the refinement's targets come from it, and the refinement measures every
+        tile (with no refinement pass, the first pass measures every tile).
     scan
         Target disparities of the first pass; with several, each tile keeps the one whose
         correlation is strongest (for objects nearer than ``radius`` allows from 0).
@@ -55,6 +60,7 @@ class TpConfig:
     blue_weight: float = 0.2
     radius: int = 7
     refine_passes: int = 1
+    first_pass_step: int = 2
     scan: tuple[float, ...] = (0.0,)
     disparity_scale: float = 0.85
     min_disparity: float = -1.0
@@ -70,6 +76,7 @@ class TpConfig:
             ("green_band", 0 <= self.green_band <= 14, "0..14"),
             ("radius", 1 <= self.radius <= 7, "1..7"),
             ("refine_passes", self.refine_passes >= 0, ">= 0"),
+            ("first_pass_step", 1 <= self.first_pass_step <= 4, "1..4"),
             ("disparity_scale", self.disparity_scale > 0, "> 0"),
             ("chunk_tiles", self.chunk_tiles >= 1, ">= 1"),
             ("threads", self.threads >= 1, ">= 1"),

@@ -279,6 +279,7 @@ def measure(
     config: TpConfig = DEFAULT_CONFIG,
     prep: PreparedQuad | None = None,
     full: bool = True,
+    step: int = 1,
 ) -> dict[str, F32]:
     """One pass: residual disparities and strengths of all tiles at a target disparity.
 
@@ -295,6 +296,9 @@ def measure(
     full
         False: only the combined result (the per-direction layers are NaN), as a
         first pass that only sets the next target needs.
+    step
+        Measure only the tiles ``(step * i, step * j)``; the arrays are then those of
+        that coarser grid, ``(ceil(tiles_y / step), ceil(tiles_x / step))``.
 
     Returns
     -------
@@ -307,20 +311,24 @@ def measure(
     """
     ty, tx = quad.tiles
     tgt = _checked_target(quad, target)
+    if step < 1:
+        raise ValueError(f"step={step}; allowed: >= 1")
     if prep is None:
         prep = prepare(quad, config, float(np.abs(tgt).max()) + config.radius)
+    rows, cols = np.arange(0, ty, step), np.arange(0, tx, step)
+    tiles = (rows[:, None] * tx + cols[None, :]).ravel()
     flat = tgt.ravel()
-    n = flat.size
+    n = tiles.size
     nl = prep.profiles.lags.size
     result = {k: np.empty((n, nl) if k == "levelled" else n, dtype=np.float32) for k in MEASURED}
 
     def run(idx: NDArray[np.intp]) -> None:
-        part = _measure_chunk(prep, idx, flat[idx], full)
+        part = _measure_chunk(prep, tiles[idx], flat[tiles[idx]], full)
         for k in MEASURED:
             result[k][idx[0] : idx[-1] + 1] = part.get(k, np.float32(np.nan))
 
     _in_chunks(run, n, prep.config)
-    return {k: v.reshape(ty, tx, *v.shape[1:]) for k, v in result.items()}
+    return {k: v.reshape(rows.size, cols.size, *v.shape[1:]) for k, v in result.items()}
 
 
 def correlation_tiles(

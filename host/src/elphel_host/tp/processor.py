@@ -66,10 +66,14 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
     scanned = np.zeros((ty, tx))
     score = np.full((ty, tx), -np.inf)
     first: dict[str, F32] | None = None
+    # with a refinement to follow, the first pass needs only a coarse grid of tiles
+    step = config.first_pass_step if config.refine_passes else 1
     for s in config.scan:
         tgt = np.full((ty, tx), float(s))
-        m = measure(quad, tgt, config=config, prep=prep, full=config.refine_passes == 0)
+        m = measure(quad, tgt, config=config, prep=prep, full=config.refine_passes == 0, step=step)
         first = m
+        if step > 1:
+            m = {k: _nearest_measured(m[k], step, (ty, tx)) for k in ("levelled", "residual")}
         residual, peak = _neighbourhood_peak(m, prep.profiles.lags)
         estimate = tgt + residual / config.disparity_scale
         better = peak > score
@@ -130,6 +134,12 @@ def _neighbourhood_peak(
     residual = lags[i] + np.clip(frac, -0.5, 0.5)
     agree = np.abs(measured["residual"] - residual) <= 1.0
     return np.where(agree, measured["residual"], residual), peak
+
+
+def _nearest_measured(a: F32, step: int, shape: tuple[int, int]) -> F32:
+    """Values of the tiles ``(step * i, step * j)`` spread to the whole grid ``shape``."""
+    out: F32 = np.repeat(np.repeat(a, step, axis=0), step, axis=1)[: shape[0], : shape[1]]
+    return out
 
 
 def _box3(a: NDArray[np.floating]) -> NDArray[np.float64]:
