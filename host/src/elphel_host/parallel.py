@@ -10,12 +10,6 @@ cluster of worker processes, local or remote.
 NumPy does not expose a thread setting, so the OpenBLAS library NumPy loaded is found in
 the process's memory map and its ``*_set_num_threads`` entry point is called through
 ctypes. Without such a library (other BLAS, other OS) that is a no-op.
-
-Chunked array work allocates and frees the same few megabytes of temporaries over and
-over. glibc hands freed memory at the top of a heap back to the kernel once more than
-its trim threshold is free, so the next chunk's temporaries come back as fresh pages, each
-faulted in and zeroed; `keep_freed_memory` raises the thresholds once per process so that
-freed temporaries are reused instead (the tile processor: 5-9 % less time per DSI).
 """
 
 from __future__ import annotations
@@ -94,30 +88,6 @@ def single_threaded_blas() -> Iterator[None]:
             _depth -= 1
             if _depth == 0:
                 setter(ctypes.c_int(_saved[0]))
-
-
-#: glibc's mallopt parameters, and the values `keep_freed_memory` sets.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
-_KEEP_BYTES = {_M_MMAP_THRESHOLD: 64 * 2**20, _M_TRIM_THRESHOLD: 128 * 2**20}
-_kept = [False]
-
-
-def keep_freed_memory() -> bool:
-    """Keep up to 128 MiB of freed memory per heap for reuse (glibc only; once per process).
-
-    Allocations below 64 MiB come from the heap rather than from their own mappings, and
-    a heap is trimmed only when more than 128 MiB at its top are free. Returns whether the
-    setting is in effect (False without glibc).
-    """
-    with _lock:
-        if not _kept[0]:
-            try:
-                mallopt = ctypes.CDLL(None).mallopt
-            except (OSError, AttributeError):
-                return False
-            mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
-            _kept[0] = all(mallopt(k, v) == 1 for k, v in _KEEP_BYTES.items())
-        return _kept[0]
 
 
 @contextmanager

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.parallel import keep_freed_memory, parallel_map, single_threaded_blas
+from elphel_host.parallel import parallel_map, single_threaded_blas
 from elphel_host.tp.bayer import colour_weights
 from elphel_host.tp.clt.batch import (
     CameraTransform,
@@ -137,7 +137,6 @@ def colour_masks(bayer: str | None, config: TpConfig) -> NDArray[np.float32]:
 
 def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad:
     """Prepare an image set for passes whose tiles move at most ``reach_px`` pixels."""
-    keep_freed_memory()  # the passes' chunks reuse each other's temporaries
     pad = 2 * math.ceil((reach_px + 16) / 2)  # even: keeps the Bayer parity
     transform = camera_transform(
         quad.bayer,
