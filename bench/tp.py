@@ -235,9 +235,14 @@ def main() -> int:
     tp_s = min(times)
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
     prep = pipeline.prepare(quad, config, reach)
-    flops = pass_flops(prep, int(dsi["disparity"].size))
+    ty, tx = dsi["disparity"].shape
+    flops = pass_flops(prep, ty * tx)
     passes = len(config.scan) + config.refine_passes
-    total_flops = passes * sum(flops.values())
+    # the first pass measures only every first_pass_step-th tile along each axis
+    step = config.first_pass_step if config.refine_passes else 1
+    first_tiles = -(-ty // step) * -(-tx // step)
+    tiles_measured = len(config.scan) * first_tiles + config.refine_passes * ty * tx
+    total_flops = tiles_measured / (ty * tx) * sum(flops.values())
     peak_gflops = matmul_peak(prep, args.threads)
     del prep
 
@@ -301,6 +306,7 @@ def main() -> int:
                 k: round(v / max(sum(stages.values()), 1e-12), 3) for k, v in stages.items()
             },
             "passes": passes,
+            "tiles_measured_over_all_passes": tiles_measured,
             "matmul_gflop": round(total_flops / 1e9, 2),
             "matmul_gflop_per_pass": {k: round(v / 1e9, 2) for k, v in flops.items()},
             "achieved_gflops": round(total_flops / tp_s / 1e9, 1),
