@@ -182,9 +182,9 @@ def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
     """
     img = np.asarray(image, dtype=np.float32)
     c, pc = tr.cell, tr.pad // tr.cell
-    h, w = img.shape[0] // c, img.shape[1] // c
     if img.ndim != 2 or img.shape[0] % c or img.shape[1] % c:
         raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
+    h, w = img.shape[0] // c, img.shape[1] // c
     grid = img.reshape(h, c, w, c)
     out = np.empty((h + 2 * pc, w + 2 * pc, tr.plane_rows.size), dtype=np.float32)
     inner = out[pc : pc + h, pc : pc + w]
