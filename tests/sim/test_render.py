@@ -122,3 +122,18 @@ def test_exposure_and_gain_scale_signal_and_noise_has_a_seed():
 def test_window_outside_the_array_is_rejected(world):
     with pytest.raises(ValueError, match="exceeds"):
         render_radiance(world, INTRINSICS, Pose.at((0, 0, 0)), window=(2500, 0, 200, 10))
+
+
+@pytest.mark.parametrize("mean_e", [2.0, 10.0, 29.0, 30.0, 200.0])
+def test_shot_and_read_noise_has_the_sensors_mean_and_variance_at_low_and_high_counts(mean_e):
+    # Exact Poisson below POISSON_EXACT_BELOW_E electrons, one normal draw at and above it:
+    # either way the mean is the signal and the variance the signal plus read noise squared.
+    black = 100.0  # keeps negative read noise from being clipped at zero
+    model = SensorModel(
+        bits=16, electrons_per_us=0.01, dn_per_e=1.0, read_noise_e=3.0, black_level_dn=black
+    )
+    radiance = np.full((256, 256), mean_e / (1000 * model.electrons_per_us))
+    dn = expose(radiance, exposure_us=1000, model=model, rng=np.random.default_rng(5))
+    electrons = dn.astype(float) - black
+    assert electrons.mean() == pytest.approx(mean_e, abs=0.05)
+    assert electrons.var() == pytest.approx(mean_e + 9.0 + 1 / 12, rel=0.03)
