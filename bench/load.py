@@ -354,10 +354,14 @@ async def idle_figures(url: str, repeat: int) -> dict[str, Any]:
         # Untimed: the simulator renders a scene's first frame from scratch; later frames
         # reuse its radiance, as every capture under load does.
         await ok("POST", f"{API}/ports/0/capture")
+        fps = (await ok("GET", f"{API}/ports/0/params")).json()["FP1000S"] / 1000
         for _ in range(repeat):
             t0 = time.perf_counter()
             await ok("POST", f"{API}/ports/0/capture")
             full.append((time.perf_counter() - t0) * 1e3)
+            # The ring fetch asks for a frame RING_BACK frames back: wait until that is a
+            # frame the full capture did not form already, or it would time a cached image.
+            await asyncio.sleep((RING_BACK + 2) / fps)
             frame = (await ok("GET", f"{API}/ports/0/frame")).json()["frame"] - RING_BACK
             t0 = time.perf_counter()
             await ok("POST", f"{API}/ports/0/capture", params={"frame": frame})
@@ -366,7 +370,6 @@ async def idle_figures(url: str, repeat: int) -> dict[str, Any]:
             t0 = time.perf_counter()
             await ok("PATCH", f"{API}/ports/0/params", json_body={"GAINR": 0x10000 + i})
             patch.append((time.perf_counter() - t0) * 1e3)
-        fps = (await ok("GET", f"{API}/ports/0/params")).json()["FP1000S"] / 1000
     finally:
         conn.close()
     return {
