@@ -22,7 +22,7 @@ lint: $(STAMP)
 
 # pytest exits 5 when it collected no tests; make treats that as a failure, as it should.
 # Four pytest-xdist workers on two cores: most of the suite's wall time is tests waiting on
-# real time (daemons starting, frame clocks, stage moves), so four halve it (19 to 9.5 min).
+# real time (daemons starting, frame clocks, stage moves), and four workers halve it.
 test: $(STAMP) lint
 	$(BIN)/pytest -n 4
 

@@ -117,9 +117,8 @@ def expose(
 # Below this many electrons a pixel's shot noise is drawn from the Poisson law itself; at
 # and above it, shot plus read noise is one normal draw of the same mean and variance
 # (mean + read_noise**2). At 30 e- the Poisson law's skewness is 0.18 and falls as one
-# over the root of the count; one normal draw takes 0.08-0.16 s for a 2592x1944 frame
-# against 0.24 s for a Poisson and a normal draw, and a full frame's forming with the
-# radiance reused fell from 0.33 to 0.19-0.22 s.
+# over the root of the count, and one normal draw costs a fraction of a Poisson draw plus
+# a normal one: forming is the simulated board's hot path under `elphel-camd --board sim`.
 POISSON_EXACT_BELOW_E = 30.0
 
 
