@@ -251,13 +251,15 @@ def test_shutdown_ends_event_streams_within_a_second(service):
         ]
         for r in readers:
             r.start()
+        # Every stream is live (its status and at least one event arrived) before the stop;
+        # subscribed alone is not enough: under a loaded CI the first frame can come later.
         assert wait_until(lambda: service.events.subscribers == 3)
+        assert wait_until(lambda: all(len(out) > 1 for out in outs))
         took = srv.stop()
         assert took < 1.5 and not srv.thread.is_alive()
         for r in readers:
             r.join(2)
             assert not r.is_alive()
-        assert all(len(out) > 1 for out in outs)
 
 
 def test_half_open_and_slow_requests_are_dropped(service):
