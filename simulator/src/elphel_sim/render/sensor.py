@@ -81,10 +81,10 @@ class SensorModel:
 
 
 def expose(
-    radiance: FloatArray,
+    radiance: NDArray[np.floating],
     *,
     exposure_us: float,
-    gain: float | FloatArray = 1.0,
+    gain: float | NDArray[np.floating] = 1.0,
     model: SensorModel = SensorModel(),
     rng: np.random.Generator | None = None,
 ) -> NDArray[np.uint16]:
@@ -105,12 +105,19 @@ def expose(
     """
     if exposure_us < 0:
         raise ValueError(f"exposure_us={exposure_us}; allowed: >= 0")
-    electrons = np.clip(radiance * (exposure_us * model.electrons_per_us), 0.0, model.full_well_e)
+    # one new array in the radiance's float type, then in place (forming a frame is the
+    # simulated board's hot path: float32 radiance keeps the whole chain in float32)
+    electrons = np.multiply(radiance, exposure_us * model.electrons_per_us)
+    np.clip(electrons, 0.0, model.full_well_e, out=electrons)
     if rng is not None:
         electrons = _shot_and_read_noise(electrons, model.read_noise_e, rng)
-    dn = electrons * model.dn_per_e * gain + model.black_level_dn
-    top = (1 << model.bits) - 1
-    out: NDArray[np.uint16] = np.clip(np.rint(dn), 0, top).astype(np.uint16)
+    dn = electrons
+    dn *= model.dn_per_e
+    dn *= gain
+    dn += model.black_level_dn
+    np.rint(dn, out=dn)
+    np.clip(dn, 0, (1 << model.bits) - 1, out=dn)
+    out: NDArray[np.uint16] = dn.astype(np.uint16)
     return out
 
 
@@ -123,10 +130,15 @@ POISSON_EXACT_BELOW_E = 30.0
 
 
 def _shot_and_read_noise(
-    electrons: FloatArray, read_noise_e: float, rng: np.random.Generator
-) -> FloatArray:
-    sigma = np.sqrt(electrons + read_noise_e**2)
-    noisy: FloatArray = electrons + rng.standard_normal(electrons.shape, dtype=np.float32) * sigma
+    electrons: NDArray[np.floating], read_noise_e: float, rng: np.random.Generator
+) -> NDArray[np.floating]:
+    sigma = electrons + read_noise_e**2
+    np.sqrt(sigma, out=sigma)
+    noisy: NDArray[np.floating] = rng.standard_normal(electrons.shape, dtype=np.float32).astype(
+        electrons.dtype, copy=False
+    )
+    noisy *= sigma
+    noisy += electrons
     low = electrons < POISSON_EXACT_BELOW_E
     if low.any():
         dim = electrons[low]
@@ -180,12 +192,18 @@ def read_out(
         uint16, ``(strips * height, width)``: the strips one below the other.
     """
     strips, height, width = radiance.shape[:3]
-    channels = bayer_channels(readout.bayer, (height, width), row0=readout.top, col0=readout.left)
+    # the colour filter repeats every 2x2 pixels: each of the four phases is one strided
+    # copy of its colour (in float32: DN need 12 bits, float32 carries 24) and one gain
+    cell = bayer_channels(readout.bayer, (2, 2), row0=readout.top, col0=readout.left)
     red, green_r, green_b, blue = readout.gains
-    gain = np.array([red, green_r, blue])[channels]
-    rows_with_blue = (channels == 2).any(axis=1)
-    gain[(channels == 1) & rows_with_blue[:, None]] = green_b
-    raw = np.take_along_axis(radiance, channels[None, ..., None], axis=3)[..., 0]
+    raw = np.empty((strips, height, width), dtype=np.float32)
+    gain = np.empty((height, width), dtype=np.float32)
+    for dy in range(2):
+        green = green_b if 2 in cell[dy] else green_r  # green shares its rows with blue or red
+        for dx in range(2):
+            colour = int(cell[dy, dx])
+            raw[:, dy::2, dx::2] = radiance[:, dy::2, dx::2, colour]
+            gain[dy::2, dx::2] = (red, green, blue)[colour]
     image = expose(raw, exposure_us=readout.exposure_us, gain=gain[None], model=model, rng=rng)
     if readout.fliph:
         image = image[:, :, ::-1]
