@@ -1,7 +1,7 @@
 """Frames' images formed in a child process, as a camera's sensor and FPGA form them.
 
 The simulated board forms a frame's image when a capture asks for it: seconds of CPU for
-a full frame of a scene seen for the first time, about 0.4 s when its radiance is reused.
+a full frame of a scene seen for the first time, about 0.15 s when its radiance is reused.
 Formed in the daemon's process, that CPU and the interpreter lock are taken from the
 request handling, which on a camera never does this work. `FormingProcess` does it in
 one child process instead: a frame's record goes there, its pixels come back through
