@@ -113,14 +113,19 @@ def compact_pair_products(
     # pair-major, so each pair's products are one contiguous block (returned transposed)
     buf = np.empty((len(pairs), t, 2, fset.size), dtype=np.complex64)
     conj = {a: [np.conj(z) for z in spectra[a]] for a in sorted({a for a, _ in pairs})}
-    tmp = np.empty((t, 2, fset.n_box), dtype=np.complex64)
+    # red + blue summed first (contiguous), then added once to green's box, whose view
+    # is strided: each strided add costs per row of 16, not per value
+    tmp = np.empty((2, t, 2, fset.n_box), dtype=np.complex64)
     for p, (a, b) in enumerate(pairs):
         acc = buf[p]
         np.multiply(conj[a][ncol - 1], spectra[b][ncol - 1], out=acc)  # green/mono: all
-        box = acc[:, :, : fset.n_box]
-        for c in range(ncol - 1):
-            np.multiply(conj[a][c], spectra[b][c], out=tmp)
-            box += tmp
+        if ncol == 1:
+            continue
+        np.multiply(conj[a][0], spectra[b][0], out=tmp[0])
+        for c in range(1, ncol - 1):
+            np.multiply(conj[a][c], spectra[b][c], out=tmp[1])
+            tmp[0] += tmp[1]
+        acc[:, :, : fset.n_box] += tmp[0]
     out: C64 = buf.transpose(1, 0, 2, 3)
     return out
 
