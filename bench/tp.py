@@ -7,8 +7,10 @@ cv2.StereoSGBM over the four horizontal and vertical pairs and per-tile cv2.phas
 on the same 16x16 tiles. Also in the same run: where the tile processor's time goes (per
 stage, summed over its threads), the matrix-product arithmetic it does against a batched
 float32 matrix product of the same shapes on the same threads (the machine's peak for
-it), and a quad of twice the width and height (as super-resolved quads are). Prints
-exactly one JSON object; nothing is hard-coded.
+it), and a quad of twice the width and height (as super-resolved quads are). Timed runs
+take turns (TP, SGBM, TP, ...; large quad, small quad, ...), best of each, so that a drift
+in how fast the host runs the vCPUs does not favour one side. Prints exactly one JSON
+object; nothing is hard-coded.
 
     .venv/bin/python bench/tp.py [--width 2592 --height 1936 --seed 0 --threads 2]
                                  [--skip-large] [--skip-phase-correlate]
@@ -175,30 +177,26 @@ def matmul_peak(prep: pipeline.PreparedQuad, threads: int, seconds: float = 1.0)
     return best
 
 
+def traced_tp(
+    quad: processor.QuadImages, config: processor.TpConfig
+) -> tuple[dict[str, np.ndarray], int]:
+    """DSI and peak traced memory of one run under tracemalloc (slower: not timed)."""
+    tracemalloc.start()
+    try:
+        dsi = processor.disparity_map(quad, config=config)
+        return dsi, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
 def timed_tp(
-    quad: processor.QuadImages, config: processor.TpConfig, repeat: int
-) -> tuple[dict[str, np.ndarray], list[float], int, dict[str, float]]:
-    """DSI, run times, peak traced memory (first run) and stage times of the fastest run."""
-    times: list[float] = []
-    dsi: dict[str, np.ndarray] = {}
-    peak = 0
-    stages: dict[str, float] = {}
-    for i in range(repeat):
-        if i == 0:
-            tracemalloc.start()
-        with pipeline.stage_times() as st:
-            t = time.perf_counter()
-            dsi = processor.disparity_map(quad, config=config)
-            dt = time.perf_counter() - t
-        if i == 0:
-            _, peak = tracemalloc.get_traced_memory()
-            tracemalloc.stop()
-        elif len(times) < 2 or dt < min(times[1:]):
-            stages = dict(st)
-        times.append(dt)
-    if not stages:
-        stages = dict(st)
-    return dsi, times, peak, stages
+    quad: processor.QuadImages, config: processor.TpConfig
+) -> tuple[float, dict[str, float]]:
+    """Seconds of one DSI and its stage times (summed over threads)."""
+    with pipeline.stage_times() as st:
+        t = time.perf_counter()
+        processor.disparity_map(quad, config=config)
+        return time.perf_counter() - t, dict(st)
 
 
 def main() -> int:
@@ -229,9 +227,20 @@ def main() -> int:
     config = processor.TpConfig(threads=args.threads, refine_passes=1)
 
     load_before = os.getloadavg()[0]
-    # the first run is traced (tracemalloc), so one more run than asked for
-    dsi, times, peak, stages = timed_tp(quad, config, args.repeat + 1)
-    times = times[1:]
+    # the first run is traced (tracemalloc); then the TP and SGBM take turns, so that
+    # both see about the same machine (how fast the host runs the vCPUs drifts)
+    gray = gray_images(raw, rig.bayer)
+    dsi, peak = traced_tp(quad, config)
+    times: list[float] = []
+    sgbm_times: list[float] = []
+    stages: dict[str, float] = {}
+    for _ in range(args.repeat):
+        dt, st = timed_tp(quad, config)
+        if not times or dt < min(times):
+            stages = st
+        times.append(dt)
+        maps, t_sgbm = run_sgbm(gray, rig.positions)
+        sgbm_times += t_sgbm
     tp_s = min(times)
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
     prep = pipeline.prepare(quad, config, reach)
@@ -264,8 +273,6 @@ def main() -> int:
         "textureless_below": float(np.mean(s_flat < threshold)),
     }
 
-    gray = gray_images(raw, rig.bayer)
-    maps, sgbm_times = run_sgbm(gray, rig.positions, repeat=args.repeat)
     sgbm_s = min(sgbm_times)
     sg = sample_at_tiles(maps, truth.disparity, rig.positions)
     with warnings.catch_warnings():
@@ -338,20 +345,16 @@ def main() -> int:
         del big_raw
         # the first run is traced (peak memory); then the large and the small quad take
         # turns, best of three each, so that both times see about the same load
-        _, _, big_peak, _ = timed_tp(big_quad, config, 1)
+        _, big_peak = traced_tp(big_quad, config)
         big_times: list[float] = []
         again: list[float] = []
-        big_stages = {}
+        big_stages: dict[str, float] = {}
         for _ in range(3):
-            with pipeline.stage_times() as st:
-                t = time.perf_counter()
-                processor.disparity_map(big_quad, config=config)
-                big_times.append(time.perf_counter() - t)
-            if big_times[-1] == min(big_times):
-                big_stages = dict(st)
-            t = time.perf_counter()
-            processor.disparity_map(quad, config=config)
-            again.append(time.perf_counter() - t)
+            dt, st = timed_tp(big_quad, config)
+            if not big_times or dt < min(big_times):
+                big_stages = st
+            big_times.append(dt)
+            again.append(timed_tp(quad, config)[0])
         big_s, small_s = min(big_times), min(again)
         result["large_quad"] = {
             "width": 2 * args.width,
