@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import signal
 import threading
 import time
@@ -188,7 +189,9 @@ def test_ctrl_c_in_wait_stops_the_hardware_before_it_goes_on(tmp_path):
     gate = threading.Event()
     engine = Engine(gate=gate)
     status = BurstRunner(engine, POSITIONS, tmp_path, start_mm=0.0).start()
-    timer = threading.Timer(0.2, signal.raise_signal, args=(signal.SIGINT,))
+    # Ctrl-C in a shell sends SIGINT to the process (any thread that does not block it
+    # takes it), not to one thread as raise_signal from the timer's thread would
+    timer = threading.Timer(0.2, os.kill, args=(os.getpid(), signal.SIGINT))
     timer.start()
     try:
         with pytest.raises(KeyboardInterrupt):
