@@ -186,6 +186,10 @@ def test_partial_names_keep_the_suffix_when_asked(tmp_path):
 
 
 def test_ctrl_c_in_wait_stops_the_hardware_before_it_goes_on(tmp_path):
+    # Python's own SIGINT handler, installed again: a library an earlier test in this
+    # process used may have replaced it below Python (signal.getsignal does not show
+    # that), and then the Ctrl-C never reaches the wait
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     gate = threading.Event()
     engine = Engine(gate=gate)
     status = BurstRunner(engine, POSITIONS, tmp_path, start_mm=0.0).start()
@@ -200,5 +204,6 @@ def test_ctrl_c_in_wait_stops_the_hardware_before_it_goes_on(tmp_path):
     finally:
         gate.set()
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     result = status.wait(10)
     assert result.cancelled and engine.stopped == 1
