@@ -56,9 +56,10 @@ def gray_images(raw: np.ndarray, bayer: str | None) -> list[np.ndarray]:
 
 
 def run_sgbm(
-    gray: list[np.ndarray], positions: tuple[tuple[float, float], ...], *, repeat: int = 1
-) -> tuple[list[np.ndarray], list[float]]:
-    """Disparity maps (float px, NaN invalid) of the 4 ortho pairs, each in its first camera."""
+    gray: list[np.ndarray], positions: tuple[tuple[float, float], ...]
+) -> tuple[list[np.ndarray], float]:
+    """Disparity maps (float px, NaN invalid) of the 4 ortho pairs, each in its first
+    camera, and the seconds the four took."""
     sgbm = cv2.StereoSGBM_create(
         minDisparity=-2,
         numDisparities=16,
@@ -68,26 +69,24 @@ def run_sgbm(
         uniquenessRatio=5,
         mode=cv2.STEREO_SGBM_MODE_SGBM,
     )
-    times = []
-    for _ in range(repeat):
-        maps = []
-        t0 = time.perf_counter()
-        for a, b in ORTHO_PAIRS:
-            vertical = positions[a][0] == positions[b][0]
-            left, right = gray[a], gray[b]
-            if vertical:  # transpose so the baseline is horizontal, first camera on the left
-                left, right = cv2.transpose(left), cv2.transpose(right)
-            d = sgbm.compute(left, right)
-            if vertical:
-                d = cv2.transpose(d)
-            maps.append(d)
-        times.append(time.perf_counter() - t0)
+    maps = []
+    t0 = time.perf_counter()
+    for a, b in ORTHO_PAIRS:
+        vertical = positions[a][0] == positions[b][0]
+        left, right = gray[a], gray[b]
+        if vertical:  # transpose so the baseline is horizontal, first camera on the left
+            left, right = cv2.transpose(left), cv2.transpose(right)
+        d = sgbm.compute(left, right)
+        if vertical:
+            d = cv2.transpose(d)
+        maps.append(d)
+    seconds = time.perf_counter() - t0
     out = []
     for d in maps:
         f = d.astype(np.float32) / 16.0
         f[d <= (-2 - 1) * 16] = np.nan
         out.append(f)
-    return out, times
+    return out, seconds
 
 
 def sample_at_tiles(
@@ -206,7 +205,10 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument(
-        "--repeat", type=int, default=3, help="timing runs of TP and SGBM (best reported)"
+        "--repeat",
+        type=int,
+        default=3,
+        help="timing runs of each side, taking turns (best reported)",
     )
     ap.add_argument("--skip-phase-correlate", action="store_true")
     ap.add_argument(
@@ -240,7 +242,7 @@ def main() -> int:
             stages = st
         times.append(dt)
         maps, t_sgbm = run_sgbm(gray, rig.positions)
-        sgbm_times += t_sgbm
+        sgbm_times.append(t_sgbm)
     tp_s = min(times)
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
     prep = pipeline.prepare(quad, config, reach)
@@ -344,12 +346,12 @@ def main() -> int:
             big_quad = io.read_quad_dir(tmp).quad
         del big_raw
         # the first run is traced (peak memory); then the large and the small quad take
-        # turns, best of three each, so that both times see about the same load
+        # turns, best of --repeat each, so that both times see about the same load
         _, big_peak = traced_tp(big_quad, config)
         big_times: list[float] = []
         again: list[float] = []
         big_stages: dict[str, float] = {}
-        for _ in range(3):
+        for _ in range(args.repeat):
             dt, st = timed_tp(big_quad, config)
             if not big_times or dt < min(big_times):
                 big_stages = st
