@@ -22,8 +22,19 @@ IMAGE_TYPES = ("image/jp4", "image/jp46", "image/jpeg", "image/tiff")
 
 
 def back_path(frames_back: int) -> str:
-    """The path sending the frame ``frames_back`` frames before the newest, from the buffer."""
-    return "/last" + "/prev" * frames_back + "/bimg"
+    """The path sending the frame ``frames_back`` frames before the newest, from the buffer.
+
+    It also saves that place as the global read pointer (``save``), a fixed place in the
+    buffer that `read_pointer_path` steps from: the newest moves on with every frame, the
+    read pointer does not.
+    """
+    return "/last" + "/prev" * frames_back + "/save/bimg"
+
+
+def read_pointer_path(frames: int) -> str:
+    """The path sending the frame ``frames`` after (negative: before) the read pointer."""
+    step = "/next" if frames > 0 else "/prev"
+    return "/torp" + step * abs(frames) + "/save/bimg"
 
 
 def frame_number(text: str, *, url: str) -> int:

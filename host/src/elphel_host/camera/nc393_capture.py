@@ -105,8 +105,9 @@ class StockFrames(ABC):
         record (frame, time, exposure, gains, window, flips, Bayer order), ``port`` and
         ``sensor``, and the other parameters as in effect when the frame was fetched.
         ``frame`` may be one still to come (at most 14 ahead: waited for) or one still in
-        the buffer: reached from the newest with imgsrv's ``prev`` moves and checked by
-        its number (`UnsupportedError` once it is overwritten).
+        the buffer: reached from the newest with imgsrv's ``prev`` moves (then from the
+        read pointer that path saves) and checked by its number (`UnsupportedError` once
+        it is overwritten). This moves imgsrv's global read pointer (``save``).
         """
         check_port(port)
         if frame is None:
@@ -126,17 +127,19 @@ class StockFrames(ABC):
             if got.frame == frame:
                 return got
             newest = got.frame  # past it already (slow fetches): go back for it
-        back = newest - frame
-        for _ in range(3):  # the newest may move on meanwhile; imgsrv's counter may lead
-            got = self._fetch(port, imgsrv.back_path(back), params)
+        # Counted back from the newest, which may move on before imgsrv reads the path;
+        # the place reached is saved as the read pointer, so a second try counts from
+        # there, a place that stays put (another client's `save` may move it: a third try).
+        got = self._fetch(port, imgsrv.back_path(newest - frame), params)
+        for _ in range(2):
             if got.frame == frame:
                 return got
-            back += got.frame - frame
-            if back < 0:
-                break
+            got = self._fetch(port, imgsrv.read_pointer_path(frame - got.frame), params)
+        if got.frame == frame:
+            return got
         raise UnsupportedError(
-            f"port {port}: frame {frame} is no longer in imgsrv's buffer (going back from the "
-            f"newest reached frame {got.frame}); fetch frames sooner, or more slowly triggered"
+            f"port {port}: frame {frame} is no longer in imgsrv's buffer (the oldest reached "
+            f"was frame {got.frame}); fetch frames sooner, or more slowly triggered"
         )
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
