@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,7 +29,11 @@ if TYPE_CHECKING:
 
 CHROMIUM = os.environ.get("ELPHEL_CHROMIUM", "/usr/bin/chromium")
 FIREFOX = os.environ.get("ELPHEL_FIREFOX", "/usr/bin/firefox-esr")
-DOCS_IMG = Path(__file__).resolve().parents[2] / "docs" / "img"
+# Screenshots go to a scratch folder, so a test run leaves the checkout as it was;
+# ELPHEL_SCREENSHOTS=docs/img refreshes the pictures of docs/browser.md.
+SCREENSHOTS = Path(
+    os.environ.get("ELPHEL_SCREENSHOTS") or Path(tempfile.gettempdir()) / "elphel-screenshots"
+)
 
 
 def _browser_binary(name: str, wanted: str, package: str, variable: str) -> str:

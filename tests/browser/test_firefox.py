@@ -2,8 +2,8 @@
 
 The Firefox counterpart of test_page.py's core checks, driven over WebDriver BiDi
 (bidi.py): the page loads clean, the live view advances, the exposure control reaches the
-camera, and a screenshot (docs/img/page-firefox.png). Results are checked over REST, not
-in the page's own state.
+camera, and a screenshot (page-firefox.png, in conftest.SCREENSHOTS). Results are
+checked over REST, not in the page's own state.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from urllib.parse import urlsplit
 import pytest
 
 from tests.browser.bidi import Session, Tab
-from tests.browser.conftest import DOCS_IMG, outside_requests, rest
+from tests.browser.conftest import SCREENSHOTS, outside_requests, rest
 
 pytestmark = pytest.mark.slow
 
@@ -123,8 +123,8 @@ def test_a_screenshot_of_the_page_in_firefox(opened):
     tab = opened.tab
     tab.wait_for("document.getElementById('hist-text').textContent.startsWith('frame ')")
     time.sleep(1.5)  # a histogram and a few event lines
-    DOCS_IMG.mkdir(exist_ok=True)
-    png = tab.screenshot(DOCS_IMG / "page-firefox.png")
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    png = tab.screenshot(SCREENSHOTS / "page-firefox.png")
     assert png.startswith(b"\x89PNG\r\n\x1a\n")
     width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
     root = "document.documentElement"

@@ -2,7 +2,7 @@
 
 Each test drives the page the way a user does (slider, typing, dragging on the picture,
 the token field) and checks the result over REST, not in the page's own state. The
-screenshots in docs/browser.md are written here (docs/img/browser-*.png).
+screenshots in docs/browser.md are taken here (browser-*.png, in conftest.SCREENSHOTS).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.browser.conftest import DOCS_IMG, outside_requests, rest, rig_of, small_window
+from tests.browser.conftest import SCREENSHOTS, outside_requests, rest, rig_of, small_window
 
 pytestmark = pytest.mark.slow
 
@@ -257,9 +257,9 @@ def test_without_a_token_the_controls_need_it_and_with_it_they_work(browser, def
         assert rest(default_rig, "/ports/0/params")["GAINR"] == 0x20000
         assert page.evaluate("() => sessionStorage.length") == 1
         assert all(default_rig.token not in u for u in o.requests)
-        DOCS_IMG.mkdir(exist_ok=True)
+        SCREENSHOTS.mkdir(parents=True, exist_ok=True)
         page.wait_for_timeout(1500)
-        page.screenshot(path=str(DOCS_IMG / "browser-single.png"), full_page=True)
+        page.screenshot(path=str(SCREENSHOTS / "browser-single.png"), full_page=True)
     finally:
         o.close()
 
@@ -305,7 +305,7 @@ def test_the_quad_overview_shows_four_views_of_one_trigger(browser, quad_rig):
                 page.locator(f"#quad-grid img[data-port='{port}']").evaluate("e => e.naturalWidth")
                 == 320 // 8
             )
-        page.screenshot(path=str(DOCS_IMG / "browser-quad.png"), full_page=True)
+        page.screenshot(path=str(SCREENSHOTS / "browser-quad.png"), full_page=True)
     finally:
         o.close()
 
@@ -327,7 +327,7 @@ def test_the_lepton_view_is_false_colour_with_a_celsius_scale(browser):
             assert -20 < low < high < 60
             assert page.locator("[name=EXPOS]").count() == 0  # not a Lepton control
             page.wait_for_timeout(2000)
-            page.screenshot(path=str(DOCS_IMG / "browser-lepton.png"), full_page=True)
+            page.screenshot(path=str(SCREENSHOTS / "browser-lepton.png"), full_page=True)
         finally:
             o.close()
 
