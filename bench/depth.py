@@ -9,14 +9,17 @@ same geometry and strength threshold:
 - ``lr``: the tile processor on frame 0 (the low-resolution quad, Bayer);
 - ``bicubic``: on frame 0 up-sampled x2 (bicubic, per colour), as luminance;
 - ``lr_mean``: on each camera's burst averaged at low resolution after moving every
-  frame back by its parallax (``D(p) * v_k``; denoising without super-resolution);
-- ``mfsr``: `elphel depth` (MFSR x2 per camera, local parallax motion, TP on the fused quad);
+  frame back by its parallax (``D(p) * v_k``, the same per-pixel motion model as ``mfsr``;
+  denoising without super-resolution);
+- ``mfsr``: `elphel depth` (x2 per camera, per-pixel parallax motion, TP on the fused quad);
 - ``hr``: on a quad rendered directly at twice the resolution (the upper bound).
 
 Per method: cloud-to-cloud distances of its cloud to the truth (mean, median, p95, max),
 points above the threshold, and the disparity RMS at tile centres in low-resolution
-pixels (tiles above the threshold whose footprint lies on one surface). Prints one JSON
-object; nothing is hard-coded.
+pixels (tiles above the threshold whose footprint lies on one surface). ``seconds`` and
+``depth_peak_rss_mb`` are those of the `elphel depth` command run as a user runs it (its
+own process, reading the quad burst's TIFFs and writing every product), with its
+per-stage ``stage_seconds``. Prints one JSON object; nothing is hard-coded.
 
     .venv/bin/python bench/depth.py [--width 320 --height 240 --frames 16 --seed 0]
 """
@@ -28,9 +31,11 @@ import json
 import os
 import platform
 import resource
+import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -40,11 +45,13 @@ from elphel_host.burst.io import read_quad_burst
 from elphel_host.cloud.compare import compare_clouds
 from elphel_host.cloud.ply import PointCloud
 from elphel_host.depth.geometry import DepthOptics
-from elphel_host.depth.pipeline import DepthConfig, luminance, quad_burst_depth, tp_config
+from elphel_host.depth.pipeline import luminance, tp_config
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth
 from elphel_host.mfsr.fuse import fuse_frames
-from elphel_host.mfsr.local_motion import disparity_field
+from elphel_host.mfsr.local_motion import camera_view_disparity, disparity_field, pixel_disparity
+from elphel_host.tp.dsi import read_dsi
 from elphel_host.tp.images import QuadImages
+from elphel_host.tp.io import read_quad_dir
 from elphel_host.tp.processor import disparity_map
 from elphel_host.tp.texture import demosaic
 from elphel_sim import relief
@@ -110,13 +117,14 @@ def lr_mean_quad(qb: Any, field: np.ndarray, full: float) -> np.ndarray:
 
     optics = DepthOptics.from_optics(qb.manifest.optics, source="bench")
     h, w = qb.bursts[0].frames.shape[1:]
-    # the per-pixel disparity: tile field up-sampled to pixels (tile centres at 8t + 4)
-    dpx = cv2.resize(field, (w, h), interpolation=cv2.INTER_LINEAR)
+    # the per-pixel disparity in each camera's view, as `elphel depth` uses it
+    centre = pixel_disparity(field, (h, w))
     ys, xs = np.mgrid[0:h, 0:w].astype(F32)
     out = []
     for cam, burst in enumerate(qb.bursts):
         model = parallax_model(qb, cam, optics)
         assert model is not None
+        dpx = camera_view_disparity(centre, qb.manifest.geometry.positions[cam])
         acc = np.zeros((h, w), F32)
         for k, frame in enumerate(burst.frames):
             lum = bayer_luma(frame.astype(F32) / F32(full), qb.manifest.bayer)
@@ -129,6 +137,22 @@ def lr_mean_quad(qb: Any, field: np.ndarray, full: float) -> np.ndarray:
     return np.stack(out).astype(F32)
 
 
+def run_elphel_depth(root: Path, scale: int, args: Any) -> tuple[dict[str, Any], float, float]:
+    """`elphel depth` on root/qb into root/depth: its JSON, wall seconds and peak RSS (MB)."""
+    cmd = [
+        str(Path(sys.executable).with_name("elphel")), "depth", str(root / "qb"),
+        "--scale", str(scale), "--out", str(root / "depth"),
+        "--min-strength", str(args.min_strength), "--threads", str(args.threads), "--json",
+    ]  # fmt: skip
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"elphel depth failed ({proc.returncode}): {proc.stderr.strip()}")
+    result = json.loads(proc.stdout)
+    return result, seconds, result["peak_memory_mb"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--width", type=int, default=320)
@@ -138,7 +162,6 @@ def main() -> None:
     ap.add_argument("--scale", type=int, default=2)
     ap.add_argument("--min-strength", type=float, default=DEFAULT_MIN_STRENGTH)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--block", type=int, default=DepthConfig.block)
     args = ap.parse_args()
     S = args.scale
     load_before = os.getloadavg()[0]
@@ -146,14 +169,15 @@ def main() -> None:
     scene = relief.relief_scene(rig, seed=args.seed)
     positions = relief.burst_positions_mm(rig, scale=S)[: args.frames]
     times: dict[str, float] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        relief.simulate_quad_burst(
-            f"{tmp}/qb", scene, positions, axis_angle_deg=QUAD_RIG_AXIS_DEG, seed=args.seed
-        )
-        hr_raw = relief.render_quad_at(scene, seed=args.seed + 7, scale=S)
-        times["render_s"] = time.perf_counter() - t0
-        qb = read_quad_burst(f"{tmp}/qb")
+    tmp = tempfile.TemporaryDirectory()
+    root = Path(tmp.name)
+    t0 = time.perf_counter()
+    relief.simulate_quad_burst(
+        root / "qb", scene, positions, axis_angle_deg=QUAD_RIG_AXIS_DEG, seed=args.seed
+    )
+    hr_raw = relief.render_quad_at(scene, seed=args.seed + 7, scale=S)
+    times["render_s"] = time.perf_counter() - t0
+    qb = read_quad_burst(root / "qb")
     reference = relief.surface_cloud(scene, step_px=0.5)
     full = float(qb.manifest.full_scale_dn or 4095)
     optics = DepthOptics.from_optics(qb.manifest.optics, source="bench")
@@ -189,14 +213,14 @@ def main() -> None:
         **common,
     )  # fmt: skip
 
-    # (d) elphel depth: MFSR x2 with local motion
-    t0 = time.perf_counter()
-    run = quad_burst_depth(
-        qb, config=DepthConfig(scale=S, min_strength=args.min_strength, threads=args.threads,
-                               block=args.block),
+    # (d) `elphel depth` as a user runs it: its own process, reading the quad burst and
+    # writing every product; scored on the DSI and the fused quad it wrote
+    depth, depth_seconds, depth_rss_mb = run_elphel_depth(root, S, args)
+    fused = read_quad_dir(root / "depth" / "fused")
+    methods["mfsr"] = score(
+        "mfsr", read_dsi(root / "depth" / "dsi.tif")[0], fused.quad,
+        DepthOptics.from_optics(fused.manifest.optics, source="elphel depth"), S, **common,
     )  # fmt: skip
-    depth_seconds = time.perf_counter() - t0
-    methods["mfsr"] = score("mfsr", run.dsi, run.fused, run.optics, S, **common)
 
     # (e) rendered directly at x2
     hq = QuadImages(
@@ -233,9 +257,11 @@ def main() -> None:
         "targets": {"mean_lower_than_lr": 0.30, "mean_lower_than_bicubic": 0.15,
                     "mean_lower_than_lr_mean": 0.10, "points_ratio_to_lr": 3.5},
         "seconds": depth_seconds,
-        "stage_seconds": run.seconds,
+        "stage_seconds": depth["seconds"],
+        "depth_peak_rss_mb": depth_rss_mb,
+        "fusion": depth["cameras"]["cam0"],
         "render_seconds": times["render_s"],
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "bench_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "machine": {"cpus": os.cpu_count(), "load_before": load_before,
                     "load_after": os.getloadavg()[0], "python": platform.python_version()},
     }  # fmt: skip

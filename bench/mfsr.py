@@ -35,7 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from elphel_host.mfsr.fuse import fuse_frames
+from elphel_host.mfsr.fuse import fuse_frames, peak_memory_mb
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.registration import register_frames
 from elphel_host.mfsr.robust import reconstruct
@@ -295,7 +295,7 @@ def speed_child(path: str, method: str) -> None:
         est = res.info["shifts_refined"]
     else:
         est = [s if s is not None else [np.nan, np.nan] for s in res.info["shifts"]]
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    rss = peak_memory_mb()
     out = {
         "seconds": round(dt, 3),
         "cpu_seconds": round(cpu, 3),

@@ -15,7 +15,7 @@ from elphel_host.cli_common import add_json_option, emit
 from elphel_host.depth.pipeline import MOTIONS, DepthConfig, read_and_run, write_fused_quad
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, write_depth_products
 from elphel_host.fileio import write_atomic
-from elphel_host.mfsr.fuse import METHODS
+from elphel_host.mfsr.fuse import METHODS, peak_memory_mb
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.dsi import write_dsi
 
@@ -32,14 +32,19 @@ def register(subparsers: Any) -> None:
     p.add_argument("--scale", type=int, default=2, metavar="S", help="up-sampling (default 2)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     p.add_argument(
-        "--method", choices=METHODS, default="robust", help="fusion method (default robust)"
-    )
-    p.add_argument(
         "--motion",
         choices=MOTIONS,
         default="local",
-        help="local: each block moves by its disparity times the stage step (parallax); "
-        "global: one shift per frame (default local)",
+        help="local: each pixel moves by its disparity times the stage step (parallax), "
+        "fused by shift-and-add; global: one shift per frame, fused by --method "
+        "(default local)",
+    )
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default=None,
+        help="fusion method of --motion global (default robust); bicubic up-samples "
+        "the first frames with either motion",
     )
     p.add_argument(
         "--min-strength",
@@ -57,10 +62,15 @@ def run(args: argparse.Namespace) -> int:
     """Run the depth pipeline and write DIR/dsi.tif, cloud.ply (+ PNG), cloud_depth.tif (+ PNG)."""
     if args.threads < 1:
         args.parser.error(f"--threads {args.threads}; allowed: >= 1")
+    if args.motion == "local" and args.method not in (None, "bicubic"):
+        args.parser.error(
+            f"--method {args.method} fuses with one shift per frame: give --motion global "
+            "with it (local motion fuses by parallax shift-and-add)"
+        )
     try:
         config = DepthConfig(
             scale=args.scale,
-            method=args.method,
+            method=args.method or "robust",
             motion=args.motion,
             min_strength=args.min_strength,
             threads=args.threads,
@@ -87,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     result: dict[str, Any] = {
         "quad_burst": str(args.quad_burst),
         "scale": config.scale,
-        "method": config.method,
+        "method": config.fusion,
         "motion": config.motion,
         "dsi": str(dsi_path),
         "fused_quad": str(fused_dir),
@@ -96,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         "seconds": {"read": round(read_s - run_.seconds["total"], 3)}
         | {k: round(v, 3) for k, v in run_.seconds.items()},
         "cameras": run_.info,
+        "peak_memory_mb": round(peak_memory_mb(), 1),
     }
     write_atomic(out / "depth.json", (json.dumps(result, indent=2) + "\n").encode())
     human = (

@@ -4,10 +4,12 @@ Stages, each timed:
 
 1. ``prior``: the tile processor on frame 0 of the four cameras (the low-resolution quad,
    Bayer as captured): the disparity map that predicts each surface's parallax.
-2. ``fuse``: each camera's burst fused (MFSR) at ``scale``. With ``motion="local"`` a
-   frame's shift at a pixel is ``D(p) * v_k`` (:mod:`elphel_host.mfsr.local_motion`),
-   ``v_k`` from the caliper positions and the stage axis (else from the global
-   registration); with ``motion="global"`` one shift per frame, as `elphel mfsr` does.
+2. ``fuse``: each camera's burst fused at ``scale``. With ``motion="local"`` a frame's
+   shift at a pixel is ``D(p) * v_k`` (:mod:`elphel_host.mfsr.local_motion`), D the
+   prior moved into the camera's view and ``v_k`` from the caliper positions and the
+   stage axis (else from the global registration), and the samples are fused by
+   shift-and-add; with ``motion="global"`` one shift per frame and ``elphel mfsr``'s
+   ``method``.
 3. ``tp``: the tile processor on the fused quad (colour fused to luminance with the
    correlation's colour weights), disparities in fused pixels and, in the
    ``disparity_lr`` layer, in original pixels.
@@ -31,7 +33,13 @@ from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, DepthResult, dsi_depth
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import bayer_luma, fuse_frames, register_lumas
-from elphel_host.mfsr.local_motion import ParallaxModel, disparity_field, fuse_local
+from elphel_host.mfsr.local_motion import (
+    ParallaxModel,
+    camera_view_disparity,
+    disparity_field,
+    fuse_parallax,
+    pixel_disparity,
+)
 from elphel_host.mfsr.scale import check_scale
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.images import QuadImages
@@ -53,23 +61,28 @@ class DepthConfig:
     scale
         Up-sampling factor of the fusion (1..8).
     method
-        MFSR method (``robust``, ``baseline``, ``bicubic``).
+        Fusion method of ``motion="global"`` (``robust``, ``baseline``, ``bicubic``, as
+        `elphel mfsr`); ``bicubic`` up-samples the first frames with either motion.
     motion
-        ``local`` (per-block parallax from the disparity prior) or ``global``.
+        ``local`` (per-pixel parallax from the disparity prior, shift-and-add) or
+        ``global`` (one shift per frame).
     min_strength
         Strength threshold of the depth map and cloud (the same for every method).
-    block
-        Block side (original px) of the local motion model.
     threads
-        Worker threads of the tile processor and the block fusion.
+        Worker threads of the tile processor and the fusion.
     """
 
     scale: int = 2
     method: str = "robust"
     motion: str = "local"
     min_strength: float = DEFAULT_MIN_STRENGTH
-    block: int = 48
     threads: int = 2
+
+    @property
+    def fusion(self) -> str:
+        """What fuses the bursts: ``shift-and-add`` (local motion) or the method."""
+        local = self.motion == "local" and self.method != "bicubic"
+        return "shift-and-add" if local else self.method
 
     def __post_init__(self) -> None:
         check_scale(self.scale)
@@ -177,15 +190,17 @@ def quad_burst_depth(
     field_lr = disparity_field(
         prior["disparity"], prior["strength"], min_strength=config.min_strength
     )
+    centre = pixel_disparity(field_lr, lr.images.shape[1:])
+    positions = geometry.positions
     planes: list[F32] = []
     info: dict[str, Any] = {}
     for cam, burst in enumerate(qb.bursts):
         say(f"fuse: camera {cam} ({burst.frames.shape[0]} frames, x{config.scale})")
-        frames = [f.astype(np.float32) for f in burst.frames]
         model = parallax_model(qb, cam, optics) if config.motion == "local" else None
         if config.motion == "local" and config.method != "bicubic":
             cam_info: dict[str, Any]
             if model is None:
+                frames = [f.astype(np.float32) for f in burst.frames]
                 lumas = frames if bayer is None else [bayer_luma(f) for f in frames]
                 regs = register_lumas(lumas, mosaic=bayer is not None)
                 model = ParallaxModel.from_registration(
@@ -194,15 +209,16 @@ def quad_burst_depth(
                 cam_info = {"parallax_from": "registration"}
             else:
                 cam_info = {"parallax_from": "caliper"}
-            img, binfo = fuse_local(
-                frames, model, field_lr, scale=config.scale, bayer=bayer, method=config.method,
-                block=config.block, threads=config.threads,
+            view = camera_view_disparity(centre, positions[cam])
+            img, finfo = fuse_parallax(
+                list(burst.frames), model, view, scale=config.scale, bayer=bayer,
+                threads=config.threads,
             )  # fmt: skip
-            cam_info.update(binfo)
+            cam_info.update(finfo)
         else:
             res = fuse_frames(
-                frames, scale=config.scale, method=config.method, bayer=bayer,
-                prior=burst.stage_prior_px(),
+                [f.astype(np.float32) for f in burst.frames], scale=config.scale,
+                method=config.method, bayer=bayer, prior=burst.stage_prior_px(),
             )  # fmt: skip
             img, cam_info = res.image, {"used": len(res.registrations) - len(res.excluded)}
         info[f"cam{cam}"] = cam_info

@@ -1,4 +1,4 @@
-"""Local (per-block) motion for bursts of a 3-D scene taken from a moving carriage.
+"""Per-pixel motion for bursts of a 3-D scene taken from a moving carriage.
 
 When the carriage moves by ``s`` mm along an axis at angle theta to the sensor rows, a
 surface at disparity D (pixels between two cameras one baseline B apart) moves by
@@ -6,13 +6,18 @@ surface at disparity D (pixels between two cameras one baseline B apart) moves b
 global shift per frame cannot register the frames. Here the motion of frame k is
 ``shift_k(p) = D(p) * v_k``, with ``v_k`` the frame's shift per pixel of disparity (from
 the caliper positions and the axis angle, or from the global registration divided by the
-disparity of the registration window) and D(p) the quad's own disparity map.
+disparity of the registration window) and D(p) the quad's own disparity map, moved into
+each camera's view (:func:`camera_view_disparity`).
 
-`fuse_local` cuts the frame into blocks, gives each block the shifts of its median
-disparity and fuses it with the usual method (:func:`elphel_host.mfsr.fuse.fuse_registered`),
-then pastes the blocks' interiors together. A block that straddles a depth edge is
-registered for its majority depth, so the minority side is blurred there. A scene without
-depth (a single disparity) gives every block the same shifts: use the global fusion then.
+`fuse_parallax` fuses the frames by shift-and-add: every sample of every frame is put
+where the motion model says it was seen on the first frame's grid, up-sampled, and
+spread over the four nearest output pixels with bilinear weights; each output pixel is
+the weighted mean of the samples that reached it. Output pixels that no sample reached
+take the normalised-convolution estimate of a wider Gaussian. A Bayer mosaic's green
+gives the detail; red and blue are green plus their smooth difference from it. Each
+sample moves by its own disparity, so depth edges, slopes and long carriage travel need
+no blocks and no fallback; where a near and a far surface both fit a sample, the near
+one, which hides the far one, is taken.
 """
 
 from __future__ import annotations
@@ -26,9 +31,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.fuse import fuse_registered
 from elphel_host.mfsr.registration import FrameRegistration
-from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
@@ -101,163 +104,208 @@ def disparity_field(
     return out
 
 
-def block_disparity(field: F32, y0: int, y1: int, x0: int, x1: int) -> float:
-    """Median disparity of the tiles whose centres (8t + 4) lie in pixels [y0, y1) x [x0, x1)."""
-    ty = slice(max(0, (y0 - 4 + 7) // 8), max(1, (y1 - 4 + 7) // 8))
-    tx = slice(max(0, (x0 - 4 + 7) // 8), max(1, (x1 - 4 + 7) // 8))
-    part = field[ty, tx]
-    return float(np.median(part)) if part.size else float(np.median(field))
+def pixel_disparity(field: F32, shape: tuple[int, int]) -> F32:
+    """A tile map (tile centres at 8t + 4) interpolated to every pixel of ``shape`` (H, W)."""
+    h, w = shape
+    out: F32 = np.asarray(cv2.resize(field, (w, h), interpolation=cv2.INTER_LINEAR), np.float32)
+    return out
 
 
-def block_spread(field: F32, y0: int, y1: int, x0: int, x1: int) -> float:
-    """10th-90th percentile range of the tile disparities in a block (as `block_disparity`)."""
-    ty = slice(max(0, (y0 - 4 + 7) // 8), max(1, (y1 - 4 + 7) // 8))
-    tx = slice(max(0, (x0 - 4 + 7) // 8), max(1, (x1 - 4 + 7) // 8))
-    part = field[ty, tx]
-    if not part.size:
-        return 0.0
-    lo, hi = np.percentile(part, [10, 90])
-    return float(hi - lo)
+def camera_view_disparity(centre: F32, position: tuple[float, float], *, steps: int = 3) -> F32:
+    """The centre view's per-pixel disparity moved into the view of the camera at ``position``.
 
-
-def warped_mean(
-    frames: Sequence[F32], model: ParallaxModel, disparity_px: F32, *, bayer: str | None
-) -> F32:
-    """Frames moved back by ``D(p) v_k`` (cubic) and averaged: ``(H, W)`` or ``(H, W, 3)``.
-
-    Bayer frames are demosaiced per colour (bilinear) first. ``disparity_px`` is per pixel.
+    A point seen at p by the virtual centre camera is seen by camera i at
+    ``p - D * position_i``, so camera i's map is ``D_i(q) = D_c(q + D_i(q) * position_i)``,
+    solved by a few fixed-point steps (a shift of up to D/2 px: several pixels on near
+    surfaces, which is what puts a depth edge where this camera sees it).
     """
-    from elphel_host.mfsr.fuse import bayer_sites, demosaic_plane
-
-    h, w = frames[0].shape
+    h, w = centre.shape
+    px, py = np.float32(position[0]), np.float32(position[1])
+    if px == 0 and py == 0:
+        return centre
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    acc: F32 | None = None
-    for frame, (vy, vx) in zip(frames, model.per_disparity, strict=True):
-        if bayer is None:
-            img = frame[..., None]
-        else:
-            img = np.stack([demosaic_plane(frame, s) for s in bayer_sites(bayer).values()], -1)
-        mapx = (xs - disparity_px * np.float32(vx)).astype(np.float32)
-        mapy = (ys - disparity_px * np.float32(vy)).astype(np.float32)
-        moved = np.stack(
-            [cv2.remap(np.ascontiguousarray(img[..., c]), mapx, mapy, cv2.INTER_CUBIC,
-                       borderMode=cv2.BORDER_REFLECT) for c in range(img.shape[2])], -1
-        ).astype(np.float32)  # fmt: skip
-        acc = moved if acc is None else acc + moved
-    assert acc is not None
-    out: F32 = (acc / np.float32(len(frames))).astype(np.float32)
-    return out[..., 0] if bayer is None else out
+    d: NDArray[Any] = centre
+    for _ in range(steps):
+        d = cv2.remap(centre, xs + d * px, ys + d * py, cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    out: F32 = np.asarray(d, np.float32)
+    return out
 
 
-def fuse_local(
-    frames: Sequence[F32],
+def _channels(bayer: str | None, h: int, w: int) -> tuple[NDArray[np.int64], int]:
+    """Each pixel's output plane (R 0, G 1, B 2 of a Bayer mosaic; 0 for mono) and the count."""
+    if bayer is None:
+        return np.zeros((h, w), np.int64), 1
+    plane = {"R": 0, "G": 1, "B": 2}
+    ch = np.empty((h, w), np.int64)
+    for idx, c in enumerate(bayer):
+        ch[idx // 2 :: 2, idx % 2 :: 2] = plane[c]
+    return ch, 3
+
+
+def fuse_parallax(
+    frames: Sequence[NDArray[Any]],
     model: ParallaxModel,
-    field: F32,
+    disparity: F32,
     *,
     scale: int,
     bayer: str | None,
-    method: str = "robust",
-    block: int = 48,
-    margin: int = 16,
-    config: RobustConfig = DEFAULT_CONFIG,
     threads: int = 2,
-    max_misregistration_px: float = 0.15,
-    min_frames: int = 4,
+    band_rows: int = 128,
+    min_weight: float = 0.2,
+    fixed_point_steps: int = 3,
 ) -> tuple[F32, dict[str, Any]]:
-    """Fuse frames block by block, each block registered by its disparity.
+    """Shift-and-add fusion of a burst whose motion is ``disparity(p) * v_k`` per pixel.
 
     Parameters
     ----------
     frames
-        N float32 frames (H, W) of one camera (Bayer mosaics or mono).
+        N frames (H, W) of one camera (Bayer mosaics or mono), any real dtype.
     model
-        The frames' shift per px of disparity.
-    field
-        Disparity per tile of this camera's view (``(H/8, W/8)``, no NaN; see
-        :func:`disparity_field`).
-    scale, bayer, method, config
-        As for :func:`elphel_host.mfsr.fuse.fuse_frames`.
-    block, margin
-        Block side and the overlap fused around it (LR px; even for Bayer).
-    max_misregistration_px, min_frames
-        A block fuses only the frames whose shift, for the block's disparity spread
-        (10th-90th percentile), is wrong by at most ``max_misregistration_px`` at its
-        extremes; with fewer than ``min_frames`` such frames the block is the
-        parallax-compensated mean (:func:`warped_mean`) up-sampled bicubically instead.
+        The frames' shift per px of disparity (frame 0 is the reference: usually 0).
+    disparity
+        ``(H, W)`` disparity of this camera's view of frame 0, per pixel
+        (:func:`pixel_disparity`, :func:`camera_view_disparity`).
+    scale
+        Up-sampling factor. The output grid is the first frame's, with LR pixel i centred
+        at ``scale * i + (scale - 1) / 2`` (as ``cv2.resize`` aligns them).
+    bayer
+        The mosaic's pattern (``"GRBG"`` ...) or None for mono.
+    threads
+        Bands of output rows fused in parallel (each owns its rows: no locks).
+    band_rows, min_weight
+        Rows of a band (LR px); an output pixel whose bilinear weights sum to less than
+        ``min_weight`` is filled from wider Gaussian normalised convolutions.
+    fixed_point_steps
+        Steps of ``r = q + D(r) v_k`` that find where sample q of frame k was seen. They
+        start from the largest disparity along q's line of sight (``q + t v_k`` for t over
+        the map's range), so that where a near and a far surface both fit, the near one,
+        which hides the far one, is found.
 
     Returns
     -------
     image, info
-        ``(H*S, W*S)`` (or ``(H*S, W*S, 3)`` for Bayer) float32 and per-block details.
+        ``(H*S, W*S)`` float32 (``(H*S, W*S, 3)`` RGB for Bayer) and details: frames,
+        ``filled_fraction`` (output pixels of the mono or green plane filled from wider
+        kernels), the largest shift.
     """
-    if block % 2 or margin % 2 or block < 16 or margin < 0:
-        raise ValueError(f"block={block}, margin={margin}; allowed: even, block >= 16")
     if len(model.per_disparity) != len(frames):
         raise ValueError(
             f"{len(model.per_disparity)} parallax entries for {len(frames)} frames; "
             "allowed: one per frame"
         )
     h, w = frames[0].shape
-    starts = [(y, x) for y in range(0, h, block) for x in range(0, w, block)]
-    ncol = 1 if bayer is None else 3
-    out = np.zeros((h * scale, w * scale, ncol), dtype=np.float32)
-    # the largest shift, so every block's frames cover its interior
-    reach = int(np.ceil(max(abs(a) + abs(b) for a, b in model.per_disparity) * float(field.max())))
-    pad = margin + reach + (reach % 2)
+    if disparity.shape != (h, w):
+        raise ValueError(f"disparity map {disparity.shape}, frames {(h, w)}: allowed: the same")
+    s = int(scale)
+    hs, ws = h * s, w * s
+    chan, nc = _channels(bayer, h, w)
+    dmap = np.ascontiguousarray(disparity, dtype=np.float32)
+    d_min, d_max = float(dmap.min()), float(dmap.max())
+    reach_y = max(abs(vy) for vy, _ in model.per_disparity) * max(abs(d_min), abs(d_max))
+    margin = int(np.ceil(reach_y)) + 2
+    num = np.zeros((nc, hs, ws), np.float32)
+    den = np.zeros((nc, hs, ws), np.float32)
+    data = [np.asarray(f, dtype=np.float32) for f in frames]
+    bands = [(b, min(b + band_rows, h)) for b in range(0, h, band_rows)]
 
-    per_px: F32 = np.asarray(cv2.resize(field, (w, h), interpolation=cv2.INTER_LINEAR), np.float32)
-    reach_k = [float(np.hypot(a, b)) for a, b in model.per_disparity]
-    fallback: list[F32] = []  # the warped mean, computed once if a block needs it
+    def band(rows: tuple[int, int]) -> None:
+        b0, b1 = rows[0] * s, rows[1] * s  # the output rows this band owns
+        ya, yb = max(0, rows[0] - margin), min(h, rows[1] + margin)
+        ys, xs = np.mgrid[ya:yb, 0:w].astype(np.float32)
+        plane = (chan[ya:yb] * ((b1 - b0) * ws)).ravel()
+        size = nc * (b1 - b0) * ws
+        acc_num = np.zeros(size, np.float64)
+        acc_den = np.zeros(size, np.float64)
+        for frame, (vy, vx) in zip(data, model.per_disparity, strict=True):
+            vy32, vx32 = np.float32(vy), np.float32(vx)
+            # where sample q was seen on frame 0: r = q + D(r) v, the nearest such point
+            d: NDArray[Any] = _line_max(dmap, vy, vx, d_min, d_max)[ya:yb]
+            for _ in range(fixed_point_steps):
+                ry, rx = ys + d * vy32, xs + d * vx32
+                d = cv2.remap(dmap, rx, ry, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            uy = (ys + d * vy32) * np.float32(s) + np.float32((s - 1) / 2)
+            ux = (xs + d * vx32) * np.float32(s) + np.float32((s - 1) / 2)
+            y0, x0 = np.floor(uy), np.floor(ux)
+            fy, fx = (uy - y0).ravel(), (ux - x0).ravel()
+            iy, ix = y0.astype(np.int64).ravel() - b0, x0.astype(np.int64).ravel()
+            value = frame[ya:yb].ravel()
+            for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):
+                wy = fy if dy else 1 - fy
+                wx = fx if dx else 1 - fx
+                ty, tx = iy + dy, ix + dx
+                ok = (ty >= 0) & (ty < b1 - b0) & (tx >= 0) & (tx < ws)
+                idx = (plane + ty * ws + tx)[ok]
+                wgt = (wy * wx)[ok]
+                acc_den += np.bincount(idx, weights=wgt, minlength=size)
+                acc_num += np.bincount(idx, weights=wgt * value[ok], minlength=size)
+        num[:, b0:b1] = acc_num.reshape(nc, b1 - b0, ws)
+        den[:, b0:b1] = acc_den.reshape(nc, b1 - b0, ws)
 
-    def mean_up(ya: int, yb: int, xa: int, xb: int) -> F32:
-        if not fallback:
-            fallback.append(warped_mean(frames, model, per_px, bayer=bayer))
-        part = fallback[0][ya:yb, xa:xb]
-        up = cv2.resize(part, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
-        out_: F32 = np.asarray(up, np.float32).reshape(up.shape[0], up.shape[1], ncol)
-        return out_
-
-    def one(start: tuple[int, int]) -> tuple[tuple[int, int], F32, float, int]:
-        y, x = start
-        y1, x1 = min(y + block, h), min(x + block, w)
-        d = block_disparity(field, y, y1, x, x1)
-        spread = block_spread(field, y, y1, x, x1)
-        ya, xa = max(0, y - pad), max(0, x - pad)
-        yb, xb = min(h, y1 + pad), min(w, x1 + pad)
-        use = [k for k, r in enumerate(reach_k) if r * spread / 2 <= max_misregistration_px]
-        if len(use) < min_frames:
-            img = mean_up(ya, yb, xa, xb)
-        else:
-            crop = [np.ascontiguousarray(frames[k][ya:yb, xa:xb]) for k in use]
-            shifts = model.shifts(d)
-            regs = [FrameRegistration(i, shifts[k], 1.0, "parallax", True)
-                    for i, k in enumerate(use)]  # fmt: skip
-            img, _ = fuse_registered(crop, regs, scale=scale, method=method, bayer=bayer,
-                                     config=config)  # fmt: skip
-            img = img.reshape(img.shape[0], img.shape[1], ncol)
-        oy, ox = (y - ya) * scale, (x - xa) * scale
-        n_used = len(use) if len(use) >= min_frames else 0
-        return start, img[oy : oy + (y1 - y) * scale, ox : ox + (x1 - x) * scale], d, n_used
-
-    if any(
-        len([r for r in reach_k if r * block_spread(field, y, min(y + block, h), x,
-                                                     min(x + block, w)) / 2
-             <= max_misregistration_px]) < min_frames
-        for y, x in starts
-    ):  # fmt: skip
-        mean_up(0, 1, 0, 1)  # compute the shared fallback before the threads need it
-    results = parallel_map(one, starts, threads=threads)
-    disparities = []
-    used = []
-    for (y, x), img, d, n in results:
-        out[y * scale : y * scale + img.shape[0], x * scale : x * scale + img.shape[1]] = img
-        disparities.append(d)
-        used.append(n)
+    parallel_map(band, bands, threads=threads)
+    out = np.empty((hs, ws, nc), np.float32)
+    detail = nc // 2  # mono: the only plane; Bayer: green
+    out[..., detail], filled = _normalise(num[detail], den[detail], min_weight)
+    if nc == 3:
+        # Red and blue: green's detail plus their difference from green, smoothed over the
+        # mosaic's period (each has a quarter of the samples, which a short carriage travel
+        # leaves far apart on the output grid; their own detail there is mostly holes).
+        sigma = 2.0 * s
+        green = _smooth(num[1], den[1], sigma)
+        for c in (0, 2):
+            out[..., c] = out[..., 1] + (_smooth(num[c], den[c], sigma) - green)
     image: F32 = out[..., 0] if bayer is None else out
     return image, {
-        "blocks": len(starts),
-        "block_px": block,
-        "block_disparity_px": [float(np.min(disparities)), float(np.max(disparities))],
-        "block_frames": used,
-        "blocks_mean_fallback": int(sum(1 for n in used if n == 0)),
+        "fusion": "parallax shift-and-add",
+        "frames": len(frames),
+        "filled_fraction": round(filled / (hs * ws), 6),
+        "max_shift_px": round(
+            max(float(np.hypot(vy, vx)) for vy, vx in model.per_disparity) * d_max, 3
+        ),
     }
+
+
+def _line_max(dmap: F32, vy: float, vx: float, t0: float, t1: float) -> F32:
+    """The largest of ``dmap`` over ``q + t (vy, vx)``, t in [t0, t1], at every q (whole pixels)."""
+    steps = int(np.ceil((t1 - t0) * max(abs(vy), abs(vx)))) + 1
+    offsets = {(round(t * vy), round(t * vx)) for t in np.linspace(t0, t1, steps)}
+    if offsets == {(0, 0)}:
+        return dmap
+    oy0, ox0 = min(0, *(o[0] for o in offsets)), min(0, *(o[1] for o in offsets))
+    oy1, ox1 = max(0, *(o[0] for o in offsets)), max(0, *(o[1] for o in offsets))
+    kernel = np.zeros((oy1 - oy0 + 1, ox1 - ox0 + 1), np.uint8)
+    for oy, ox in offsets:
+        kernel[oy - oy0, ox - ox0] = 1
+    # cv2.dilate: dst(q) = max of src(q + o - anchor) over the kernel's set elements o
+    out = cv2.dilate(dmap, kernel, anchor=(-ox0, -oy0), borderType=cv2.BORDER_REPLICATE)
+    return np.asarray(out, np.float32)
+
+
+def _smooth(num: F32, den: F32, sigma: float) -> F32:
+    n = cv2.GaussianBlur(num, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    d = cv2.GaussianBlur(den, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    return np.asarray(n / np.maximum(d, np.float32(1e-6)), np.float32)
+
+
+def _normalise(num: F32, den: F32, min_weight: float) -> tuple[F32, int]:
+    """``num / den`` where ``den >= min_weight``; elsewhere wider normalised convolutions.
+
+    Gaussians of 0.5, 1, 2, ... output px, each filling what the narrower ones left, until
+    every pixel has a value. Returns the image and how many pixels were filled.
+    """
+    ok = den >= min_weight
+    out: F32 = np.where(ok, num / np.maximum(den, np.float32(1e-12)), 0).astype(np.float32)
+    holes = int(np.count_nonzero(~ok))
+    if holes == 0:
+        return out, 0
+    if not den.any():
+        raise ValueError("no sample reached the output grid")
+    sigma = 0.5
+    while not ok.all():
+        n = cv2.GaussianBlur(num, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        d = cv2.GaussianBlur(den, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        now = ~ok & (d >= min_weight * 1e-3)
+        out[now] = n[now] / d[now]
+        ok |= now
+        sigma *= 2
+    return out, holes
