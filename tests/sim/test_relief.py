@@ -135,3 +135,23 @@ def test_inspection_endpoint_serves_the_truth() -> None:
     d = client.get("/quad/depth/2")
     assert d.status_code == 200 and d.headers["content-type"] == "image/tiff"
     assert client.get("/quad/depth/4").status_code == 422
+
+
+def test_small_quad_rig_puts_the_relief_in_a_centred_window() -> None:
+    from elphel_camd.sensors import mt9p006
+
+    sc = build("quad-rig-small", seed=0)
+    assert sc.quad is not None and (sc.quad.rig.width, sc.quad.rig.height) == (640, 480)
+    w = sc.quad_window
+    assert w is not None and (w["WOI_WIDTH"], w["WOI_HEIGHT"]) == (640, 480)
+    # the window's centre is on the optical axis of every camera
+    for port in sc.ports:
+        assert port.intrinsics.cx - mt9p006.CLEAR_LEFT == w["WOI_LEFT"] + 320
+        assert port.intrinsics.cy - mt9p006.CLEAR_TOP == w["WOI_TOP"] + 240
+    assert w["WOI_LEFT"] % 2 == 0 and w["WOI_TOP"] % 2 == 0
+    # the same cameras and carriage as quad-rig; the relief's nearest step within the view
+    big = build("quad-rig", seed=0)
+    assert [p.intrinsics for p in sc.ports] == [p.intrinsics for p in big.ports]
+    assert sc.world.rig.axis == big.world.rig.axis and big.quad_window is None
+    _, label = relief.cast(sc.quad, np.array([0.25 * 640]), np.array([0.25 * 480]))
+    assert sc.quad.regions[label[0]].name.startswith("step_")

@@ -4,7 +4,9 @@ Starts a simulated rig with `elphel-sim up` and drives it only through what a us
 the `elphel` CLI and the REST API. Steps: detect the sensor and capture a frame; home and
 calibrate the stage and check it against the simulator's truth; capture a sub-pixel burst
 and fuse it; capture one trigger-synchronised set from the simulated quad camera
-(`elphel-sim up --scenario quad`) and compute its disparity map. Everything goes under
+(`elphel-sim up --scenario quad`) and compute its disparity map; read a recording of a
+simulated stock NC393; and last, put the quad on the stage carriage, capture a quad burst
+and turn it into super-resolved depth (`elphel_sim.demo_depth`). Everything goes under
 ``out/`` with a summary a person can read (``summary.json`` and the printed lines).
 The rig and the user's tools the steps go through are in `elphel_sim.demo_rig`.
 """
@@ -25,6 +27,8 @@ import numpy as np
 
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_map_picture, save_preview
+from elphel_sim.demo_depth import COMMANDS as DEPTH_COMMANDS
+from elphel_sim.demo_depth import depth_step
 from elphel_sim.demo_report import burst_crops, reference_image
 from elphel_sim.demo_rig import (
     DEMO_PROGRESS,
@@ -35,9 +39,9 @@ from elphel_sim.demo_rig import (
     step,
 )
 
-# The `elphel` commands the demo runs (stage 2, burst 5, quad 2, stock NC393 2): the
-# progress bar counts them.
-COMMANDS = 11
+# The `elphel` commands the demo runs (stage 2, burst 5, quad 2, stock NC393 2, and the
+# depth step's): the progress bar counts them.
+COMMANDS = 11 + DEPTH_COMMANDS
 
 # -- camera -----------------------------------------------------------------------------------
 
@@ -287,9 +291,12 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
     # Below MIN_DEPTH_DISPARITY_PX the depth is beyond a km and dominated by the error.
     optics = scene["optics"]
     near = np.where(shown > MIN_DEPTH_DISPARITY_PX, shown, np.nan)
-    depth_m = optics["focal_length_mm"] * optics["baseline_mm"] / (
-        near * optics["pixel_pitch_um"] / 1000.0
-    ) / 1000.0
+    depth_m = (
+        optics["focal_length_mm"]
+        * optics["baseline_mm"]
+        / (near * optics["pixel_pitch_um"] / 1000.0)
+        / 1000.0
+    )
     finite = depth_m[np.isfinite(depth_m)]
     far = float(np.percentile(finite, 99)) if finite.size else 1000.0
     save_map_picture(
@@ -334,6 +341,7 @@ def run(out: Path, *, seed: int) -> dict[str, Any]:
         summary["burst"] = burst_step(rig, out, summary["stage"], seed=seed)
     summary["quad"] = quad_step(out, seed=seed)
     summary["stock_nc393"] = stock_camera_step(out, seed=seed)
+    summary["depth"] = depth_step(out, seed=seed)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     step(f"wrote {out / 'summary.json'}")
     return summary

@@ -90,11 +90,13 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
         """The quad camera's geometry and the scene's regions with their disparities.
 
         ``cameras`` (port and position) and ``optics`` make it an `elphel tp capture
-        --geometry` file.
+        --geometry` file; ``window`` is the sensor window (``WOI_*``) whose pixels are
+        ``image_size`` (the default window when absent).
         """
         scene = quad_scene()
         rig = scene.rig
-        return {
+        window = {"window": board.quad_window} if board.quad_window else {}
+        return window | {
             "cameras": [
                 {"port": i, "position": list(position)} for i, position in enumerate(rig.positions)
             ],

@@ -33,6 +33,9 @@ class Scenario:
     world: World
     ports: list[PortSpec]
     quad: QuadScene | None = None
+    #: The sensor window (WOI_LEFT, WOI_TOP, WOI_WIDTH, WOI_HEIGHT) that shows the quad
+    #: scene's view, when it is not the whole default window.
+    quad_window: dict[str, int] | None = None
 
 
 # A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
@@ -192,8 +195,44 @@ def quad_rig(seed: int) -> Scenario:
     is at 3.5 px, textured up to 1 cycle/px. A stage step of s mm shifts a surface of
     disparity D by D * s / 150 px along the axis.
     """
-    rig = QUAD_RIG
-    scene = relief_scene(rig, seed=seed)
+    return _quad_on_carriage(QUAD_RIG, seed)
+
+
+#: The small relief view of `quad_rig_small`: the centre of the quad's view.
+SMALL_VIEW = (640, 480)
+
+
+def quad_rig_small(seed: int) -> Scenario:
+    """`quad_rig` with the whole relief scene in the centre 640x480 of the view.
+
+    The same cameras, optics and carriage; the relief scene is laid out for a 640x480
+    sensor on the same optical axis, so a centred 640x480 window (``GET {sim_url}/quad``
+    gives it as ``window``) sees all of it, and a burst of small frames is quick to take:
+    for trying `elphel burst capture --quad` and `elphel depth` (and for ``make demo``).
+    """
+    width, height = SMALL_VIEW
+    view = QuadRig(
+        width=width,
+        height=height,
+        focal_length_mm=QUAD_RIG.focal_length_mm,
+        pixel_pitch_um=QUAD_RIG.pixel_pitch_um,
+        baseline_mm=QUAD_RIG.baseline_mm,
+        bayer=QUAD_RIG.bayer,
+    )
+    scenario = _quad_on_carriage(QUAD_RIG, seed, view=view)
+    # The optical axis meets the default window at (width/2, height/2) of QUAD_RIG.
+    scenario.quad_window = {
+        "WOI_LEFT": (QUAD_RIG.width - width) // 2,
+        "WOI_TOP": (QUAD_RIG.height - height) // 2,
+        "WOI_WIDTH": width,
+        "WOI_HEIGHT": height,
+    }
+    return scenario
+
+
+def _quad_on_carriage(rig: QuadRig, seed: int, *, view: QuadRig | None = None) -> Scenario:
+    """Cameras of ``rig`` on the carriage; the relief scene laid out for ``view`` (or rig)."""
+    scene = relief_scene(view or rig, seed=seed)
     mounts = {
         f"cam{i}": CameraMount(
             f"cam{i}", offset_mm=(rig.baseline_mm * x, rig.baseline_mm * y, 0.0), on_stage=True
@@ -211,6 +250,7 @@ SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
 SCENARIOS["mixed"] = mixed
 SCENARIOS["quad"] = quad
 SCENARIOS["quad-rig"] = quad_rig
+SCENARIOS["quad-rig-small"] = quad_rig_small
 
 
 def build(name: str, *, seed: int) -> Scenario:
