@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from elphel_host.progress import ProgressLine
-from elphel_sim import demo, demo_rig
+from elphel_sim import demo, demo_depth, demo_rig
 from elphel_sim.demo_rig import DemoError, DemoProgress, elphel, step
 from tests.host.jp4.test_convert import record
 
@@ -87,11 +87,28 @@ def test_a_failed_command_is_a_demo_error_with_its_message(
     assert message.startswith(f"elphel mfsr {tmp_path}") and "elphel: " in message
 
 
+def commands_run(node: ast.AST, times: int = 1) -> int:
+    """`elphel(...)` calls under ``node``, a call in a loop over a literal counted per turn."""
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "elphel":
+        return times + sum(commands_run(c, times) for c in ast.iter_child_nodes(node))
+    if isinstance(node, ast.For):
+        it = node.iter
+        if isinstance(it, (ast.Tuple, ast.List)):
+            turns = len(it.elts)
+        elif isinstance(it, ast.Call) and getattr(it.func, "id", "") == "range":
+            (arg,) = it.args
+            assert isinstance(arg, ast.Constant), "a loop over range(N) with N a literal"
+            turns = arg.value
+        else:
+            inner = sum(commands_run(c) for c in node.body)
+            assert inner == 0, f"line {node.lineno}: elphel() in a loop of unknown length"
+            turns = 0
+        return sum(commands_run(c, times * turns) for c in node.body)
+    return sum(commands_run(c, times) for c in ast.iter_child_nodes(node))
+
+
 def test_the_bar_counts_every_command_of_the_demo() -> None:
-    tree = ast.parse(Path(demo.__file__).read_text())
-    calls = [
-        n
-        for n in ast.walk(tree)
-        if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == "elphel"
-    ]
-    assert len(calls) == demo.COMMANDS
+    own = commands_run(ast.parse(Path(demo.__file__).read_text()))
+    depth = commands_run(ast.parse(Path(demo_depth.__file__).read_text()))
+    assert depth == demo_depth.COMMANDS == 11
+    assert own + depth == demo.COMMANDS
