@@ -213,34 +213,45 @@ def fuse_parallax(
         b0, b1 = rows[0] * s, rows[1] * s  # the output rows this band owns
         ya, yb = max(0, rows[0] - margin), min(h, rows[1] + margin)
         ys, xs = np.mgrid[ya:yb, 0:w].astype(np.float32)
-        plane = (chan[ya:yb] * ((b1 - b0) * ws)).ravel()
-        size = nc * (b1 - b0) * ws
+        # Bins: the band's output rows and columns with a border of 2 on each side, where
+        # samples outside the band land (clipped) and are dropped: no masks, no copies.
+        bh, bw = b1 - b0 + 4, ws + 4
+        plane = (chan[ya:yb] * (bh * bw)).ravel()
+        size = nc * bh * bw
         acc_num = np.zeros(size, np.float64)
         acc_den = np.zeros(size, np.float64)
+        index = np.empty((4, plane.size), np.int64)
+        weight = np.empty((4, plane.size), np.float64)
         for frame, (vy, vx) in zip(data, model.per_disparity, strict=True):
             vy32, vx32 = np.float32(vy), np.float32(vx)
             # where sample q was seen on frame 0: r = q + D(r) v, the nearest such point
-            d: NDArray[Any] = _line_max(dmap, vy, vx, d_min, d_max)[ya:yb]
+            d: NDArray[Any] = _line_max(dmap, vy, vx, d_min, d_max, rows=(ya, yb))
             for _ in range(fixed_point_steps):
                 ry, rx = ys + d * vy32, xs + d * vx32
                 d = cv2.remap(dmap, rx, ry, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            uy = (ys + d * vy32) * np.float32(s) + np.float32((s - 1) / 2)
-            ux = (xs + d * vx32) * np.float32(s) + np.float32((s - 1) / 2)
+            uy = (ys + d * vy32) * np.float32(s) + np.float32((s - 1) / 2 + 2 - b0)
+            ux = (xs + d * vx32) * np.float32(s) + np.float32((s - 1) / 2 + 2)
             y0, x0 = np.floor(uy), np.floor(ux)
             fy, fx = (uy - y0).ravel(), (ux - x0).ravel()
-            iy, ix = y0.astype(np.int64).ravel() - b0, x0.astype(np.int64).ravel()
-            value = frame[ya:yb].ravel()
-            for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):
-                wy = fy if dy else 1 - fy
-                wx = fx if dx else 1 - fx
-                ty, tx = iy + dy, ix + dx
-                ok = (ty >= 0) & (ty < b1 - b0) & (tx >= 0) & (tx < ws)
-                idx = (plane + ty * ws + tx)[ok]
-                wgt = (wy * wx)[ok]
-                acc_den += np.bincount(idx, weights=wgt, minlength=size)
-                acc_num += np.bincount(idx, weights=wgt * value[ok], minlength=size)
-        num[:, b0:b1] = acc_num.reshape(nc, b1 - b0, ws)
-        den[:, b0:b1] = acc_den.reshape(nc, b1 - b0, ws)
+            base = np.clip(y0, 0, bh - 2).astype(np.int64).ravel() * bw
+            base += np.clip(x0, 0, bw - 2).astype(np.int64).ravel()
+            base += plane
+            index[0] = base
+            np.add(base, 1, out=index[1])
+            np.add(base, bw, out=index[2])
+            np.add(base, bw + 1, out=index[3])
+            gy, gx = 1 - fy, 1 - fx
+            np.multiply(gy, gx, out=weight[0])
+            np.multiply(gy, fx, out=weight[1])
+            np.multiply(fy, gx, out=weight[2])
+            np.multiply(fy, fx, out=weight[3])
+            # np.add.at adds every entry, repeated indices too (occlusions, compressions)
+            np.add.at(acc_den, index.ravel(), weight.ravel())
+            weight *= frame[ya:yb].ravel()
+            np.add.at(acc_num, index.ravel(), weight.ravel())
+        inner = np.s_[:, 2:-2, 2:-2]
+        num[:, b0:b1] = acc_num.reshape(nc, bh, bw)[inner]
+        den[:, b0:b1] = acc_den.reshape(nc, bh, bw)[inner]
 
     parallel_map(band, bands, threads=threads)
     out = np.empty((hs, ws, nc), np.float32)
@@ -265,20 +276,24 @@ def fuse_parallax(
     }
 
 
-def _line_max(dmap: F32, vy: float, vx: float, t0: float, t1: float) -> F32:
-    """The largest of ``dmap`` over ``q + t (vy, vx)``, t in [t0, t1], at every q (whole pixels)."""
+def _line_max(
+    dmap: F32, vy: float, vx: float, t0: float, t1: float, *, rows: tuple[int, int]
+) -> F32:
+    """Rows ``rows`` of: the largest of ``dmap`` over ``q + t (vy, vx)``, t in [t0, t1]."""
     steps = int(np.ceil((t1 - t0) * max(abs(vy), abs(vx)))) + 1
     offsets = {(round(t * vy), round(t * vx)) for t in np.linspace(t0, t1, steps)}
     if offsets == {(0, 0)}:
-        return dmap
+        return dmap[rows[0] : rows[1]]
     oy0, ox0 = min(0, *(o[0] for o in offsets)), min(0, *(o[1] for o in offsets))
     oy1, ox1 = max(0, *(o[0] for o in offsets)), max(0, *(o[1] for o in offsets))
     kernel = np.zeros((oy1 - oy0 + 1, ox1 - ox0 + 1), np.uint8)
     for oy, ox in offsets:
         kernel[oy - oy0, ox - ox0] = 1
+    # only the rows the kernel reaches from the wanted ones
+    ya, yb = max(0, rows[0] + oy0), min(dmap.shape[0], rows[1] + oy1)
     # cv2.dilate: dst(q) = max of src(q + o - anchor) over the kernel's set elements o
-    out = cv2.dilate(dmap, kernel, anchor=(-ox0, -oy0), borderType=cv2.BORDER_REPLICATE)
-    return np.asarray(out, np.float32)
+    out = cv2.dilate(dmap[ya:yb], kernel, anchor=(-ox0, -oy0), borderType=cv2.BORDER_REPLICATE)
+    return np.asarray(out[rows[0] - ya : rows[1] - ya], np.float32)
 
 
 def _smooth(num: F32, den: F32, sigma: float) -> F32:
