@@ -206,7 +206,7 @@ def fuse_parallax(
     margin = int(np.ceil(reach_y)) + 2
     num = np.zeros((nc, hs, ws), np.float32)
     den = np.zeros((nc, hs, ws), np.float32)
-    data = [np.asarray(f, dtype=np.float32) for f in frames]
+    data = [np.asarray(f) for f in frames]  # read as they are, band by band
     bands = [(b, min(b + band_rows, h)) for b in range(0, h, band_rows)]
 
     def band(rows: tuple[int, int]) -> None:
