@@ -36,12 +36,14 @@ def start_rig(*extra: str) -> tuple[subprocess.Popen[str], dict[str, Any]]:
 stop_rig = plugin.stop_rig
 
 
-def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+def run_cli(
+    *args: str, env: dict[str, str] | None = None, timeout: float = 120
+) -> subprocess.CompletedProcess[str]:
     """Run the `elphel` CLI in a fresh process, as a user's shell would."""
     return subprocess.run(
         [sys.executable, "-m", "elphel_host.cli", *args],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=timeout,
         env={**os.environ, **(env or {})},
     )

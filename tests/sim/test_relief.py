@@ -142,7 +142,7 @@ def test_small_quad_rig_puts_the_relief_in_a_centred_window() -> None:
 
     sc = build("quad-rig-small", seed=0)
     assert sc.quad is not None and (sc.quad.rig.width, sc.quad.rig.height) == (640, 480)
-    w = sc.quad_window
+    w = sc.quad.window
     assert w is not None and (w["WOI_WIDTH"], w["WOI_HEIGHT"]) == (640, 480)
     # the window's centre is on the optical axis of every camera
     for port in sc.ports:
@@ -152,6 +152,7 @@ def test_small_quad_rig_puts_the_relief_in_a_centred_window() -> None:
     # the same cameras and carriage as quad-rig; the relief's nearest step within the view
     big = build("quad-rig", seed=0)
     assert [p.intrinsics for p in sc.ports] == [p.intrinsics for p in big.ports]
-    assert sc.world.rig.axis == big.world.rig.axis and big.quad_window is None
+    assert sc.world.rig.axis == big.world.rig.axis
+    assert big.quad is not None and big.quad.window is None
     _, label = relief.cast(sc.quad, np.array([0.25 * 640]), np.array([0.25 * 480]))
     assert sc.quad.regions[label[0]].name.startswith("step_")

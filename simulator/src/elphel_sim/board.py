@@ -70,7 +70,6 @@ class SimCameraBoard:
         self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
         self.quad = scenario.quad
-        self.quad_window = scenario.quad_window
         self._buses: dict[int, SimI2CBus] = {}
         self.chips: dict[int, SimSensor] = {}
         self.fpga: dict[int, PortFPGA] = {}

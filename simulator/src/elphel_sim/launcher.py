@@ -95,7 +95,7 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
         """
         scene = quad_scene()
         rig = scene.rig
-        window = {"window": board.quad_window} if board.quad_window else {}
+        window = {"window": scene.window} if scene.window else {}
         return window | {
             "cameras": [
                 {"port": i, "position": list(position)} for i, position in enumerate(rig.positions)

@@ -120,6 +120,9 @@ class QuadScene:
 
     rig: QuadRig
     regions: list[Region] = field(default_factory=list)
+    #: The sensor window (WOI_LEFT, WOI_TOP, WOI_WIDTH, WOI_HEIGHT) whose pixels are the
+    #: rig's, when that is not the whole default window.
+    window: dict[str, int] | None = None
 
     @property
     def scene(self) -> Scene:

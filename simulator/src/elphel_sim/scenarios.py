@@ -33,9 +33,6 @@ class Scenario:
     world: World
     ports: list[PortSpec]
     quad: QuadScene | None = None
-    #: The sensor window (WOI_LEFT, WOI_TOP, WOI_WIDTH, WOI_HEIGHT) that shows the quad
-    #: scene's view, when it is not the whole default window.
-    quad_window: dict[str, int] | None = None
 
 
 # A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
@@ -220,8 +217,9 @@ def quad_rig_small(seed: int) -> Scenario:
         bayer=QUAD_RIG.bayer,
     )
     scenario = _quad_on_carriage(QUAD_RIG, seed, view=view)
+    assert scenario.quad is not None
     # The optical axis meets the default window at (width/2, height/2) of QUAD_RIG.
-    scenario.quad_window = {
+    scenario.quad.window = {
         "WOI_LEFT": (QUAD_RIG.width - width) // 2,
         "WOI_TOP": (QUAD_RIG.height - height) // 2,
         "WOI_WIDTH": width,
