@@ -98,3 +98,7 @@ def test_elphel_depth_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     with pytest.raises(SystemExit) as e:
         main(["depth", str(tmp_path), "--out", str(tmp_path / "o"), "--scale", "0"])
     assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        main(["depth", str(tmp_path), "--out", str(tmp_path / "o"), "--method", "baseline"])
+    assert e.value.code == 2
+    assert "give --motion global with it" in capsys.readouterr().err
