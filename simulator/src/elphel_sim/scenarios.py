@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import ModuleType
 
 from elphel_camd.sensors import mt9f002
@@ -208,29 +208,27 @@ def quad_rig_small(seed: int) -> Scenario:
     for trying `elphel burst capture --quad` and `elphel depth` (and for ``make demo``).
     """
     width, height = SMALL_VIEW
-    view = QuadRig(
-        width=width,
-        height=height,
-        focal_length_mm=QUAD_RIG.focal_length_mm,
-        pixel_pitch_um=QUAD_RIG.pixel_pitch_um,
-        baseline_mm=QUAD_RIG.baseline_mm,
-        bayer=QUAD_RIG.bayer,
-    )
-    scenario = _quad_on_carriage(QUAD_RIG, seed, view=view)
-    assert scenario.quad is not None
     # The optical axis meets the default window at (width/2, height/2) of QUAD_RIG.
-    scenario.quad.window = {
+    window = {
         "WOI_LEFT": (QUAD_RIG.width - width) // 2,
         "WOI_TOP": (QUAD_RIG.height - height) // 2,
         "WOI_WIDTH": width,
         "WOI_HEIGHT": height,
     }
-    return scenario
+    view = replace(QUAD_RIG, width=width, height=height)
+    return _quad_on_carriage(QUAD_RIG, seed, view=view, window=window)
 
 
-def _quad_on_carriage(rig: QuadRig, seed: int, *, view: QuadRig | None = None) -> Scenario:
+def _quad_on_carriage(
+    rig: QuadRig,
+    seed: int,
+    *,
+    view: QuadRig | None = None,
+    window: dict[str, int] | None = None,
+) -> Scenario:
     """Cameras of ``rig`` on the carriage; the relief scene laid out for ``view`` (or rig)."""
     scene = relief_scene(view or rig, seed=seed)
+    scene.window = window
     mounts = {
         f"cam{i}": CameraMount(
             f"cam{i}", offset_mm=(rig.baseline_mm * x, rig.baseline_mm * y, 0.0), on_stage=True
