@@ -9,13 +9,14 @@ first set, then `elphel cloud compare` of both against the simulator's true surf
 from __future__ import annotations
 
 import json
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
+
+from elphel_sim.demo_depth import first_set
 
 from .rig import run_cli, start_rig, stop_rig
 
@@ -79,13 +80,7 @@ def test_quad_burst_to_depth_closer_to_the_truth_than_one_quad(
     depth = cli("depth", str(qb), "--scale", "2", "--out", str(tmp_path / "depth"), env=env)
     assert depth["method"] == "shift-and-add" and depth["tiles"] == 160 * 120
     assert depth["cameras"]["cam0"]["parallax_from"] == "caliper"
-    first = tmp_path / "set0"
-    first.mkdir()
-    doc = json.loads((qb / "quad.json").read_text())
-    for i, cam in enumerate(doc["cameras"]):
-        shutil.copyfile(qb / cam["file"] / frames[0]["file"], first / f"cam{i}.tif")
-        cam["file"] = f"cam{i}.tif"
-    (first / "quad.json").write_text(json.dumps(doc))
+    first = first_set(qb, tmp_path / "set0")
     lr = cli("tp", str(first), "--out", str(tmp_path / "lr.tif"), "--ply",
              str(tmp_path / "lr.ply"), env=env)  # fmt: skip
     assert lr["depth"]["points"] > 0.9 * 80 * 60

@@ -48,6 +48,7 @@ from elphel_host.tp.processor import disparity_map
 
 F32 = NDArray[np.float32]
 MOTIONS = ("local", "global")
+SHIFT_AND_ADD = "shift-and-add"  # the fusion of local motion
 #: Luminance of a fused colour image: the correlation's colour weights (R, G, B).
 LUMA_WEIGHTS = (0.294, 0.588, 0.118)
 
@@ -82,7 +83,7 @@ class DepthConfig:
     def fusion(self) -> str:
         """What fuses the bursts: ``shift-and-add`` (local motion) or the method."""
         local = self.motion == "local" and self.method != "bicubic"
-        return "shift-and-add" if local else self.method
+        return SHIFT_AND_ADD if local else self.method
 
     def __post_init__(self) -> None:
         check_scale(self.scale)
@@ -201,9 +202,9 @@ def quad_burst_depth(
     info: dict[str, Any] = {}
     for cam, burst in enumerate(qb.bursts):
         say(f"fuse: camera {cam} ({burst.frames.shape[0]} frames, x{config.scale})")
-        model = parallax_model(qb, cam, optics) if config.motion == "local" else None
-        if config.motion == "local" and config.method != "bicubic":
+        if config.fusion == SHIFT_AND_ADD:
             cam_info: dict[str, Any]
+            model = parallax_model(qb, cam, optics)
             if model is None:
                 frames = [f.astype(np.float32) for f in burst.frames]
                 lumas = frames if bayer is None else [bayer_luma(f) for f in frames]

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_host.mfsr.fuse import bayer_sites
 from elphel_host.mfsr.registration import FrameRegistration
 from elphel_host.parallel import parallel_map
 
@@ -134,12 +135,12 @@ def camera_view_disparity(centre: F32, position: tuple[float, float], *, steps: 
 
 def _channels(bayer: str | None, h: int, w: int) -> tuple[NDArray[np.int64], int]:
     """Each pixel's output plane (R 0, G 1, B 2 of a Bayer mosaic; 0 for mono) and the count."""
+    ch = np.zeros((h, w), np.int64)
     if bayer is None:
-        return np.zeros((h, w), np.int64), 1
-    plane = {"R": 0, "G": 1, "B": 2}
-    ch = np.empty((h, w), np.int64)
-    for idx, c in enumerate(bayer):
-        ch[idx // 2 :: 2, idx % 2 :: 2] = plane[c]
+        return ch, 1
+    for plane, colour in enumerate("RGB"):
+        for y, x in bayer_sites(bayer)[colour]:
+            ch[y::2, x::2] = plane
     return ch, 3
 
 
@@ -296,9 +297,15 @@ def _line_max(
     return np.asarray(out[rows[0] - ya : rows[1] - ya], np.float32)
 
 
-def _smooth(num: F32, den: F32, sigma: float) -> F32:
+def _blurred(num: F32, den: F32, sigma: float) -> tuple[NDArray[Any], NDArray[Any]]:
+    """Both sums of a normalised convolution with a Gaussian of ``sigma`` output px."""
     n = cv2.GaussianBlur(num, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
     d = cv2.GaussianBlur(den, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    return n, d
+
+
+def _smooth(num: F32, den: F32, sigma: float) -> F32:
+    n, d = _blurred(num, den, sigma)
     return np.asarray(n / np.maximum(d, np.float32(1e-6)), np.float32)
 
 
@@ -317,8 +324,7 @@ def _normalise(num: F32, den: F32, min_weight: float) -> tuple[F32, int]:
         raise ValueError("no sample reached the output grid")
     sigma = 0.5
     while not ok.all():
-        n = cv2.GaussianBlur(num, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        d = cv2.GaussianBlur(den, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        n, d = _blurred(num, den, sigma)
         now = ~ok & (d >= min_weight * 1e-3)
         out[now] = n[now] / d[now]
         ok |= now
