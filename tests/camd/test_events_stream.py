@@ -210,6 +210,9 @@ def test_stalled_listener_is_dropped_and_the_others_get_everything(service):
         assert wait_until(lambda: service.events.subscribers == 2)
         pad = "x" * 8000
         for k in range(400):  # ~3 MB: more than the stalled socket's buffers hold
+            # the good reader keeps up (stays well inside its queue of 256) however busy
+            # the machine is; the stalled one never reads
+            assert wait_until(lambda k=k: len(good) > k - 64)
             service.events.publish("params", {"port": 0, "frame": k, "pad": pad})
             time.sleep(0.001)
         assert wait_until(lambda: service.events.subscribers == 1, 5)  # the stalled one left
