@@ -10,10 +10,14 @@ the rendered files). In the same run it computes every DSI
 * through ``elphel tp QUAD_DIR... --out-dir DIR`` on a local cluster (one worker process
   per core, one quad per task),
 
-and checks that the cluster's DSIs are bit for bit the sequential ones. Prints exactly
-one JSON object; nothing is hard-coded.
+and checks that the cluster's DSIs are bit for bit the sequential ones. The single-threaded
+sequence and the cluster take turns, twice, in the order sequential, cluster, cluster,
+sequential (``--rounds``), and the ratio is of their summed times: how fast the host runs
+the two vCPUs drifts by 10-20 % over minutes, and a drift that is linear in time then
+favours neither side. Prints exactly one JSON object; nothing is hard-coded.
 
     .venv/bin/python bench/tp_sequence.py [--quads 40 --distinct 2 --width 2592 --height 1936]
+                                          [--rounds 2]
 """
 
 from __future__ import annotations
@@ -65,6 +69,20 @@ def sequential(quads: list[Path], out: Path, config: TpConfig) -> float:
     return time.perf_counter() - t0
 
 
+def cluster(sequence: Path, out: Path, workers: int) -> tuple[float, dict[str, Any]]:
+    """``elphel tp SEQUENCE --out-dir OUT`` on a local cluster: seconds (cluster start
+    included) and the command's JSON report."""
+    buf = stdio.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(stdio.StringIO()):
+        args = ["tp", str(sequence), "--out-dir", str(out), "--workers", str(workers), "--json"]
+        rc = elphel(args)
+    seconds = time.perf_counter() - t0
+    report: dict[str, Any] = json.loads(buf.getvalue())
+    report["rc"] = rc
+    return seconds, report
+
+
 def same_dsis(a: Path, b: Path, names: list[str]) -> bool:
     for n in names:
         x, y = dsi_io.read_dsi(a / f"{n}.tif")[0], dsi_io.read_dsi(b / f"{n}.tif")[0]
@@ -82,6 +100,7 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=2592)
     ap.add_argument("--height", type=int, default=1936)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--rounds", type=int, default=2, help="turns of sequential and cluster")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="tp_sequence_") as tmp:
         root = Path(tmp)
@@ -91,26 +110,25 @@ def main() -> int:
         names = [q.name for q in quads]
         load_before = os.getloadavg()[0]
         one = TpConfig(threads=1)
-        seq1_s = sequential(quads, root / "seq1", one)
+        seq1_runs: list[float] = []
+        cluster_runs: list[float] = []
+        identical = True
+        failed = 0
+        for r in range(args.rounds):
+            # taking turns: sequential, cluster, cluster, sequential, ...
+            for side in ("sequential", "cluster") if r % 2 == 0 else ("cluster", "sequential"):
+                if side == "sequential":
+                    seq1_runs.append(sequential(quads, root / f"seq1-{r}", one))
+                    continue
+                seconds, report = cluster(root / "sequence", root / f"cluster-{r}", args.workers)
+                cluster_runs.append(seconds)
+                failed += report["failed"]
+                identical &= report["rc"] == 0 and same_dsis(
+                    root / "seq1-0", root / f"cluster-{r}", names
+                )
         seq2_s = sequential(quads, root / "seq2", replace(one, threads=TpConfig().threads))
-        buf = stdio.StringIO()
-        t0 = time.perf_counter()
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(stdio.StringIO()):
-            rc = elphel(
-                [
-                    "tp",
-                    str(root / "sequence"),
-                    "--out-dir",
-                    str(root / "cluster"),
-                    "--workers",
-                    str(args.workers),
-                    "--json",
-                ]
-            )
-        cluster_s = time.perf_counter() - t0
-        report = json.loads(buf.getvalue())
-        identical = rc == 0 and same_dsis(root / "seq1", root / "cluster", names)
-        identical_threads = same_dsis(root / "seq1", root / "seq2", names)
+        identical_threads = same_dsis(root / "seq1-0", root / "seq2", names)
+    seq1_s, cluster_s = sum(seq1_runs), sum(cluster_runs)
     result: dict[str, Any] = {
         "conditions": {
             "cpus": os.cpu_count(),
@@ -126,7 +144,10 @@ def main() -> int:
             "height": args.height,
             "render_s": round(render_s, 1),
         },
-        "sequential_1_thread": {"seconds": round(seq1_s, 3), "quads_per_s": args.quads / seq1_s},
+        "sequential_1_thread": {
+            "runs_s": [round(t, 3) for t in seq1_runs],
+            "quads_per_s": args.quads * len(seq1_runs) / seq1_s,
+        },
         "sequential_default_threads": {
             "threads": TpConfig().threads,
             "seconds": round(seq2_s, 3),
@@ -134,14 +155,16 @@ def main() -> int:
         },
         "local_cluster": {
             "workers": args.workers,
-            "seconds_including_cluster_start": round(cluster_s, 3),
-            "quads_per_s": args.quads / cluster_s,
-            "done": report["done"],
-            "failed": report["failed"],
+            "runs_s_including_cluster_start": [round(t, 3) for t in cluster_runs],
+            "failed_quads": failed,
+            "quads_per_s": args.quads * len(cluster_runs) / cluster_s,
         },
         "ratios": {
             "sequential_1_thread_time_over_cluster_time": round(seq1_s / cluster_s, 3),
-            "sequential_default_threads_time_over_cluster_time": round(seq2_s / cluster_s, 3),
+            "per_round": [round(a / b, 3) for a, b in zip(seq1_runs, cluster_runs, strict=True)],
+            "sequential_default_threads_time_over_cluster_time": round(
+                seq2_s * len(cluster_runs) / cluster_s, 3
+            ),
         },
         "identical_dsis": {
             "cluster_vs_sequential": identical,

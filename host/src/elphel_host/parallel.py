@@ -90,6 +90,15 @@ def single_threaded_blas() -> Iterator[None]:
                 setter(ctypes.c_int(_saved[0]))
 
 
+#: Dask settings of the local cluster's workers: glibc's own heap thresholds (no
+#: ``MALLOC_TRIM_THRESHOLD_``), and no statistical profiler (it takes the GIL from the
+#: task every 10 ms for a dashboard nobody here looks at).
+_LOCAL_WORKERS = {
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    "distributed.worker.profile.enabled": False,
+}
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> Iterator[Any]:
     """A ``dask.distributed.Client``: of the cluster at ``scheduler``, else of a local one.
@@ -98,8 +107,14 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> 
     core); it is closed on exit. Its nannies set ``OMP/MKL/OPENBLAS_NUM_THREADS=1`` (and
     more) in this process's environment for their workers, so the environment is put back
     afterwards, and processes started later from here do not inherit single-threaded BLAS.
+    Its workers keep glibc's own heap thresholds (Dask's ``MALLOC_TRIM_THRESHOLD_`` is not
+    set for them): a worker that runs one large task after another then reuses its heap
+    like any process, instead of returning it to the system after each task and faulting
+    it in again (see :func:`heap_reuse`, which covers workers of other clusters). Dask's
+    statistical profiler is off in them.
     """
     try:
+        import dask
         from dask.distributed import Client, LocalCluster
     except ImportError as e:  # pragma: no cover - dask[distributed] is a dependency
         raise RuntimeError(
@@ -119,9 +134,10 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> 
         else:
             n = workers if workers is not None else (os.cpu_count() or 1)
             # the scheduler's HTTP endpoint on a free port: two local clusters may run at once
-            cluster = LocalCluster(
-                n_workers=n, processes=True, threads_per_worker=1, dashboard_address=":0"
-            )
+            with dask.config.set(_LOCAL_WORKERS):
+                cluster = LocalCluster(
+                    n_workers=n, processes=True, threads_per_worker=1, dashboard_address=":0"
+                )
             client = Client(cluster)
         try:
             yield client

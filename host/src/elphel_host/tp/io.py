@@ -358,12 +358,15 @@ def read_quad_dir(path: str | Path) -> QuadSet:
             if np.issubdtype(images[0].dtype, np.integer)
             else max(peak, 1.0)
         )
-    stack = np.stack([np.asarray(im, dtype=np.float32) for im in images]) / np.float32(full)
+    # one float32 array, filled camera by camera (no stacked or scaled temporaries)
+    stack = np.empty((len(images), h, w), dtype=np.float32)
+    for im, out in zip(images, stack, strict=True):
+        np.divide(im, np.float32(full), out=out, dtype=np.float32)
     kernels = None
     if manifest.kernels is not None:
         kernels = _load_kernels(root / manifest.kernels.file, source)
     quad = QuadImages(
-        stack.astype(np.float32),
+        stack,
         bayer=manifest.bayer,
         geometry=manifest.geometry,
         kernels=kernels,
