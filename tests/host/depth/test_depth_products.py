@@ -12,7 +12,7 @@ from PIL import Image
 from elphel_host.cli import main
 from elphel_host.cloud.ply import read_ply
 from elphel_host.depth.geometry import DepthOptics
-from elphel_host.depth.products import dsi_depth, read_depth_tiff
+from elphel_host.depth.products import disagreeing, dsi_depth, read_depth_tiff
 from elphel_host.errors import InputFormatError
 from elphel_host.tp import io
 from elphel_host.tp.images import QuadImages
@@ -64,6 +64,43 @@ def test_synthetic_dsi_counts_and_points() -> None:
         dsi_depth({"disparity": disparity[:2, :3], "strength": strength[:2, :3]}, quad, OPTICS)
 
 
+def test_tiles_whose_directions_disagree_are_left_out() -> None:
+    ty, tx = 36, 48
+    quad = QuadImages(np.full((4, 288, 384), 0.25, np.float32), bayer="GRBG")
+    dsi = {k: np.full((ty, tx), 2.0, np.float32) for k in ("disparity", "disparity_hor")}
+    dsi |= {k: np.full((ty, tx), 2.0, np.float32) for k in ("disparity_vert", "disparity_diag")}
+    dsi |= {k: np.full((ty, tx), 0.5, np.float32) for k in ("strength", "strength_hor")}
+    dsi |= {k: np.full((ty, tx), 0.5, np.float32) for k in ("strength_vert", "strength_diag")}
+    # the demo's worst tile: combined 0.03 px (kilometres away), directions 6.58 / 0.17 / 2.39
+    dsi["disparity"][3, 4] = 0.03
+    for name, d in zip(("hor", "vert", "diag"), (6.58, 0.17, 2.39), strict=True):
+        dsi["disparity_" + name][3, 4] = d
+    # 2.0 against a median of 2.6: 23 % of the larger, kept; 2.0 against 2.7 (26 %): out
+    dsi["disparity_hor"][5, 5], dsi["disparity_vert"][5, 5] = 2.6, 2.6
+    dsi["disparity_hor"][6, 6], dsi["disparity_vert"][6, 6] = 2.7, 2.7
+    # far: 0.05 against 0.25 is 80 % but within the 0.25 px floor; 0.05 against 0.31 is not
+    dsi["disparity"][7, :2] = 0.05
+    dsi["disparity_hor"][7, :2] = dsi["disparity_vert"][7, :2] = [0.25, 0.31]
+    # a far-off direction that is weak does not count
+    dsi["disparity_diag"][8, 8], dsi["strength_diag"][8, 8] = 9.0, 0.05
+    # no confident direction: nothing to disagree with
+    dsi["disparity_hor"][9, 9] = dsi["disparity_vert"][9, 9] = 9.0
+    for name in ("hor", "vert", "diag"):
+        dsi["strength_" + name][9, 9] = 0.01
+    bad = disagreeing(dsi, min_strength=0.15, max_disagreement=0.25)
+    assert sorted(zip(*np.nonzero(bad), strict=True)) == [(3, 4), (6, 6), (7, 1)]
+    r = dsi_depth(dsi, quad, OPTICS, min_strength=0.15)
+    assert (r.inconsistent, len(r.cloud), r.max_disagreement) == (3, ty * tx - 3, 0.25)
+    assert np.isnan(r.depth_mm[3, 4]) and np.isfinite(r.depth_mm[5, 5])
+    assert r.summary()["inconsistent_tiles"] == 3
+    # off, or a DSI without the direction layers: every tile stays
+    assert dsi_depth(dsi, quad, OPTICS, max_disagreement=None).inconsistent == 0
+    two = {k: dsi[k] for k in ("disparity", "strength")}
+    assert dsi_depth(two, quad, OPTICS).inconsistent == 0
+    with pytest.raises(InputFormatError, match=r"max_disagreement=0\.0; allowed: > 0 or None"):
+        dsi_depth(dsi, quad, OPTICS, max_disagreement=0.0)
+
+
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, simquad.TileTruth]:
     return simquad.simulate_quad_dir(tmp_path_factory.mktemp("q") / "quad", RIG, seed=1)
@@ -79,7 +116,8 @@ def test_tp_ply_on_a_simulated_quad(
     out = json.loads(capsys.readouterr().out)["depth"]
     cloud = read_ply(ply)
     assert out["points"] == len(cloud) and out["tiles"] == 48 * 36
-    assert out["points"] + out["weak_tiles"] + out["infinite_tiles"] == out["tiles"]
+    left_out = out["weak_tiles"] + out["infinite_tiles"] + out["inconsistent_tiles"]
+    assert out["points"] + left_out == out["tiles"]
     depth, meta = read_depth_tiff(out["depth_tiff"])
     assert depth.shape == (36, 48) and meta["unit"] == "mm" and meta["min_strength"] == 0.15
     # the texture-less rectangle is left out (weak), the near planes are measured
@@ -111,3 +149,18 @@ def test_tp_ply_needs_optics(
     assert code == 1
     assert "optics lacks focal_length_mm" in capsys.readouterr().err
     assert not (tmp_path / "d.tif").exists()
+
+
+def test_tp_ply_max_disagreement(
+    simulated: tuple[Path, simquad.TileTruth], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root, _ = simulated
+    args = ["tp", str(root), "--out", str(tmp_path / "d.tif"), "--ply", str(tmp_path / "c.ply")]
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--max-disagreement", "-1"])
+    assert e.value.code == 2
+    assert "--max-disagreement -1; allowed: >= 0 (0 keeps every tile)" in capsys.readouterr().err
+    assert main([*args, "--max-disagreement", "0", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)["depth"]
+    assert out["inconsistent_tiles"] == 0 and out["max_disagreement"] is None
+    assert out["points"] + out["weak_tiles"] + out["infinite_tiles"] == out["tiles"]

@@ -13,7 +13,11 @@ from typing import Any
 
 from elphel_host.cli_common import add_json_option, emit
 from elphel_host.depth.pipeline import MOTIONS, DepthConfig, read_and_run, write_fused_quad
-from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, write_depth_products
+from elphel_host.depth.products import (
+    DEFAULT_MAX_DISAGREEMENT,
+    DEFAULT_MIN_STRENGTH,
+    write_depth_products,
+)
 from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.fuse import METHODS, peak_memory_mb
 from elphel_host.progress import ProgressLine
@@ -53,9 +57,31 @@ def register(subparsers: Any) -> None:
         metavar="S",
         help=f"tiles weaker than S are left out (default {DEFAULT_MIN_STRENGTH:g})",
     )
+    add_disagreement_option(p)
     p.add_argument("--threads", type=int, default=2, metavar="N", help="worker threads")
     add_json_option(p)
     p.set_defaults(func=run, parser=p)
+
+
+def add_disagreement_option(p: Any) -> None:
+    """``--max-disagreement F`` (of ``elphel depth`` and ``elphel tp --ply``)."""
+    p.add_argument(
+        "--max-disagreement",
+        type=float,
+        default=DEFAULT_MAX_DISAGREEMENT,
+        metavar="F",
+        help="tiles whose combined disparity is more than the fraction F away from the "
+        "median of their confident horizontal, vertical and diagonal disparities are left "
+        f"out (default {DEFAULT_MAX_DISAGREEMENT:g}; 0 keeps them)",
+    )
+
+
+def max_disagreement(args: argparse.Namespace) -> float | None:
+    """``--max-disagreement``, checked: None when 0 (no check)."""
+    f = args.max_disagreement
+    if not f >= 0:
+        args.parser.error(f"--max-disagreement {f:g}; allowed: >= 0 (0 keeps every tile)")
+    return None if f == 0 else float(f)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
             method=args.method or "robust",
             motion=args.motion,
             min_strength=args.min_strength,
+            max_disagreement=max_disagreement(args),
             threads=args.threads,
         )
     except ValueError as e:
@@ -112,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
     human = (
         f"{out}: {result['points']} points of {result['tiles']} tiles "
         f"({result['weak_tiles']} below strength {config.min_strength:g}, "
-        f"{result['infinite_tiles']} at infinity); {files['ply']}, {files['depth_tiff']}; "
+        f"{result['infinite_tiles']} at infinity, {result['inconsistent_tiles']} with "
+        f"disagreeing directions); {files['ply']}, {files['depth_tiff']}; "
         f"{run_.seconds['total']:.1f} s (fuse {run_.seconds['fuse']:.1f} s)"
     )
     emit(args, result, human)

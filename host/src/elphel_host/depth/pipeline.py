@@ -30,7 +30,12 @@ from numpy.typing import NDArray
 
 from elphel_host.burst.io import QuadBurst, read_quad_burst
 from elphel_host.depth.geometry import DepthOptics
-from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, DepthResult, dsi_depth
+from elphel_host.depth.products import (
+    DEFAULT_MAX_DISAGREEMENT,
+    DEFAULT_MIN_STRENGTH,
+    DepthResult,
+    dsi_depth,
+)
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import bayer_luma, fuse_frames, register_lumas
 from elphel_host.mfsr.local_motion import (
@@ -69,6 +74,10 @@ class DepthConfig:
         ``global`` (one shift per frame).
     min_strength
         Strength threshold of the depth map and cloud (the same for every method).
+    max_disagreement
+        Tiles whose combined disparity is farther than this fraction from the median of
+        their confident per-direction ones are left out of the depth map and cloud
+        (None: kept).
     threads
         Worker threads of the tile processor and the fusion.
     """
@@ -77,6 +86,7 @@ class DepthConfig:
     method: str = "robust"
     motion: str = "local"
     min_strength: float = DEFAULT_MIN_STRENGTH
+    max_disagreement: float | None = DEFAULT_MAX_DISAGREEMENT
     threads: int = 2
 
     @property
@@ -91,6 +101,8 @@ class DepthConfig:
             raise ValueError(f"motion={self.motion!r}; allowed: {', '.join(MOTIONS)}")
         if not self.min_strength >= 0:
             raise ValueError(f"min_strength={self.min_strength}; allowed: >= 0")
+        if self.max_disagreement is not None and not self.max_disagreement > 0:
+            raise ValueError(f"max_disagreement={self.max_disagreement}; allowed: > 0 or None")
 
 
 def tp_config(scale: float, *, threads: int = 2) -> TpConfig:
@@ -245,7 +257,14 @@ def quad_burst_depth(
     seconds["tp"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     hr_optics = optics.scaled(config.scale)
-    depth = dsi_depth(dsi, fused, hr_optics, min_strength=config.min_strength, rgb_images=rgb)
+    depth = dsi_depth(
+        dsi,
+        fused,
+        hr_optics,
+        min_strength=config.min_strength,
+        max_disagreement=config.max_disagreement,
+        rgb_images=rgb,
+    )
     seconds["depth"] = time.perf_counter() - t0
     seconds["total"] = time.perf_counter() - t_all
     return DepthRun(prior, dsi, fused, rgb, depth, hr_optics, seconds, info)

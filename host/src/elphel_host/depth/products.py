@@ -1,7 +1,12 @@
 """A quad's DSI as depth: the depth map (mm), the point cloud and their pictures.
 
 Tiles whose strength is below the threshold are left out (NaN in the depth map, no
-point) and counted, and so are tiles at or beyond infinity (disparity <= 0). Each point's
+point) and counted, and so are tiles at or beyond infinity (disparity <= 0) and tiles
+whose directions disagree: the combined disparity more than ``max_disagreement`` (a
+fraction, 0.25 by default) and more than 0.25 px away from the median of the horizontal,
+vertical and diagonal disparities that pass the strength threshold themselves. Depth is
+inverse to disparity, so that is a tile whose depth the pair directions do not agree on
+within about that fraction; a tile without a confident direction is kept. Each point's
 colour is the mean of what the four cameras see where the measured disparity puts the
 tile centre in each of them (the 2x2 Bayer cell there), white-balanced by nothing and
 shown with a display gamma of 1/2.2, scaled so the 99.5th percentile is white.
@@ -33,6 +38,22 @@ F32 = NDArray[np.float32]
 #: 0.3-0.5, texture-less ones ~0.1 (docs/tile-processor.md, Measured figures).
 DEFAULT_MIN_STRENGTH = 0.15
 
+#: Default largest disagreement between a tile's combined and per-direction disparities,
+#: a fraction of the larger of the two.
+DEFAULT_MAX_DISAGREEMENT = 0.25
+
+#: Disagreements up to this many pixels are allowed whatever the disparity: a far tile's
+#: directions differ by their noise (a few hundredths of a pixel on strong tiles, tenths
+#: on weak ones), which is a large fraction of a small disparity.
+DISAGREEMENT_FLOOR_PX = 0.25
+
+#: The DSI's per-direction layers: (disparity, strength).
+DIRECTIONS = (
+    ("disparity_hor", "strength_hor"),
+    ("disparity_vert", "strength_vert"),
+    ("disparity_diag", "strength_diag"),
+)
+
 
 @dataclass(frozen=True, eq=False)
 class DepthResult:
@@ -44,11 +65,11 @@ class DepthResult:
         ``(tiles_y, tiles_x)`` float32, NaN where left out.
     cloud
         One point per kept tile (x, y, z mm, strength, colour).
-    tiles, weak, infinite
+    tiles, weak, infinite, inconsistent
         Tiles in all; left out for a strength below the threshold; left out for a
-        disparity <= 0 (or not finite).
-    min_strength
-        The threshold used.
+        disparity <= 0 (or not finite); left out because the directions disagree.
+    min_strength, max_disagreement
+        The thresholds used (``max_disagreement`` None: not checked).
     """
 
     depth_mm: F32
@@ -57,6 +78,8 @@ class DepthResult:
     weak: int
     infinite: int
     min_strength: float
+    inconsistent: int = 0
+    max_disagreement: float | None = None
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -64,8 +87,38 @@ class DepthResult:
             "points": len(self.cloud),
             "weak_tiles": self.weak,
             "infinite_tiles": self.infinite,
+            "inconsistent_tiles": self.inconsistent,
             "min_strength": self.min_strength,
+            "max_disagreement": self.max_disagreement,
         }
+
+
+def disagreeing(
+    dsi: dict[str, F32], *, min_strength: float, max_disagreement: float
+) -> NDArray[np.bool_]:
+    """Tiles whose directions disagree on the disparity (see the module docstring).
+
+    True where the combined disparity is more than ``max_disagreement`` (a fraction of the
+    larger) away from the median of the confident per-direction disparities. A direction
+    is confident where its strength is at least ``min_strength``; tiles with none, and
+    DSIs without the per-direction layers, disagree nowhere.
+    """
+    disparity = np.asarray(dsi["disparity"], dtype=np.float64)
+    if not all(d in dsi and s in dsi for d, s in DIRECTIONS):
+        return np.zeros(disparity.shape, dtype=bool)
+    dirs = np.stack([np.asarray(dsi[d], dtype=np.float64) for d, _ in DIRECTIONS])
+    conf = np.stack([np.asarray(dsi[s]) >= min_strength for _, s in DIRECTIONS])
+    conf &= np.isfinite(dirs)
+    any_conf = conf.any(axis=0)
+    with np.errstate(invalid="ignore"):
+        median = np.nanmedian(np.where(conf, dirs, np.nan)[:, any_conf], axis=0)
+        bad = np.zeros(disparity.shape, dtype=bool)
+        d = disparity[any_conf]
+        tolerance = np.maximum(
+            max_disagreement * np.maximum(np.abs(median), np.abs(d)), DISAGREEMENT_FLOOR_PX
+        )
+        bad[any_conf] = np.abs(d - median) > tolerance
+    return bad
 
 
 def _colours(
@@ -109,6 +162,7 @@ def dsi_depth(
     optics: DepthOptics,
     *,
     min_strength: float = DEFAULT_MIN_STRENGTH,
+    max_disagreement: float | None = DEFAULT_MAX_DISAGREEMENT,
     rgb_images: F32 | None = None,
 ) -> DepthResult:
     """Depth map and point cloud of a DSI measured on ``quad`` (whose pixels ``optics`` describes).
@@ -124,6 +178,9 @@ def dsi_depth(
         and baseline.
     min_strength
         Tiles below it are left out and counted.
+    max_disagreement
+        Tiles whose combined disparity is farther than this fraction from the median of
+        their confident per-direction disparities are left out and counted (None: kept).
     rgb_images
         Optional ``(4, H, W, 3)`` colour images of the quad (a fused Bayer burst) to take
         the points' colours from instead of the quad's own images.
@@ -133,6 +190,8 @@ def dsi_depth(
             raise InputFormatError(f"DSI has no {name!r} layer; layers: {', '.join(dsi)}")
     if not min_strength >= 0:
         raise InputFormatError(f"min_strength={min_strength}; allowed: >= 0")
+    if max_disagreement is not None and not max_disagreement > 0:
+        raise InputFormatError(f"max_disagreement={max_disagreement}; allowed: > 0 or None")
     disparity = np.asarray(dsi["disparity"], dtype=np.float64)
     strength = np.asarray(dsi["strength"], dtype=np.float64)
     if disparity.shape != quad.tiles:
@@ -143,7 +202,14 @@ def dsi_depth(
     h, w = quad.images.shape[1:]
     infinite = ~(np.isfinite(disparity) & (disparity > 0))
     weak = ~infinite & ~(strength >= min_strength)
-    keep = ~infinite & ~weak
+    inconsistent = ~infinite & ~weak
+    if max_disagreement is None:
+        inconsistent[...] = False
+    else:
+        inconsistent &= disagreeing(
+            dsi, min_strength=min_strength, max_disagreement=max_disagreement
+        )
+    keep = ~infinite & ~weak & ~inconsistent
     depth = optics.depth_mm(np.where(keep, disparity, np.nan))
     cy, cx = tile_centres(*quad.tiles)
     pts = optics.points_mm(cx[keep], cy[keep], depth[keep], image_size=(w, h))
@@ -162,6 +228,8 @@ def dsi_depth(
         weak=int(np.count_nonzero(weak)),
         infinite=int(np.count_nonzero(infinite)),
         min_strength=float(min_strength),
+        inconsistent=int(np.count_nonzero(inconsistent)),
+        max_disagreement=None if max_disagreement is None else float(max_disagreement),
     )
 
 

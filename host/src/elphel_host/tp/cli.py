@@ -16,6 +16,7 @@ import numpy as np
 
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import add_camera_options, emit
+from elphel_host.depth.cli import add_disagreement_option, max_disagreement
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
 from elphel_host.progress import ProgressLine
@@ -115,7 +116,7 @@ def register(subparsers: Any) -> None:
 
 
 def add_depth_options(group: Any) -> None:
-    """``--ply`` and ``--min-strength``: depth map and point cloud of the DSI."""
+    """``--ply``, ``--min-strength``, ``--max-disagreement``: depth map and point cloud."""
     group.add_argument(
         "--ply",
         metavar="CLOUD.ply",
@@ -130,6 +131,7 @@ def add_depth_options(group: Any) -> None:
         metavar="S",
         help=f"tiles weaker than S are left out of the cloud (default {DEFAULT_MIN_STRENGTH:g})",
     )
+    add_disagreement_option(group)
 
 
 def _add_sequence_options(p: Any) -> None:
@@ -153,7 +155,17 @@ def _add_sequence_options(p: Any) -> None:
 
 
 # Options of one form that make no sense in the other (compared with their defaults).
-_TP_ONLY = ("refine", "scan", "fat_zero", "threads", "ml_data", "texture", "ply", "min_strength")
+_TP_ONLY = (
+    "refine",
+    "scan",
+    "fat_zero",
+    "threads",
+    "ml_data",
+    "texture",
+    "ply",
+    "min_strength",
+    "max_disagreement",
+)
 _CAPTURE_ONLY = ("geometry", "trigger_period_ms", "force", "timeout")
 _SEQUENCE_ONLY = ("scheduler", "workers")
 
@@ -296,7 +308,13 @@ def run_tp(args: argparse.Namespace) -> int:
         write_texture(args.texture, rgba)
         result["texture"] = str(args.texture)
     if optics is not None:
-        depth = dsi_depth(dsi, qs.quad, optics, min_strength=args.min_strength)
+        depth = dsi_depth(
+            dsi,
+            qs.quad,
+            optics,
+            min_strength=args.min_strength,
+            max_disagreement=max_disagreement(args),
+        )
         result["depth"] = {**depth.summary(), **write_depth_products(args.ply, depth, optics)}
     human = (
         f"{result['dsi']}: {result['tiles_x']}x{result['tiles_y']} tiles, {len(dsi)} layers, "
@@ -306,7 +324,8 @@ def run_tp(args: argparse.Namespace) -> int:
         d = result["depth"]
         human += (
             f"\n{d['ply']}: {d['points']} points; left out {d['weak_tiles']} tiles below "
-            f"strength {d['min_strength']:g} and {d['infinite_tiles']} at infinity"
+            f"strength {d['min_strength']:g}, {d['infinite_tiles']} at infinity and "
+            f"{d['inconsistent_tiles']} with disagreeing directions"
         )
     emit(args, result, human)
     return 0
