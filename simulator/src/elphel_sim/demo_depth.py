@@ -147,7 +147,13 @@ def depth_picture(
     def panel(depth_mm: NDArray[Any], cell: int, title: str) -> Image.Image:
         values = np.asarray(depth_mm, np.float64) / 1000.0
         picture = map_picture(
-            values, lo=lo, hi=hi, unit="m", title=title, cell=cell, no_value="left out (weak)"
+            values,
+            lo=lo,
+            hi=hi,
+            unit="m",
+            title=title,
+            cell=cell,
+            no_value="left out (weak, far or inconsistent)",
         )
         return Image.fromarray(picture)
 
