@@ -25,6 +25,7 @@ from collections.abc import Hashable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import ndimage
 
 from elphel_sim.render.radiance_cache import RADIANCE_CACHE, RadianceCache
@@ -94,30 +95,55 @@ def _check_window(intrinsics: Intrinsics, window: Window | None) -> Window:
 
 
 # Filtered-texture spline coefficients, per texture and footprint. A burst from a stage
-# only translates the camera, so every frame after the first reuses the same entry.
+# only translates the camera, so every frame after the first reuses the same entry (the
+# footprint is quantised: see `_quantised`).
 _COEFF_CACHE: weakref.WeakKeyDictionary[Texture, dict[tuple[float, ...], FloatArray]] = (
     weakref.WeakKeyDictionary()
 )
 _CACHE_PER_TEXTURE = 8
+# The texture's half spectrum (rfft2), per texture: every footprint filters the same one.
+_SPECTRUM_CACHE: weakref.WeakKeyDictionary[Texture, NDArray[np.complex128]] = (
+    weakref.WeakKeyDictionary()
+)
+# Footprints are rounded to 2**-FOOTPRINT_BITS of their largest entry (a pixel 0.05-0.1 %
+# wider or narrower for the box filter, far below a sensor's noise), so that the footprint
+# a moving camera sees on a slanted plane, or the last digits of its finite differences,
+# do not make every frame filter the texture anew (about 0.1 s per plane and frame).
+FOOTPRINT_BITS = 10
+
+
+def _quantised(footprint: FloatArray) -> FloatArray:
+    """The footprint rounded to a power-of-two step 2**-FOOTPRINT_BITS of its magnitude."""
+    scale = float(np.max(np.abs(footprint)))
+    if not scale > 0:
+        return np.asarray(footprint, dtype=np.float64)
+    step = 2.0 ** (np.floor(np.log2(scale)) - FOOTPRINT_BITS)
+    out: FloatArray = np.round(footprint / step) * step
+    return out
 
 
 def _filtered_coefficients(texture: Texture, footprint: FloatArray) -> FloatArray:
     """Spline coefficients of the texture averaged over a pixel's footprint.
 
-    ``footprint`` is the 2x2 Jacobian of grid coordinates (x, y) by pixel (x, y).
+    ``footprint`` is the 2x2 Jacobian of grid coordinates (x, y) by pixel (x, y); it is
+    quantised (`_quantised`) first, so the result depends on the key alone.
     """
-    key = tuple(np.round(footprint.ravel(), 9))
+    footprint = _quantised(footprint)
+    key = tuple(footprint.ravel())
     per_texture = _COEFF_CACHE.setdefault(texture, {})
     if key in per_texture:
         return per_texture[key]
     n = texture.size
-    k = np.fft.fftfreq(n)
-    ky, kx = np.meshgrid(k, k, indexing="ij")
+    spectrum = _SPECTRUM_CACHE.get(texture)
+    if spectrum is None:
+        spectrum = _SPECTRUM_CACHE[texture] = np.fft.rfft2(texture.data)
+    # the box is even in k, so the real texture's half spectrum is all it needs
+    ky, kx = np.meshgrid(np.fft.fftfreq(n), np.fft.rfftfreq(n), indexing="ij")
     # Average over the parallelogram J @ [-1/2, 1/2]^2 = product of sincs of k . J[:, m].
     box = np.sinc(kx * footprint[0, 0] + ky * footprint[1, 0]) * np.sinc(
         kx * footprint[0, 1] + ky * footprint[1, 1]
     )
-    filtered = np.fft.ifft2(np.fft.fft2(texture.data) * box).real
+    filtered = np.fft.irfft2(spectrum * box, s=texture.data.shape)
     coeffs: FloatArray = ndimage.spline_filter(filtered, order=3, mode="grid-wrap")
     if len(per_texture) >= _CACHE_PER_TEXTURE:
         per_texture.clear()
