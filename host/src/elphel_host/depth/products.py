@@ -99,7 +99,8 @@ def disagreeing(
     """Tiles whose directions disagree on the disparity (see the module docstring).
 
     True where the combined disparity is more than ``max_disagreement`` (a fraction of the
-    larger) away from the median of the confident per-direction disparities. A direction
+    larger) and more than `DISAGREEMENT_FLOOR_PX` away from the median of the confident
+    per-direction disparities. A direction
     is confident where its strength is at least ``min_strength``; tiles with none, and
     DSIs without the per-direction layers, disagree nowhere.
     """

@@ -263,9 +263,11 @@ def run_tp(args: argparse.Namespace) -> int:
     """``elphel tp QUAD_DIR --out DSI.tif``: the DSI of a quad directory."""
     qs = read_quad_dir(args.quad_dir)
     optics = None
+    disagreement = None
     if args.ply:
         if not args.min_strength >= 0:
             args.parser.error(f"--min-strength {args.min_strength:g}; allowed: >= 0")
+        disagreement = max_disagreement(args)
         optics = DepthOptics.from_optics(
             qs.manifest.optics, source=str(Path(args.quad_dir, "quad.json"))
         )
@@ -313,7 +315,7 @@ def run_tp(args: argparse.Namespace) -> int:
             qs.quad,
             optics,
             min_strength=args.min_strength,
-            max_disagreement=max_disagreement(args),
+            max_disagreement=disagreement,
         )
         result["depth"] = {**depth.summary(), **write_depth_products(args.ply, depth, optics)}
     human = (
