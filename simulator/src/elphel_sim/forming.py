@@ -17,6 +17,7 @@ changing a texture's array in place is not seen.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import socket
 import subprocess
@@ -177,15 +178,41 @@ if __name__ == "__main__":
     _serve(Connection(int(sys.argv[1])))
 
 
+#: Arrays from this size up get their own memory mapping in the process that keeps the
+#: formed images (see `_images_in_their_own_mappings`).
+IMAGE_MMAP_BYTES = 4 * 2**20
+
+
+def _images_in_their_own_mappings() -> None:
+    """Fix glibc's mmap threshold at `IMAGE_MMAP_BYTES` in this process.
+
+    The board keeps each formed frame's pixels (10 MB at full resolution) on its ring
+    record until the frame leaves the 64-frame ring. With glibc's dynamic threshold, the
+    first freed image raises the threshold above the image size, later images come from
+    the heap, and freed ones leave holes the heap cannot give back: under bench/load.py
+    the daemon's RSS grew 26 % after minute 2. Mapped on their own, freed images go back
+    to the system at once. A no-op without glibc.
+    """
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return
+    m_mmap_threshold = -3
+    libc.mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(IMAGE_MMAP_BYTES))
+
+
 class FormingPool:
     """Up to ``size`` `FormingProcess` children: frames asked for at once form side by side.
 
     A child is started when every started one is busy (one capture at a time uses one).
+    The pool's process keeps large arrays in their own mappings
+    (`_images_in_their_own_mappings`).
     """
 
     def __init__(self, size: int = 2) -> None:
         if size < 1:
             raise ValueError(f"size={size}; allowed: >= 1")
+        _images_in_their_own_mappings()
         self.size = size
         self._lock = threading.Lock()
         self._free: list[FormingProcess] = []
