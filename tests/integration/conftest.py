@@ -7,15 +7,11 @@ from typing import Any
 
 import pytest
 
-from .rig import start_rig, stop_rig
+from .rig import running_rig
 
 
 @pytest.fixture(scope="session")
 def sim_rig() -> Iterator[dict[str, Any]]:
     """`elphel-sim up --json` on free ports; yields its announcement (urls, token)."""
-    proc, announce = start_rig("--seed", "5")
-    try:
+    with running_rig("--seed", "5") as announce:
         yield announce
-    finally:
-        stderr = stop_rig(proc)
-        assert proc.returncode == 0, f"elphel-sim up exited {proc.returncode}: {stderr}"

@@ -6,10 +6,12 @@ fixtures.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -34,6 +36,17 @@ def start_rig(*extra: str) -> tuple[subprocess.Popen[str], dict[str, Any]]:
 
 
 stop_rig = plugin.stop_rig
+
+
+@contextlib.contextmanager
+def running_rig(*extra: str) -> Iterator[dict[str, Any]]:
+    """`start_rig`, yield its announcement, stop it and check that it exited cleanly."""
+    proc, announce = start_rig(*extra)
+    try:
+        yield announce
+    finally:
+        stderr = stop_rig(proc)
+        assert proc.returncode == 0, f"elphel-sim up exited {proc.returncode}: {stderr}"
 
 
 def run_cli(

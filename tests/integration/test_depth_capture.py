@@ -18,7 +18,7 @@ import pytest
 
 from elphel_sim.demo_depth import first_set
 
-from .rig import run_cli, start_rig, stop_rig
+from .rig import run_cli, running_rig
 
 pytestmark = pytest.mark.slow  # two minutes of simulated stage moves and frames
 
@@ -27,11 +27,8 @@ FRAMES = 6
 
 @pytest.fixture(scope="module")
 def rig() -> Iterator[dict[str, Any]]:
-    proc, info = start_rig("--scenario", "quad-rig-small", "--seed", "3")
-    try:
+    with running_rig("--scenario", "quad-rig-small", "--seed", "3") as info:
         yield info
-    finally:
-        stop_rig(proc)
 
 
 def cli(*args: str, env: dict[str, str], timeout: float = 120) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from elphel_host.burst.io import read_burst
 from elphel_host.camera import connect
 from elphel_host.tp.io import read_dsi
 
-from .rig import run_cli, start_rig, stop_rig
+from .rig import run_cli, running_rig
 
 WINDOW = {"WOI_LEFT": 1200, "WOI_TOP": 880, "WOI_WIDTH": 192, "WOI_HEIGHT": 160}
 # Snapshot mode at 5 frames/s: imgsrv's buffer (64 frames) then holds the last 13 s, longer
@@ -28,12 +28,8 @@ OPTICS = ("--focal-length-mm", "4.5", "--pixel-pitch-um", "2.2", "--distance-mm"
 
 @pytest.fixture(scope="module")
 def stock_rig():
-    proc, announce = start_rig("--firmware", "elphel", "--seed", "5")
-    try:
+    with running_rig("--firmware", "elphel", "--seed", "5") as announce:
         yield announce
-    finally:
-        stderr = stop_rig(proc)
-        assert proc.returncode == 0, f"elphel-sim up exited {proc.returncode}: {stderr}"
 
 
 def cli_json(*args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
@@ -109,12 +105,8 @@ def test_a_sub_pixel_burst_from_the_stock_camera_is_fused(stock_rig, tmp_path):
 
 @pytest.fixture(scope="module")
 def stock_quad_rig():
-    proc, announce = start_rig("--firmware", "elphel", "--scenario", "quad", "--seed", "0")
-    try:
+    with running_rig("--firmware", "elphel", "--scenario", "quad", "--seed", "0") as announce:
         yield announce
-    finally:
-        stderr = stop_rig(proc)
-        assert proc.returncode == 0, f"elphel-sim up exited {proc.returncode}: {stderr}"
 
 
 def test_a_quad_set_from_the_stock_camera_gives_the_scene_disparities(stock_quad_rig, tmp_path):

@@ -25,19 +25,15 @@ from elphel_sim.board import SimCameraBoard
 from elphel_sim.launcher import bind_loopback
 from elphel_sim.scenarios import build
 
-from .rig import run_cli, start_rig, stop_rig
+from .rig import run_cli, running_rig
 
 TRIGGER = ("TRIG", "TRIG_PERIOD", "TRIG_MASTER", "TRIG_DELAY", "TRIG_DECIMATE")
 
 
 @pytest.fixture(scope="module")
 def quad_rig() -> Iterator[dict[str, Any]]:
-    proc, announce = start_rig("--scenario", "quad", "--seed", "0")
-    try:
+    with running_rig("--scenario", "quad", "--seed", "0") as announce:
         yield announce
-    finally:
-        stderr = stop_rig(proc)
-        assert proc.returncode == 0, f"elphel-sim up exited {proc.returncode}: {stderr}"
 
 
 def test_capture_then_tp_recovers_the_scene_disparities(quad_rig, tmp_path):
