@@ -1,7 +1,8 @@
-"""The parameter routes' work under a port's locks: on the event loop only when it is free.
+"""The parameter routes' work under a port's locks: on the event loop when it is free.
 
-`run_locked` must never make the event loop wait for a lock held elsewhere (a frame sync
-programming the sensor over a slow I2C bus), and must release what it took.
+`run_locked` must never make the event loop block on a lock held elsewhere (a frame sync
+programming the sensor over a slow I2C bus): it tries again while the loop goes on, and
+hands the work to a thread when the lock stays held. It releases what it took.
 """
 
 import asyncio
@@ -10,6 +11,7 @@ import time
 
 import pytest
 
+from elphel_camd.api import locked
 from elphel_camd.api.locked import run_locked
 from elphel_camd.store import ParamStore
 
@@ -27,6 +29,31 @@ def test_free_locks_run_the_work_on_the_loop():
     for lock in locks:  # released
         assert lock.acquire(blocking=False)
         lock.release()
+
+
+def test_a_lock_held_briefly_is_waited_for_on_the_loop(monkeypatch):
+    # A wait bound far above the holder's 5 ms: a loaded test machine cannot turn it
+    # into a thread hand-off.
+    monkeypatch.setattr(locked, "LOOP_WAIT_S", 2.0)
+    held = threading.RLock()
+    taken = threading.Event()
+
+    def holder():
+        with held:
+            taken.set()
+            time.sleep(0.005)  # a frame sync programming the sensor
+
+    threading.Thread(target=holder, daemon=True).start()
+    taken.wait(5)
+
+    async def main():
+        loop_thread = threading.get_ident()
+        ran_in = await run_locked([held], threading.get_ident)
+        return loop_thread, ran_in
+
+    loop_thread, ran_in = asyncio.run(main())
+    assert ran_in == loop_thread
+    assert held.acquire(blocking=False)
 
 
 def test_a_held_lock_sends_the_work_to_a_thread_and_the_loop_goes_on():
