@@ -10,6 +10,7 @@ random token to the token file (0600), which a running daemon reads at its next 
 from __future__ import annotations
 
 import argparse
+import gc
 import inspect
 import logging
 import socket
@@ -252,6 +253,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             "public" if settings.reads_public else "need the token",
             http_stack(config),
         )
+        # What exists now (modules, the board, the app) lives as long as the daemon: kept
+        # out of the cyclic garbage collector's sight, a full collection (which stops
+        # every request) looks only at what came since: under bench/load.py 5-9 ms
+        # instead of 79 ms.
+        gc.freeze()
         GracefulServer(config, on_shutdown=[service.events.close]).run(sockets=[sock])
     except OSError as e:
         print(
