@@ -24,9 +24,12 @@ rate the listeners saw against the nominal one, and whether the stalled listener
 dropped while the others lost nothing.
 
 The clients speak HTTP/1.1 over asyncio streams, one keep-alive connection each
-(``bench/_http.py``): the load generator shares the machine with the daemon, and a
-heavier client (httpx takes several times the CPU per request) would take the CPU the
-daemon's latency is measured with.
+(``bench/_http.py``), on uvloop's event loop when it is installed (as the daemon's):
+the load generator shares the machine with the daemon, and a heavier client (httpx takes
+several times the CPU per request) would take the CPU the daemon's latency is measured
+with. A latency is timed in the load generator's own event loop, so its delays count
+too: the report gives how late that loop woke (``client_loop``, a 5 ms sleep timed
+throughout) and its CPU time.
 
 Usage: python bench/load.py [--duration 600] [--clients 50] [--listeners 20]
 """
@@ -35,9 +38,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import importlib.util
 import json
 import os
 import random
+import resource
 import signal
 import socket
 import subprocess
@@ -59,6 +64,7 @@ TOKEN = "load-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 API = "/api/v1"
 RING_BACK = 3  # ring fetches ask for the frame this many before the current one
+LOOP = "uvloop" if importlib.util.find_spec("uvloop") is not None else "asyncio"
 
 
 @contextmanager
@@ -407,7 +413,16 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
         conns.append(Connection(url, AUTH))
         return conns[-1]
 
+    client_lag: list[float] = []
+
+    async def time_own_loop() -> None:
+        while time.monotonic() < shared.stop_at:
+            t0 = time.perf_counter()
+            await asyncio.sleep(0.005)
+            client_lag.append((time.perf_counter() - t0) * 1e3 - 5.0)
+
     tasks = [asyncio.create_task(listen(url, shared, out)) for out in listeners]
+    tasks.append(asyncio.create_task(time_own_loop()))
     await asyncio.sleep(0.5)
     tasks.append(asyncio.create_task(sample_rss()))
     tasks += [asyncio.create_task(reader(conn(), shared, stats, think_s)) for _ in range(n_read)]
@@ -480,6 +495,12 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
             "nominal_fps": idle["nominal_fps"],
         },
         "frames_dropped": {"ring_misses": shared.ring_misses, "event_gaps": gaps},
+        "client_loop": {
+            "event_loop": LOOP,
+            "late_wakeup_p50_ms": round(percentile(client_lag, 50), 2),
+            "late_wakeup_p99_ms": round(percentile(client_lag, 99), 2),
+            "cpu_s": round(_cpu_s(), 1),
+        },
         "ring_expired_before_served": shared.ring_expired,
         "ratios": {
             "patch_p99_vs_idle_patch_p99": _ratio(patch.get("p99_ms"), idle["patch_p99_ms"]),
@@ -503,6 +524,11 @@ async def run_load(args: argparse.Namespace, url: str, pid: int) -> dict[str, An
         and not result["events"]["readers_ended_early"],
     }
     return result
+
+
+def _cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _ratio(value: float | None, peer: float) -> float | None:
@@ -533,7 +559,12 @@ def main() -> int:
             pid,
         ),
     ):
-        result = asyncio.run(run_load(args, url, pid))
+        if LOOP == "uvloop":
+            import uvloop
+
+            result = uvloop.run(run_load(args, url, pid))
+        else:
+            result = asyncio.run(run_load(args, url, pid))
         result["daemon_http"] = http_stack(Path(tmp) / "state" / "daemon.log")
     print(json.dumps(result))
     return 0
