@@ -14,7 +14,10 @@ and checks that the cluster's DSIs are bit for bit the sequential ones. The sing
 sequence and the cluster take turns, twice, in the order sequential, cluster, cluster,
 sequential (``--rounds``), and the ratio is of their summed times: how fast the host runs
 the two vCPUs drifts by 10-20 % over minutes, and a drift that is linear in time then
-favours neither side. Prints exactly one JSON object; nothing is hard-coded.
+favours neither side. Both sides' imports in this process are done before anything is
+timed (the sequential side's modules at the top, the command's and Dask's before the
+first turn); the cluster's start, its worker processes and their imports, is timed in
+every turn. Prints exactly one JSON object; nothing is hard-coded.
 
     .venv/bin/python bench/tp_sequence.py [--quads 40 --distinct 2 --width 2592 --height 1936]
                                           [--rounds 2]
@@ -108,6 +111,12 @@ def main() -> int:
         quads = make_sequence(root, args.quads, args.distinct, args.width, args.height)
         render_s = time.perf_counter() - t0
         names = [q.name for q in quads]
+        # what the command imports in this process on its first run (the sequential
+        # side's modules are imported above)
+        import dask.distributed  # noqa: F401
+
+        import elphel_host.tp.cli  # noqa: F401
+
         load_before = os.getloadavg()[0]
         one = TpConfig(threads=1)
         seq1_runs: list[float] = []
