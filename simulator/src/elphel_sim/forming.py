@@ -185,8 +185,9 @@ def _receive_pixels(sock: socket.socket, image: NDArray[Any]) -> None:
     """Fill ``image`` from the socket, the kernel copying straight into its buffer.
 
     Each ``recv_into`` lets go of the interpreter lock while it copies. A Connection's
-    ``recv_bytes_into`` copies 10 MB through Python buffers holding the lock instead: the
-    daemon's event loop waited for it up to 30-60 ms (p99 4-5 ms against 0.4-0.6 ms here).
+    ``recv_bytes_into`` copies 10 MB through Python buffers holding the lock instead:
+    while it did, another thread's 1 ms sleep woke up to 28-66 ms late (p99 4-5 ms; here
+    0.4-0.6 ms), and that other thread is the daemon's event loop.
     """
     view = image.reshape(-1).view(np.uint8).data
     got = 0
