@@ -17,7 +17,6 @@ changing a texture's array in place is not seen.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import os
 import socket
 import subprocess
@@ -31,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd.errors import CaptureUnavailableError
+from elphel_host.parallel import fix_mmap_threshold
 from elphel_sim.fpga import FrameRecord
 from elphel_sim.scenarios import PortSpec
 from elphel_sim.world import Scene, World
@@ -198,11 +198,6 @@ def _receive_pixels(sock: socket.socket, image: NDArray[Any]) -> None:
         got += n
 
 
-if __name__ == "__main__":
-    _fd = int(sys.argv[1])
-    _serve(Connection(os.dup(_fd)), socket.socket(fileno=_fd))
-
-
 #: Arrays from this size up get their own memory mapping in the process that keeps the
 #: formed images (see `_images_in_their_own_mappings`).
 IMAGE_MMAP_BYTES = 4 * 2**20
@@ -216,14 +211,9 @@ def _images_in_their_own_mappings() -> None:
     first freed image raises the threshold above the image size, later images come from
     the heap, and freed ones leave holes the heap cannot give back: under bench/load.py
     the daemon's RSS grew 26 % after minute 2. Mapped on their own, freed images go back
-    to the system at once. A no-op without glibc.
+    to the system at once.
     """
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return
-    m_mmap_threshold = -3
-    libc.mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(IMAGE_MMAP_BYTES))
+    fix_mmap_threshold(IMAGE_MMAP_BYTES)
 
 
 class FormingPool:
@@ -269,3 +259,8 @@ class FormingPool:
     def close(self) -> None:
         for former in self.processes:
             former.close()
+
+
+if __name__ == "__main__":
+    _fd = int(sys.argv[1])
+    _serve(Connection(os.dup(_fd)), socket.socket(fileno=_fd))
