@@ -17,6 +17,8 @@ from elphel_host.mfsr.robust import reconstruct
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 
+NO_PSF = RobustConfig(estimate_psf=False)
+
 
 def _camera() -> np.ndarray:
     import skimage.data as sd
@@ -40,17 +42,82 @@ def blurred():
 
 def test_blur_is_estimated_and_undone(blurred):
     hr, frames, shifts = blurred
-    img, info = reconstruct(frames, shifts, scale=2, config=RobustConfig(estimate_psf=True))
-    plain, pinfo = reconstruct(frames, shifts, scale=2)  # the default: no PSF
+    img, info = reconstruct(frames, shifts, scale=2)  # the default: estimated
+    plain, pinfo = reconstruct(frames, shifts, scale=2, config=NO_PSF)
     psf = info["psf"]
     assert psf["model"] == "gaussian" and psf["source"] == "estimated"
-    assert abs(psf["sigma_hr_px"] - 0.8) <= 0.1, psf
+    # the search finds the apparent softness; the blur beyond a scene's own softness
+    # (0.3 sensor px = 0.6 HR px at x2, in quadrature) is deconvolved, the rest shapes
+    # the prior
+    apparent = psf["apparent_sigma_hr_px"]
+    assert abs(apparent - 0.8) <= 0.1, psf
+    assert psf["sigma_hr_px"] == pytest.approx(np.sqrt(apparent**2 - 0.6**2), abs=2e-4)
+    assert psf["prior_sigma_hr_px"] == pytest.approx(0.6, abs=2e-4)
     assert 0 <= psf["confidence"] <= 1 and psf["cv_error_ratio"] < 1
     lo, hi = psf["interval_hr_px"]
-    assert lo <= psf["sigma_hr_px"] + 1e-6 and psf["sigma_hr_px"] <= hi + 0.05
+    assert lo <= apparent + 1e-6 and apparent <= hi + 0.05
     assert pinfo["psf"]["source"] == "disabled"
     gain = psnr(hr, img, data_range=1.0, border=8) - psnr(hr, plain, data_range=1.0, border=8)
-    assert gain >= 1.5, gain  # measured +2.37 dB (sigma 0.859 found for 0.8)
+    # measured +1.21 dB (apparent 0.859 found for 0.8, 0.61 of it deconvolved); +2.37 dB
+    # when the whole apparent softness was deconvolved, which cost soft scenes up to 10 dB
+    # (test_soft_scene_is_not_sharpened)
+    assert gain >= 1.0, gain
+
+
+def _band_limited(img: np.ndarray, band: float) -> np.ndarray:
+    """``img`` without the frequencies above ``band`` x Nyquist (a brick-wall filter)."""
+    f = np.hypot(*np.meshgrid(np.fft.fftfreq(img.shape[1]), np.fft.fftfreq(img.shape[0])))
+    return np.fft.ifft2(np.fft.fft2(img) * (f <= 0.5 * band)).real.astype(np.float32)
+
+
+def test_soft_scene_is_not_sharpened():
+    # a sharp burst of a scene without detail above 2/3 of the HR Nyquist frequency (the
+    # simulator's textures are made so) looks blurred to the search; deconvolving that
+    # cost such bursts up to 10 dB
+    hr = _band_limited(_camera(), 2 / 3)
+    shifts = random_shifts(16, seed=11, spread=2.0)
+    frames = make_burst(hr, shifts, scale=2, noise_sigma=0.01, seed=12)
+    regs = [r.shift for r in register_frames(frames)]
+    img, info = reconstruct(frames, regs, scale=2, config=RobustConfig(estimate_psf=True))
+    plain, _ = reconstruct(frames, regs, scale=2, config=NO_PSF)
+    assert info["psf"]["apparent_sigma_hr_px"] > 0.5, info["psf"]  # it does look blurred
+    loss = psnr(hr, plain, data_range=1.0, border=8) - psnr(hr, img, data_range=1.0, border=8)
+    # measured -1.51 (a gain); deconvolving the whole apparent 0.68 px lost 6.2 dB
+    assert loss <= 0.2, (loss, info["psf"])
+
+
+def test_prior_sigma_shapes_the_denoising_only(blurred):
+    # one apparent softness split in any way between the deconvolved blur and the
+    # prior's shape predicts the same data: the images differ, blurred back they agree
+    _, frames, shifts = blurred
+
+    def fourier_blur(x: np.ndarray, s: float) -> np.ndarray:
+        f = np.hypot(*np.meshgrid(np.fft.fftfreq(x.shape[1]), np.fft.fftfreq(x.shape[0])))
+        return np.fft.ifft2(np.fft.fft2(x) * np.exp(-2 * (np.pi * s * f) ** 2)).real
+
+    splits = ((0.8, 0.0), (0.6, np.sqrt(0.28)), (0.0, 0.8))
+    imgs, infos = zip(
+        *(
+            reconstruct(
+                frames, shifts, scale=2, config=RobustConfig(blur_sigma=d, prior_sigma=p, passes=0)
+            )
+            for d, p in splits
+        ),
+        strict=True,
+    )
+    assert infos[2]["psf"] == {
+        "model": "none",
+        "sigma_hr_px": 0.0,
+        "source": "given",
+        "prior_sigma_hr_px": 0.8,
+        "tau_used": 0.04,
+    }
+    seen = [fourier_blur(x, d) for x, (d, _) in zip(imgs, splits, strict=True)]
+    for k in (1, 2):
+        assert psnr(seen[0], seen[k], data_range=1.0, border=16) > 60
+        assert psnr(imgs[0], imgs[k], data_range=1.0, border=16) < 45
+    with pytest.raises(ValueError, match="prior_sigma"):
+        RobustConfig(prior_sigma=-0.1)
 
 
 def test_given_sigma_is_used_without_search(blurred):
@@ -95,14 +162,17 @@ def test_cli_psf_option(tmp_path, capsys):
     assert auto["source"] == "estimated" and auto["model"] == "gaussian"
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "sigma=0.6", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.6
-    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--json"]) == 0  # default none
-    assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--json"]) == 0  # default auto
+    assert json.loads(capsys.readouterr().out)["psf"] == auto
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "none", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
     assert (
         main(["mfsr", str(b), "--scale", "2", "--out", out, "--blur-sigma", "0.5", "--json"]) == 0
     )
     assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.5
+    args = ["--psf", "auto", "--blur-sigma", "0.5"]
+    assert main(["mfsr", str(b), "--scale", "2", "--out", out, *args]) != 0
+    assert "give one of them" in capsys.readouterr().err
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "gauss"]) != 0
     assert "--psf 'gauss'; allowed: auto, none, sigma=S" in capsys.readouterr().err
 
@@ -122,7 +192,7 @@ def test_kernel_psf_matches_gaussian_model(blurred):
     assert info["psf"]["model"] == "kernel" and info["psf"]["kernel_shape"] == [9, 9]
     # a sampled Gaussian is not the continuous one, but nearly
     assert psnr(by_sigma, by_kernel, data_range=1.0, border=8) > 40
-    plain, _ = reconstruct(frames, shifts, scale=2)
+    plain, _ = reconstruct(frames, shifts, scale=2, config=NO_PSF)
     k_gain = psnr(hr, by_kernel, data_range=1.0, border=8) - psnr(
         hr, plain, data_range=1.0, border=8
     )

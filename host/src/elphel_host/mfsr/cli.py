@@ -68,10 +68,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--float", action="store_true", help="write float32 instead of 16-bit DN")
     p.add_argument(
         "--psf",
-        default="none",
+        default=None,
         metavar="PSF",
-        help="optics blur the robust method deconvolves: none (default: the pixel aperture "
-        "alone), auto (estimated from the burst), sigma=S (a Gaussian of S output px) or "
+        help="optics blur the robust method deconvolves: auto (default: estimated from the "
+        "burst), none (the pixel aperture alone), sigma=S (a Gaussian of S output px) or "
         "FILE.npy (a PSF on the output grid, odd sides up to 31)",
     )
     p.add_argument(
@@ -96,14 +96,14 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def robust_config(psf: str, blur_sigma: float | None = None) -> RobustConfig:
-    """The robust method's options for ``--psf`` (and the older ``--blur-sigma``)."""
+def robust_config(psf: str | None, blur_sigma: float | None = None) -> RobustConfig:
+    """The robust method's options for ``--psf`` (default auto) and the older ``--blur-sigma``."""
     if blur_sigma is not None:
-        if psf != "none":
+        if psf is not None:
             raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
         psf = f"sigma={blur_sigma}"
     try:
-        given = parse_psf(psf)
+        given = parse_psf(psf or "auto")
     except ValueError as e:
         raise InputFormatError(str(e)) from e
     if given is None:

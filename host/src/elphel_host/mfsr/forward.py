@@ -74,6 +74,12 @@ class ForwardModel:
         Optional PSF of the optics on the HR grid (2-D, odd sides, centred, sum 1); its
         centro-symmetric part is used (a real transfer function: an off-centre PSF only
         moves the image, which registration absorbs).
+    prior_sigma
+        Softness the prior expects of the HR image itself, as a Gaussian of this sigma
+        (HR px): the gradient prior's weight at frequency f is multiplied by
+        ``exp(4 pi^2 prior_sigma^2 |f|^2)`` (the prior is on the image sharpened by that
+        Gaussian). It shapes the denoising only; nothing is deconvolved by it. 0: the
+        plain gradient prior.
     """
 
     lr_shape: tuple[int, int]
@@ -81,6 +87,7 @@ class ForwardModel:
     aperture: int
     blur_sigma: float = 0.0
     kernel: NDArray[np.float64] | None = field(default=None, compare=False)
+    prior_sigma: float = 0.0
 
     @property
     def hr_shape(self) -> tuple[int, int]:
@@ -223,14 +230,45 @@ class FourierSolver:
 
     # -- solve ---------------------------------------------------------------------------
     def _block_factors(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """Per alias: aperture transfer D and gradient-prior weight L, (A, ny, nxh) each."""
+        """Per alias: aperture transfer D and gradient-prior weight L, (A, ny, nxh) each.
+
+        Both are outer products of per-axis factors, formed in place in float32.
+        """
         if self._factors is None:
-            d = np.stack([self.hy[jy][:, None] * self.hx[jx][None, :] for jy, jx in self.offsets])
+            ny, nxh = self.rhs.shape[1:]
+            d = np.empty((len(self.offsets), ny, nxh), np.float32)
+            l2 = np.empty_like(d)
+            py, px = self._prior_shape()
+            f32 = partial(np.asarray, dtype=np.float32)
+            for a, (jy, jx) in enumerate(self.offsets):
+                np.multiply(f32(self.hy[jy])[:, None], f32(self.hx[jx])[None, :], out=d[a])
+                np.add(f32(self.ly[jy])[:, None], f32(self.lx[jx])[None, :], out=l2[a])
+                if py:
+                    l2[a] *= f32(py[jy])[:, None]
+                    l2[a] *= f32(px[jx])[None, :]
             if self.model.kernel is not None:
-                d = d * self._kernel_transfer()
-            l2 = np.stack([self.ly[jy][:, None] + self.lx[jx][None, :] for jy, jx in self.offsets])
-            self._factors = (d.astype(np.float32), l2.astype(np.float32))
+                d *= self._kernel_transfer().astype(np.float32)
+            self._factors = (d, l2)
         return self._factors
+
+    def _prior_shape(self) -> tuple[dict[int, F64], dict[int, F64]]:
+        """exp(4 pi^2 prior_sigma^2 f^2) per axis and alias ({} without prior_sigma).
+
+        Their outer product is the prior's weight at 2-D frequency (fy, fx); each factor
+        is capped at e^30 (float32 stays finite; such frequencies are all prior anyway).
+        """
+        if self.model.prior_sigma <= 0:
+            return {}, {}
+        ny, nx = self.model.lr_shape
+        Ny, Nx = self.model.hr_shape
+        c = 4.0 * np.pi**2 * self.model.prior_sigma**2
+
+        def axis(v: F64, n: int, n_hr: int, j: int) -> F64:
+            return np.exp(np.minimum(c * ((v + j * n) / n_hr) ** 2, 30.0))
+
+        py = {jy: axis(self._vy, ny, Ny, jy) for jy, _ in self.offsets}
+        px = {jx: axis(self._vx, nx, Nx, jx) for _, jx in self.offsets}
+        return py, px
 
     def _kernel_transfer(self) -> F64:
         """Real transfer of the model's kernel at every alias frequency, (A, ny, nxh)."""

@@ -20,6 +20,14 @@ and a parabola through the best and its neighbours. A burst with too few frames 
 determined fit at the output scale is searched at a smaller scale (x2) and the result
 converted to the output's HR px.
 
+What the search finds is the burst's apparent softness: the lens's blur and the scene's
+own softness together (Gaussian widths add in quadrature), which no burst tells apart, since
+only their product is seen. Deconvolving a soft scene's own softness sharpens it beyond the
+truth (up to 10 dB lost on band-limited scenes), so the estimate is split: the blur beyond
+``SCENE_SOFTNESS`` sensor px (in quadrature) is deconvolved, and the rest, up to that much,
+only shapes the prior (:attr:`ForwardModel.prior_sigma`), which denoises as the apparent
+softness asks without sharpening anything.
+
 Confidence: the prediction error of each sigma is compared with the best's fold by fold;
 the sigmas whose excess is within two standard errors (over the folds) of zero form the
 ``interval``, and ``confidence`` is ``1 - width / 0.5`` (clipped to 0..1): 1 when one
@@ -49,6 +57,11 @@ F64 = NDArray[np.float64]
 SIGMA_GRID = tuple(round(0.2 * i, 2) for i in range(9))  # 0 .. 1.6
 TAU_GRID = (0.02, 0.03, 0.04, 0.06, 0.08, 0.12)
 MAX_SIGMA = 3.0
+#: Softness (Gaussian sigma, in sensor pixels) a sharp scene's own detail can show in a
+#: burst: only apparent blur beyond it is deconvolved. The benchmark's blur-free bursts
+#: (photographs at their native resolution, the simulator's band-limited texture) show
+#: 0.08-0.38 sensor px; deconvolving their apparent softness costs them up to 10 dB.
+SCENE_SOFTNESS = 0.3
 
 
 @dataclass(frozen=True)
@@ -75,6 +88,12 @@ class PsfEstimate:
     cv_error_ratio
         Prediction error of held-out frames with the estimate, over that without blur
         (< 1: the blur explains the data better); None unless estimated.
+    prior_sigma
+        Softness (HR px) the prior is shaped by, not deconvolved
+        (:attr:`~elphel_host.mfsr.forward.ForwardModel.prior_sigma`).
+    apparent_sigma
+        The burst's apparent softness (HR px) the search found, before the split into
+        ``sigma`` and ``prior_sigma``; None unless estimated.
     """
 
     model: str
@@ -84,6 +103,8 @@ class PsfEstimate:
     confidence: float | None = None
     interval: tuple[float, float] | None = None
     cv_error_ratio: float | None = None
+    prior_sigma: float = 0.0
+    apparent_sigma: float | None = None
     kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def to_json(self) -> dict[str, Any]:
@@ -94,6 +115,10 @@ class PsfEstimate:
         }
         if self.kernel is not None:
             out["kernel_shape"] = list(self.kernel.shape)
+        if self.apparent_sigma is not None:
+            out["apparent_sigma_hr_px"] = round(self.apparent_sigma, 4)
+        if self.prior_sigma:
+            out["prior_sigma_hr_px"] = round(self.prior_sigma, 4)
         if self.tau is not None:
             out["tau"] = self.tau
         if self.confidence is not None:
@@ -248,7 +273,9 @@ def estimate_psf(
     Returns
     -------
     PsfEstimate
-        ``source="estimated"``; model ``"none"`` when sigma comes out below 0.05 HR px.
+        ``source="estimated"``: ``sigma`` the blur to deconvolve (model ``"none"`` when it
+        comes out below 0.05 HR px), ``prior_sigma`` the softness left to the prior,
+        ``apparent_sigma`` what the search found (both 0 when its interval reaches 0).
     """
     n = len(frames)
     check_frames(frames)
@@ -344,14 +371,21 @@ def estimate_psf(
     ratio = float(e_best.sum() / errs(0.0, tau).sum())
     to_out = float(scale) / fit_scale  # fit HR px -> output HR px
     sigma, interval = sigma * to_out, (interval[0] * to_out, interval[1] * to_out)
-    # a burst that cannot tell its blur from none (or finds less than 0.05 px) gets none
-    model = "gaussian" if sigma >= 0.05 and interval[0] > 0 else "none"
+    # a burst that cannot tell its softness from none gets the plain model; otherwise the
+    # blur beyond a scene's own softness is deconvolved and the rest shapes the prior
+    told = interval[0] > 0
+    soft = SCENE_SOFTNESS * ap
+    blur = float(np.sqrt(max(sigma * sigma - soft * soft, 0.0))) if told else 0.0
+    model = "gaussian" if blur >= 0.05 else "none"
+    blur = blur if model == "gaussian" else 0.0
     return PsfEstimate(
         model,
-        sigma if model == "gaussian" else 0.0,
+        blur,
         "estimated",
         tau=tau if choose_tau else None,
         confidence=confidence,
         interval=interval,
         cv_error_ratio=ratio,
+        prior_sigma=float(np.sqrt(max(sigma * sigma - blur * blur, 0.0))) if told else 0.0,
+        apparent_sigma=sigma,
     )

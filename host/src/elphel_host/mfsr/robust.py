@@ -111,6 +111,7 @@ def fit_noise(
             passes=1,
             tau=config.tau * _FIT_TAU_FACTOR,
             blur_sigma=config.blur_sigma * fit_scale / int(scale),  # in the fit's HR px
+            prior_sigma=config.prior_sigma * fit_scale / int(scale),
             psf_kernel=config.psf_kernel if fit_scale == int(scale) else None,
             estimate_psf=False,
             noise_sigma=None,
@@ -136,15 +137,17 @@ def psf_for(
 ) -> PsfEstimate:
     """The PSF a reconstruction with ``config`` uses: given, disabled, or estimated.
 
-    Estimated (``config.estimate_psf`` and no ``blur_sigma``): the shifts are first refined
+    Estimated (``config.estimate_psf`` and no ``blur_sigma``, ``prior_sigma`` or
+    ``psf_kernel`` given): the shifts are first refined
     and the noise fitted by a reconstruction of a central window without blur, then
     :func:`elphel_host.mfsr.psf.estimate_psf` searches that window. Bursts too small for
     cross-validation (fewer than 5 frames) get no blur.
     """
     if config.psf_kernel is not None:
         return PsfEstimate("kernel", 0.0, "given", kernel=config.psf_kernel)
-    if config.blur_sigma > 0:
-        return PsfEstimate("gaussian", float(config.blur_sigma), "given")
+    if config.blur_sigma > 0 or config.prior_sigma > 0:
+        model = "gaussian" if config.blur_sigma > 0 else "none"
+        return PsfEstimate(model, config.blur_sigma, "given", prior_sigma=config.prior_sigma)
     if not config.estimate_psf or len(frames) < 5:
         return PsfEstimate("none", 0.0, "disabled" if not config.estimate_psf else "too few frames")
     crop = central_window([np.asarray(f, np.float32) for f in frames], _PSF_WINDOW)
@@ -178,7 +181,13 @@ def with_psf(config: RobustConfig, psf: PsfEstimate) -> RobustConfig:
     default; text, blur-free: 39.11 against 37.88 and 37.84).
     """
     tau = config.tau if psf.tau is None else float(np.sqrt(config.tau * psf.tau))
-    return replace(config, blur_sigma=psf.sigma, tau=tau, estimate_psf=False)
+    return replace(
+        config,
+        blur_sigma=psf.sigma,
+        prior_sigma=psf.prior_sigma,
+        tau=tau,
+        estimate_psf=False,
+    )
 
 
 def reconstruct(
@@ -282,7 +291,12 @@ def reconstruct(
         ny, nx = h + 2 * p, w + 2 * p
         pads = (p, p, p, p)
     model = ForwardModel(
-        (ny, nx), int(scale), int(aperture or scale), config.blur_sigma, config.psf_kernel
+        (ny, nx),
+        int(scale),
+        int(aperture or scale),
+        config.blur_sigma,
+        config.psf_kernel,
+        config.prior_sigma,
     )
     step = max(1, int(np.sqrt(ref.size / 250_000)))  # a quarter-million samples suffice
     lo, hi = np.percentile(ref[::step, ::step], [0.1, 99.9])

@@ -30,6 +30,10 @@ class RobustConfig:
         smaller value smooths more.
     blur_sigma
         Extra Gaussian blur of the optics in HR px, deconvolved with the pixel aperture.
+    prior_sigma
+        Softness (Gaussian sigma, HR px) the prior expects of the HR image itself: it
+        shapes the denoising (the prior's weight grows with frequency by the inverse of
+        that Gaussian's power), it is not deconvolved.
     pad
         Mirror padding in LR px around each frame.
     refine
@@ -40,12 +44,11 @@ class RobustConfig:
     noise_sigma
         Noise standard deviation in input units; None estimates it from the data.
     estimate_psf
-        With ``blur_sigma`` 0: estimate the optics' Gaussian blur (and the prior's tau
-        with it) from the burst by cross-validation (:mod:`elphel_host.mfsr.psf`) and
-        reconstruct with it; False (default): the pixel aperture alone (or
-        ``psf_kernel``, or
-        ``blur_sigma`` as given). Off by default: it reads a scene's own softness as
-        blur too, which costs up to 10 dB on sharp, band-limited scenes (docs/mfsr.md).
+        With ``blur_sigma`` 0 and no ``psf_kernel`` (the default): estimate the burst's
+        apparent softness (and the prior's tau with it) by cross-validation
+        (:mod:`elphel_host.mfsr.psf`), deconvolve the part beyond a scene's own softness
+        and shape the prior with the rest. False: the pixel aperture alone. A given
+        ``blur_sigma``, ``prior_sigma`` or ``psf_kernel`` is used instead of an estimate.
     psf_kernel
         A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf.check_kernel`),
         used in place of the Gaussian.
@@ -60,12 +63,13 @@ class RobustConfig:
     huber: float = 3.0
     tau: float = 0.04
     blur_sigma: float = 0.0
+    prior_sigma: float = 0.0
     pad: int = 16
     refine: bool = True
     refine_window: int = 384
     noise_sigma: float | None = None
     fit_noise: bool = True
-    estimate_psf: bool = False
+    estimate_psf: bool = True
     psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -77,10 +81,12 @@ class RobustConfig:
             raise ValueError(f"tau={self.tau}; allowed: > 0")
         if not 0 <= self.blur_sigma <= MAX_SIGMA:
             raise ValueError(f"blur_sigma={self.blur_sigma}; allowed: 0..{MAX_SIGMA} (HR px)")
+        if not 0 <= self.prior_sigma <= MAX_SIGMA:
+            raise ValueError(f"prior_sigma={self.prior_sigma}; allowed: 0..{MAX_SIGMA} (HR px)")
         if self.psf_kernel is not None:
             object.__setattr__(self, "psf_kernel", check_kernel(self.psf_kernel, "psf_kernel"))
-            if self.blur_sigma > 0 or self.estimate_psf:
-                raise ValueError("psf_kernel: allowed only without blur_sigma and estimate_psf")
+            if self.blur_sigma > 0:
+                raise ValueError("psf_kernel: allowed only without blur_sigma")
         if self.pad < 0:
             raise ValueError(f"pad={self.pad}; allowed: >= 0")
         if self.refine_window < 32:
