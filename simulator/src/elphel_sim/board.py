@@ -358,7 +358,12 @@ class SimCameraBoard:
                     return record.image
                 rng = None if seed is None else np.random.default_rng(seed)
                 image = form_image(
-                    record, self.world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+                    record,
+                    self.world,
+                    intrinsics=spec.intrinsics,
+                    model=spec.sensor,
+                    rng=rng,
+                    lens_blur_px=spec.lens_blur_px,
                 )
         with self._cond:
             if record.image is None:

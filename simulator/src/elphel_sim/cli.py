@@ -7,6 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from elphel_sim import __version__
+from elphel_sim.render.optics import MAX_LENS_BLUR_PX, check_lens_blur
 from elphel_sim.scenarios import SCENARIOS
 
 
@@ -19,6 +20,16 @@ def tcp_port(text: str) -> int:
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"{text!r}; allowed: 0 (a free port) to 65535")
     return value
+
+
+def lens_blur(text: str) -> float:
+    """A lens blur sigma for argparse (sensor px)."""
+    try:
+        return check_lens_blur(float(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}; allowed: 0..{MAX_LENS_BLUR_PX:g} (sigma in sensor pixels)"
+        ) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,6 +55,14 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="camd firmware: answer reads without the token, as elphel-camd --public-reads",
     )
+    up.add_argument(
+        "--lens-blur",
+        type=lens_blur,
+        default=0.0,
+        metavar="PX",
+        help="the lenses blur the image: a Gaussian of sigma PX sensor pixels "
+        f"(0..{MAX_LENS_BLUR_PX:g}; default 0, a perfectly sharp lens)",
+    )
     up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
     return p
 
@@ -61,6 +80,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             as_json=args.json,
             firmware=args.firmware,
             public_reads=args.public_reads,
+            lens_blur_px=args.lens_blur,
         )
     except OSError as e:
         print(f"elphel-sim: {e}", file=sys.stderr)

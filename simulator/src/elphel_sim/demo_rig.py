@@ -34,10 +34,12 @@ class DemoError(RuntimeError):
 
 @contextmanager
 def simulated_rig(
-    *, seed: int, scenario: str = "default", firmware: str = "camd"
+    *, seed: int, scenario: str = "default", firmware: str = "camd", lens_blur_px: float = 0.0
 ) -> Iterator[dict[str, Any]]:
     """Run `elphel-sim up --json` in a child process; yield its announcement."""
     command = ["up", "--json", "--seed", str(seed), "--scenario", scenario, "--firmware", firmware]
+    if lens_blur_px:
+        command += ["--lens-blur", str(lens_blur_px)]
     proc = subprocess.Popen(
         [sys.executable, "-m", "elphel_sim.cli", *command],
         stdout=subprocess.PIPE,

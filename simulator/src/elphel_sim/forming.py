@@ -65,7 +65,12 @@ def _serve(conn: Connection, pixels: socket.socket) -> None:
             rng = None if seed is None else np.random.default_rng(seed)
             image = np.ascontiguousarray(
                 chip.form_image(
-                    record, world, intrinsics=spec.intrinsics, model=spec.sensor, rng=rng
+                    record,
+                    world,
+                    intrinsics=spec.intrinsics,
+                    model=spec.sensor,
+                    rng=rng,
+                    lens_blur_px=spec.lens_blur_px,
                 )
             )
         except Exception as e:  # reported to the board, which raises it for the capture

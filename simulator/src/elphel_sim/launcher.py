@@ -243,12 +243,14 @@ def up(
     as_json: bool,
     firmware: str = "camd",
     public_reads: bool = False,
+    lens_blur_px: float = 0.0,
 ) -> int:
     """Serve the rig; ``firmware`` "camd" (elphel-camd's REST) or "elphel" (stock NC393).
 
     ``public_reads``: elphel-camd answers reads without the token (its ``--public-reads``).
+    ``lens_blur_px``: a Gaussian lens blur (sigma, sensor px) on the cameras' images.
     """
-    board = SimCameraBoard(build(scenario, seed=seed), seed=seed)
+    board = SimCameraBoard(build(scenario, seed=seed, lens_blur_px=lens_blur_px), seed=seed)
     camera = CameraService(board)
     secret = new_token()
     token: str | None = secret
@@ -276,6 +278,7 @@ def up(
         "stage_url": stage.tcp_url,
         "stage_pty": stage.pty_path,
         "sim_url": sim_served.url,
+        "lens_blur_px": lens_blur_px,
     }
     if as_json:
         print(json.dumps(announce), flush=True)

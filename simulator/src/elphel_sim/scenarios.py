@@ -12,18 +12,23 @@ from elphel_camd.sensors import mt9p006 as spec
 from elphel_sim.chips.lepton35 import lepton_intrinsics
 from elphel_sim.quad import QuadRig, QuadScene, standard_scene
 from elphel_sim.relief import relief_scene
-from elphel_sim.render import Intrinsics, SensorModel
+from elphel_sim.render import Intrinsics, SensorModel, check_lens_blur
 from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 
 
 @dataclass(frozen=True)
 class PortSpec:
-    """A sensor port of the simulated board: which chip, which camera, which mount."""
+    """A sensor port of the simulated board: which chip, which camera, which mount.
+
+    ``lens_blur_px``: the lens's Gaussian blur (sigma, sensor px) on the Aptina sensors'
+    images; 0 (the scenarios' default) renders a perfectly sharp lens.
+    """
 
     model: str | None
     mount: str
     intrinsics: Intrinsics
     sensor: SensorModel = field(default_factory=SensorModel)
+    lens_blur_px: float = 0.0
 
 
 @dataclass
@@ -249,9 +254,14 @@ SCENARIOS["quad-rig"] = quad_rig
 SCENARIOS["quad-rig-small"] = quad_rig_small
 
 
-def build(name: str, *, seed: int) -> Scenario:
+def build(name: str, *, seed: int, lens_blur_px: float = 0.0) -> Scenario:
+    """Scenario ``name``; ``lens_blur_px`` > 0 puts a Gaussian lens blur on every port."""
     try:
         factory = SCENARIOS[name]
     except KeyError:
         raise ValueError(f"scenario {name!r}; allowed: {', '.join(sorted(SCENARIOS))}") from None
-    return factory(seed)
+    scenario = factory(seed)
+    if lens_blur_px:
+        blur = check_lens_blur(lens_blur_px)
+        scenario.ports = [replace(p, lens_blur_px=blur) for p in scenario.ports]
+    return scenario

@@ -21,7 +21,7 @@ from elphel_camd.sensors.registers import RegisterTable
 from elphel_sim.chips.registers import SimLatchedChip
 from elphel_sim.chips.sensor import ImageContext, SensorTiming, SimSensor
 from elphel_sim.fpga import FrameRecord
-from elphel_sim.render import Readout, read_out, render_strips
+from elphel_sim.render import Readout, blurred_strips, read_out
 
 # The colour-gain registers (same names on both sensors), in the order of their addresses.
 COLOUR_GAINS = ("green1_gain", "blue_gain", "red_gain", "green2_gain")
@@ -107,12 +107,14 @@ class SimAptinaChip(SimLatchedChip, SimSensor):
         )
         intrinsics = context.intrinsics
         # A still scene seen again from the same pose and window reuses its radiance (the
-        # renderer's cache); exposure, gains, flips and this frame's noise are applied here.
-        rgb = render_strips(
+        # renderer's cache); the lens blur, exposure, gains, flips and this frame's noise
+        # are applied here.
+        rgb = blurred_strips(
             context.world,
             intrinsics,
             record.pose,
             window=readout.window_on(intrinsics),
             times_s=record.strip_times_s(),
+            sigma_px=context.lens_blur_px,
         )
         return read_out(rgb, readout, model=context.model, rng=context.rng)

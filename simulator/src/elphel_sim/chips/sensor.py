@@ -43,14 +43,16 @@ class SensorTiming:
 class ImageContext:
     """What forming a frame's image needs besides its record.
 
-    The world seen, the port's camera intrinsics and sensor model, and the noise
-    generator (None: no noise).
+    The world seen, the port's camera intrinsics and sensor model, the noise generator
+    (None: no noise) and the lens's Gaussian blur in sensor px (0: none; the Aptina
+    sensors apply it, the Lepton's optics are its own).
     """
 
     world: World
     intrinsics: Intrinsics
     model: SensorModel
     rng: np.random.Generator | None
+    lens_blur_px: float = 0.0
 
 
 class SimSensor(ABC):
@@ -91,9 +93,10 @@ class SimSensor(ABC):
         intrinsics: Intrinsics,
         model: SensorModel,
         rng: np.random.Generator | None,
+        lens_blur_px: float = 0.0,
     ) -> NDArray[np.uint16]:
         """The image of a recorded frame (from the record alone, not the chip's state)."""
-        return self.render(record, ImageContext(world, intrinsics, model, rng))
+        return self.render(record, ImageContext(world, intrinsics, model, rng, lens_blur_px))
 
     @abstractmethod
     def render(self, record: FrameRecord, context: ImageContext) -> NDArray[np.uint16]:
