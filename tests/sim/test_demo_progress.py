@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from elphel_host.progress import ProgressLine
-from elphel_sim import demo, demo_depth, demo_rig
+from elphel_sim import demo, demo_burst, demo_depth, demo_rig
 from elphel_sim.demo_rig import DemoError, DemoProgress, elphel, step
 from tests.host.jp4.test_convert import record
 
@@ -109,6 +109,8 @@ def commands_run(node: ast.AST, times: int = 1) -> int:
 
 def test_the_bar_counts_every_command_of_the_demo() -> None:
     own = commands_run(ast.parse(Path(demo.__file__).read_text()))
+    burst = commands_run(ast.parse(Path(demo_burst.__file__).read_text()))
     depth = commands_run(ast.parse(Path(demo_depth.__file__).read_text()))
     assert depth == demo_depth.COMMANDS == 11
-    assert own + depth == demo.COMMANDS
+    assert burst == demo_burst.COMMANDS == 9
+    assert own + burst + depth == demo.COMMANDS

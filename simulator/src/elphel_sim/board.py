@@ -357,14 +357,7 @@ class SimCameraBoard:
                 if record.image is not None:
                     return record.image
                 rng = None if seed is None else np.random.default_rng(seed)
-                image = form_image(
-                    record,
-                    self.world,
-                    intrinsics=spec.intrinsics,
-                    model=spec.sensor,
-                    rng=rng,
-                    lens_blur_px=spec.lens_blur_px,
-                )
+                image = form_image(record, self.world, rng=rng, **spec.forming_options())
         with self._cond:
             if record.image is None:
                 record.image = image

@@ -64,14 +64,7 @@ def _serve(conn: Connection, pixels: socket.socket) -> None:
             chip = chips.get(spec.model) or chips.setdefault(spec.model, SIM_SENSORS[spec.model]())
             rng = None if seed is None else np.random.default_rng(seed)
             image = np.ascontiguousarray(
-                chip.form_image(
-                    record,
-                    world,
-                    intrinsics=spec.intrinsics,
-                    model=spec.sensor,
-                    rng=rng,
-                    lens_blur_px=spec.lens_blur_px,
-                )
+                chip.form_image(record, world, rng=rng, **spec.forming_options())
             )
         except Exception as e:  # reported to the board, which raises it for the capture
             conn.send(("error", f"{type(e).__name__}: {e}"))

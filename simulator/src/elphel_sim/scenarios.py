@@ -6,6 +6,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from types import ModuleType
+from typing import Any
 
 from elphel_camd.sensors import mt9f002
 from elphel_camd.sensors import mt9p006 as spec
@@ -29,6 +30,11 @@ class PortSpec:
     intrinsics: Intrinsics
     sensor: SensorModel = field(default_factory=SensorModel)
     lens_blur_px: float = 0.0
+
+    def forming_options(self) -> dict[str, Any]:
+        """`SimSensor.form_image`'s keyword arguments from this port (the noise aside)."""
+        blur = self.lens_blur_px
+        return {"intrinsics": self.intrinsics, "model": self.sensor, "lens_blur_px": blur}
 
 
 @dataclass

@@ -21,7 +21,7 @@ from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_sim.board import SimCameraBoard
-from elphel_sim.demo import DISTANCE_MM, FRAMES, SCALE
+from elphel_sim.demo_burst import DISTANCE_MM, FRAMES, SCALE
 from elphel_sim.demo_report import comparison_picture, reference_image
 from elphel_sim.scenarios import build
 
