@@ -11,7 +11,8 @@ import pytest
 from elphel_host.burst.io import write_burst
 from elphel_host.cli import main
 from elphel_host.mfsr.metrics import psnr
-from elphel_host.mfsr.psf import estimate_psf, parse_psf
+from elphel_host.mfsr.psf import estimate_psf
+from elphel_host.mfsr.psf_given import parse_psf
 from elphel_host.mfsr.registration import register_frames
 from elphel_host.mfsr.robust import reconstruct
 from elphel_host.mfsr.robust_config import RobustConfig

@@ -5,7 +5,11 @@
 * :mod:`~elphel_host.mfsr.forward`, :mod:`~elphel_host.mfsr.robust` - forward-model
   reconstruction solved exactly in the Fourier domain, with Huber outlier rejection;
   :mod:`~elphel_host.mfsr.ldl` - its batched block solve;
-  :mod:`~elphel_host.mfsr.robust_config` - its options.
+  :mod:`~elphel_host.mfsr.refine` - the robust pass's step per frame;
+  :mod:`~elphel_host.mfsr.robust_config` - its options;
+  :mod:`~elphel_host.mfsr.psf` - the lens blur estimated from the burst,
+  :mod:`~elphel_host.mfsr.psf_given` - or given;
+  :mod:`~elphel_host.mfsr.regions` - a PSF per image region, cells blended.
 * :mod:`~elphel_host.mfsr.fuse` - burst in, image out (mono and Bayer).
 * :mod:`~elphel_host.mfsr.stream` - the same fusion fed frame by frame while a burst is
   captured (``elphel burst capture --fuse``).

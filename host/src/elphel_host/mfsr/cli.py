@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.output import fused_meta, write_image
-from elphel_host.mfsr.psf import parse_psf
+from elphel_host.mfsr.psf_given import parse_psf
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import save_preview
@@ -72,7 +73,15 @@ def register(subparsers: Any) -> None:
         metavar="PSF",
         help="optics blur the robust method deconvolves: auto (default: estimated from the "
         "burst), none (the pixel aperture alone), sigma=S (a Gaussian of S output px) or "
-        "FILE.npy (a PSF on the output grid, odd sides up to 31)",
+        "FILE.npy (a PSF on the output grid, odd sides up to 31; or 4-D, rows x columns "
+        "of regions x the PSF: one PSF per image region)",
+    )
+    p.add_argument(
+        "--psf-regions",
+        default=None,
+        metavar="RxC",
+        help="a PSF per image region: R rows x C columns of regions (1..8 each), each "
+        "estimated from its own pixels and the results blended (default 1x1: one PSF)",
     )
     p.add_argument(
         "--blur-sigma",
@@ -96,8 +105,27 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def robust_config(psf: str | None, blur_sigma: float | None = None) -> RobustConfig:
-    """The robust method's options for ``--psf`` (default auto) and the older ``--blur-sigma``."""
+def psf_regions(text: str | None) -> tuple[int, int]:
+    """``--psf-regions RxC`` as (rows, columns); None: (1, 1)."""
+    if text is None:
+        return (1, 1)
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise InputFormatError(f"--psf-regions {text!r}; allowed: RxC, e.g. 2x3")
+    return (int(parts[0]), int(parts[1]))
+
+
+def robust_config(
+    psf: str | None, blur_sigma: float | None = None, regions: str | None = None
+) -> RobustConfig:
+    """The robust method's options from ``--psf``, ``--blur-sigma`` and ``--psf-regions``."""
+    try:
+        return replace(_psf_config(psf, blur_sigma), psf_regions=psf_regions(regions))
+    except ValueError as e:
+        raise InputFormatError(str(e)) from e
+
+
+def _psf_config(psf: str | None, blur_sigma: float | None) -> RobustConfig:
     if blur_sigma is not None:
         if psf is not None:
             raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
@@ -108,6 +136,8 @@ def robust_config(psf: str | None, blur_sigma: float | None = None) -> RobustCon
         raise InputFormatError(str(e)) from e
     if given is None:
         return RobustConfig(estimate_psf=True)
+    if given.kernel is not None and given.kernel.ndim == 4:
+        return RobustConfig(psf_grid=given.kernel)
     if given.kernel is not None:
         return RobustConfig(psf_kernel=given.kernel)
     return RobustConfig(blur_sigma=given.sigma, estimate_psf=False)
@@ -136,7 +166,7 @@ def _fuse_one(
 
 
 def run(args: argparse.Namespace) -> int:
-    args.robust_config = robust_config(args.psf, args.blur_sigma)
+    args.robust_config = robust_config(args.psf, args.blur_sigma, args.psf_regions)
     if args.burst_dirs[0] == "compare":
         return run_compare(args)
     dirs = args.burst_dirs

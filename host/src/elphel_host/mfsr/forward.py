@@ -24,10 +24,10 @@ vectorised LDL^H (:mod:`elphel_host.mfsr.ldl`). Frames are accumulated one chunk
 into S^2 LR-size spectra, so memory grows with the output size, not with the number of
 frames.
 
-Robustness: Huber regression by pseudo-data. After a solve, each frame's residual is
-computed; residuals beyond ``huber * sigma`` are clipped (and pixels outside a frame's
-valid area are replaced by the prediction), the right-hand side is corrected and the
-system solved again.
+Robustness (:mod:`elphel_host.mfsr.refine`): Huber regression by pseudo-data. After a
+solve, each frame's residual is computed; residuals beyond ``huber * sigma`` are clipped
+(and pixels outside a frame's valid area are replaced by the prediction), the right-hand
+side is corrected and the system solved again.
 """
 
 from __future__ import annotations
@@ -332,81 +332,3 @@ class FourierSolver:
                 spec[np.ix_(iy, ix[keep])] = block if direct else np.conj(block)
         img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
         return np.ascontiguousarray(img, dtype=np.float32)
-
-
-class ModelSpectra:
-    """Per-pass spectra of the solution: prediction and its shift derivatives by alias."""
-
-    def __init__(self, solver: FourierSolver, X: C64) -> None:
-        ny, nx = solver.model.lr_shape
-        Ny, Nx = solver.model.hr_shape
-        s2 = float(solver.model.scale**2)
-        A = len(solver.offsets)
-        nxh = solver.nxh
-        self.Z = np.empty((A, ny * nxh), np.complex64)
-        self.Zy = np.empty_like(self.Z)
-        self.Zx = np.empty_like(self.Z)
-        d_all = solver._block_factors()[0]
-        for a, (jy, jx) in enumerate(solver.offsets):
-            z = (d_all[a] / np.float32(s2)) * X[a]
-            wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
-            wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
-            self.Z[a] = z.ravel()
-            self.Zy[a] = (z * wy[:, None]).ravel()
-            self.Zx[a] = (z * wx[None, :]).ravel()
-
-
-def refine_and_pseudo(
-    solver: FourierSolver,
-    spectra: ModelSpectra,
-    k: int,
-    frame: F32,
-    valid: NDArray[np.bool_],
-    *,
-    huber: float,
-    sigma: float,
-    refine: bool,
-    workers: int = -1,
-) -> tuple[F32, tuple[float, float], F32]:
-    """One frame's robust step: refine its shift against the model, then clip its residual.
-
-    The shift update is one Gauss-Newton step over the frame's valid, non-outlier pixels
-    (the mirror padding moves the opposite way and must not vote). Returns the
-    pseudo-data (prediction + clipped residual on valid pixels, prediction elsewhere), the
-    shift update (HR px, to add to frame k's position) and the residual.
-    """
-    ny, nx = solver.model.lr_shape
-    nxh = solver.nxh
-    ck = solver.C[k].conj()
-    ry, rx = solver._ramps(k)
-    ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
-    q = (ck @ spectra.Z).reshape(ny, nxh)
-    q *= ryc
-    q *= rxc
-    pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
-    del q
-    dt = (0.0, 0.0)
-    if refine:
-        gy = (ck @ spectra.Zy).reshape(ny, nxh)
-        gx = (ck @ spectra.Zx).reshape(ny, nxh)
-        for g in (gy, gx):
-            g *= ryc
-            g *= rxc
-        dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
-        dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
-        del gy, gx
-        r = (frame - pred).ravel()
-        w = (valid.ravel() & (np.abs(r) <= huber * sigma)).astype(np.float32)
-        dyw, dxw = dy * w, dx * w
-        a11, a12, a22 = float(dyw @ dy), float(dyw @ dx), float(dxw @ dx)
-        b1, b2 = float(dyw @ r), float(dxw @ r)
-        det = a11 * a22 - a12 * a12
-        if det > 1e-12 * max(a11 * a22, 1e-30):
-            dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
-            pred += (dt[0] * dy + dt[1] * dx).reshape(ny, nx)
-    r2 = frame - pred
-    c = np.float32(huber * sigma)
-    pseudo = np.clip(r2, -c, c)
-    pseudo += pred
-    np.copyto(pseudo, pred, where=~valid)
-    return pseudo, dt, r2

@@ -196,6 +196,10 @@ def fuse_registered(
 
     Returns the image (RGB for a Bayer burst) and the method's details.
     """
+    if method == "robust" and config.psf_regions != (1, 1):
+        from elphel_host.mfsr.regions import fuse_regions
+
+        return fuse_regions(frames, regs, scale=scale, bayer=bayer, config=config)
     fl = list(frames)
     used = [r.index for r in regs if r.ok]
     shifts = [regs[i].shift for i in used]

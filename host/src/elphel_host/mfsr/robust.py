@@ -27,12 +27,7 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import (
-    ForwardModel,
-    FourierSolver,
-    ModelSpectra,
-    refine_and_pseudo,
-)
+from elphel_host.mfsr.forward import ForwardModel, FourierSolver
 from elphel_host.mfsr.frames import (
     aligned,
     central_window,
@@ -41,6 +36,7 @@ from elphel_host.mfsr.frames import (
     padded,
 )
 from elphel_host.mfsr.psf import PsfEstimate, estimate_psf
+from elphel_host.mfsr.refine import ModelSpectra, refine_and_pseudo
 from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.mfsr.scale import check_scale
 from elphel_host.parallel import parallel_map

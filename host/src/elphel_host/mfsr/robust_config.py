@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.psf import MAX_SIGMA, check_kernel
+from elphel_host.mfsr.psf import MAX_SIGMA
+from elphel_host.mfsr.psf_given import MAX_REGIONS, check_kernel, check_kernel_grid
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,15 @@ class RobustConfig:
         and shape the prior with the rest. False: the pixel aperture alone. A given
         ``blur_sigma``, ``prior_sigma`` or ``psf_kernel`` is used instead of an estimate.
     psf_kernel
-        A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf.check_kernel`),
+        A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf_given.check_kernel`),
         used in place of the Gaussian.
+    psf_regions
+        (rows, columns) of image regions fused each with its own PSF (estimated in each
+        region, or ``psf_grid``'s) and blended (:mod:`elphel_host.mfsr.regions`); (1, 1):
+        one PSF for the whole frame.
+    psf_grid
+        Given PSFs per region, ``(rows, columns, h, w)`` on the output's HR grid
+        (:func:`elphel_host.mfsr.psf_given.check_kernel_grid`); sets ``psf_regions``.
     fit_noise
         Estimate the noise from the residuals of a weakly regularised fit of the burst
         (:func:`~elphel_host.mfsr.robust.fit_noise`) when there are enough frames; False:
@@ -71,6 +79,8 @@ class RobustConfig:
     fit_noise: bool = True
     estimate_psf: bool = True
     psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    psf_regions: tuple[int, int] = (1, 1)
+    psf_grid: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.passes < 0:
@@ -87,6 +97,17 @@ class RobustConfig:
             object.__setattr__(self, "psf_kernel", check_kernel(self.psf_kernel, "psf_kernel"))
             if self.blur_sigma > 0:
                 raise ValueError("psf_kernel: allowed only without blur_sigma")
+        if self.psf_grid is not None:
+            grid = check_kernel_grid(self.psf_grid)
+            if self.psf_kernel is not None or self.blur_sigma > 0:
+                raise ValueError("psf_grid: allowed only without psf_kernel and blur_sigma")
+            if self.psf_regions not in ((1, 1), grid.shape[:2]):
+                raise ValueError(f"psf_regions={self.psf_regions}; psf_grid has {grid.shape[:2]}")
+            object.__setattr__(self, "psf_grid", grid)
+            object.__setattr__(self, "psf_regions", (int(grid.shape[0]), int(grid.shape[1])))
+        ky, kx = self.psf_regions
+        if not (1 <= ky <= MAX_REGIONS and 1 <= kx <= MAX_REGIONS):
+            raise ValueError(f"psf_regions={self.psf_regions}; allowed: 1..{MAX_REGIONS} a side")
         if self.pad < 0:
             raise ValueError(f"pad={self.pad}; allowed: >= 0")
         if self.refine_window < 32:
