@@ -6,7 +6,7 @@ import pytest
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.cli import build_parser
-from elphel_sim.render import Intrinsics, blurred_strips, render_strips
+from elphel_sim.render import Intrinsics, LensBlur, blurred_strips, render_strips
 from elphel_sim.scenarios import build
 from elphel_sim.world import Plane, Pose, Scene, Texture, World
 
@@ -21,9 +21,14 @@ def world() -> World:
     return World(Scene([Plane(texture, origin=(0.0, 0.0, 1000.0))]))
 
 
-def strips(world: World, window, sigma: float) -> np.ndarray:
+def strips(world: World, window, sigma: float, edge: float | None = None) -> np.ndarray:
     return blurred_strips(
-        world, INTRINSICS, Pose.at((0.0, 0.0, 0.0)), window=window, times_s=TIMES, sigma_px=sigma
+        world,
+        INTRINSICS,
+        Pose.at((0.0, 0.0, 0.0)),
+        window=window,
+        times_s=TIMES,
+        blur=LensBlur(sigma, edge),
     )
 
 
@@ -55,8 +60,9 @@ def test_the_blur_has_the_gaussian_transfer(world):
 
 @pytest.mark.parametrize("forming", ["thread", "process"])
 def test_the_board_forms_blurred_frames(forming):
-    sharp, soft = (build("default", seed=2, lens_blur_px=b) for b in (0.0, 1.5))
-    assert [p.lens_blur_px for p in soft.ports] == [1.5] and sharp.ports[0].lens_blur_px == 0
+    sharp, soft = (build("default", seed=2, lens_blur=LensBlur(b)) for b in (0.0, 1.5))
+    assert [p.lens_blur.centre_px for p in soft.ports] == [1.5]
+    assert sharp.ports[0].lens_blur == LensBlur()
     images = []
     for scenario in (sharp, soft):
         board = SimCameraBoard(scenario, seed=2, noise=False, forming=forming)
@@ -75,10 +81,27 @@ def test_the_board_forms_blurred_frames(forming):
     assert detail[1] < 0.6 * detail[0], detail
 
 
+def test_a_blur_that_grows_towards_the_corners(world):
+    # 0.3 px on the optical axis (the array's centre), 1.5 px at the corners: a patch
+    # around (row 435, column 595) is 0.71 of the way out in squared radius, 1.15 px
+    varying = strips(world, (0, 0, 640, 480), 0.3, 1.5)[0, ..., 1]
+    uniform = {s: strips(world, (0, 0, 640, 480), s)[0, ..., 1] for s in (0.3, 0.7, 1.15, 1.5)}
+    for patch, expected in ((np.s_[200:280, 280:360], 0.3), (np.s_[400:470, 560:630], 1.15)):
+        err = {
+            s: float(np.sqrt(np.mean((varying[patch] - u[patch]) ** 2))) for s, u in uniform.items()
+        }
+        assert min(err, key=err.get) == expected, err
+    # a window of the array sees the same field-dependent blur
+    part = strips(world, (500, 380, 96, 64), 0.3, 1.5)[0, ..., 1]
+    np.testing.assert_allclose(part, varying[380:444, 500:596], rtol=0, atol=1e-9)
+
+
 def test_cli_checks_the_blur():
-    assert build_parser().parse_args(["up", "--lens-blur", "0.35"]).lens_blur == 0.35
-    for bad in ("-1", "6", "nan", "x"):
+    parse = build_parser().parse_args
+    assert parse(["up", "--lens-blur", "0.35"]).lens_blur == LensBlur(0.35)
+    assert parse(["up", "--lens-blur", "0.3:0.9"]).lens_blur == LensBlur(0.3, 0.9)
+    for bad in ("-1", "6", "nan", "x", "0.3:9", "1:2:3"):
         with pytest.raises(SystemExit):
-            build_parser().parse_args(["up", "--lens-blur", bad])
+            parse(["up", "--lens-blur", bad])
     with pytest.raises(ValueError, match="lens blur"):
-        build("default", seed=0, lens_blur_px=9.0)
+        build("default", seed=0, lens_blur=LensBlur(9.0))

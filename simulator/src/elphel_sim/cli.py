@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from elphel_sim import __version__
-from elphel_sim.render.optics import MAX_LENS_BLUR_PX, check_lens_blur
+from elphel_sim.render.optics import MAX_LENS_BLUR_PX, LensBlur
 from elphel_sim.scenarios import SCENARIOS
 
 
@@ -22,13 +22,13 @@ def tcp_port(text: str) -> int:
     return value
 
 
-def lens_blur(text: str) -> float:
-    """A lens blur sigma for argparse (sensor px)."""
+def lens_blur(text: str) -> LensBlur:
+    """A lens blur for argparse: ``C`` or ``C:E`` (sigma in sensor px)."""
     try:
-        return check_lens_blur(float(text))
+        return LensBlur.parse(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"{text!r}; allowed: 0..{MAX_LENS_BLUR_PX:g} (sigma in sensor pixels)"
+            f"{text!r}; allowed: C or C:E, sigmas 0..{MAX_LENS_BLUR_PX:g} sensor pixels"
         ) from None
 
 
@@ -58,10 +58,11 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument(
         "--lens-blur",
         type=lens_blur,
-        default=0.0,
-        metavar="PX",
-        help="the lenses blur the image: a Gaussian of sigma PX sensor pixels "
-        f"(0..{MAX_LENS_BLUR_PX:g}; default 0, a perfectly sharp lens)",
+        default=None,
+        metavar="C[:E]",
+        help="the lenses blur the image: a Gaussian of sigma C sensor pixels on the optical "
+        "axis, growing with the squared distance from it to E at the farthest corner "
+        f"(0..{MAX_LENS_BLUR_PX:g}; default: a perfectly sharp lens)",
     )
     up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
     return p
@@ -80,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             as_json=args.json,
             firmware=args.firmware,
             public_reads=args.public_reads,
-            lens_blur_px=args.lens_blur,
+            lens_blur=args.lens_blur,
         )
     except OSError as e:
         print(f"elphel-sim: {e}", file=sys.stderr)

@@ -33,6 +33,7 @@ from elphel_sim.faults import fault_router
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.relief import depth_map, surface_cloud
+from elphel_sim.render.optics import SHARP, LensBlur
 from elphel_sim.scenarios import build
 from elphel_sim.stage_server import SimStage
 from elphel_sim.stock.firmware import StockFirmware
@@ -243,14 +244,14 @@ def up(
     as_json: bool,
     firmware: str = "camd",
     public_reads: bool = False,
-    lens_blur_px: float = 0.0,
+    lens_blur: LensBlur | None = None,
 ) -> int:
     """Serve the rig; ``firmware`` "camd" (elphel-camd's REST) or "elphel" (stock NC393).
 
     ``public_reads``: elphel-camd answers reads without the token (its ``--public-reads``).
-    ``lens_blur_px``: a Gaussian lens blur (sigma, sensor px) on the cameras' images.
+    ``lens_blur``: a lens blur on the cameras' images (None: a perfectly sharp lens).
     """
-    board = SimCameraBoard(build(scenario, seed=seed, lens_blur_px=lens_blur_px), seed=seed)
+    board = SimCameraBoard(build(scenario, seed=seed, lens_blur=lens_blur), seed=seed)
     camera = CameraService(board)
     secret = new_token()
     token: str | None = secret
@@ -278,7 +279,7 @@ def up(
         "stage_url": stage.tcp_url,
         "stage_pty": stage.pty_path,
         "sim_url": sim_served.url,
-        "lens_blur_px": lens_blur_px,
+        **(lens_blur or SHARP).to_json(),
     }
     if as_json:
         print(json.dumps(announce), flush=True)

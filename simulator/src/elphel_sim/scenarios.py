@@ -13,7 +13,7 @@ from elphel_camd.sensors import mt9p006 as spec
 from elphel_sim.chips.lepton35 import lepton_intrinsics
 from elphel_sim.quad import QuadRig, QuadScene, standard_scene
 from elphel_sim.relief import relief_scene
-from elphel_sim.render import Intrinsics, SensorModel, check_lens_blur
+from elphel_sim.render import Intrinsics, LensBlur, SensorModel
 from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 
 
@@ -21,20 +21,19 @@ from elphel_sim.world import CameraMount, Plane, Rig, Scene, Texture, World
 class PortSpec:
     """A sensor port of the simulated board: which chip, which camera, which mount.
 
-    ``lens_blur_px``: the lens's Gaussian blur (sigma, sensor px) on the Aptina sensors'
-    images; 0 (the scenarios' default) renders a perfectly sharp lens.
+    ``lens_blur``: the lens's blur on the Aptina sensors' images; the scenarios' default
+    renders a perfectly sharp lens.
     """
 
     model: str | None
     mount: str
     intrinsics: Intrinsics
     sensor: SensorModel = field(default_factory=SensorModel)
-    lens_blur_px: float = 0.0
+    lens_blur: LensBlur = field(default_factory=LensBlur)
 
     def forming_options(self) -> dict[str, Any]:
         """`SimSensor.form_image`'s keyword arguments from this port (the noise aside)."""
-        blur = self.lens_blur_px
-        return {"intrinsics": self.intrinsics, "model": self.sensor, "lens_blur_px": blur}
+        return {"intrinsics": self.intrinsics, "model": self.sensor, "lens_blur": self.lens_blur}
 
 
 @dataclass
@@ -260,14 +259,13 @@ SCENARIOS["quad-rig"] = quad_rig
 SCENARIOS["quad-rig-small"] = quad_rig_small
 
 
-def build(name: str, *, seed: int, lens_blur_px: float = 0.0) -> Scenario:
-    """Scenario ``name``; ``lens_blur_px`` > 0 puts a Gaussian lens blur on every port."""
+def build(name: str, *, seed: int, lens_blur: LensBlur | None = None) -> Scenario:
+    """Scenario ``name``; ``lens_blur`` puts that lens blur on every port."""
     try:
         factory = SCENARIOS[name]
     except KeyError:
         raise ValueError(f"scenario {name!r}; allowed: {', '.join(sorted(SCENARIOS))}") from None
     scenario = factory(seed)
-    if lens_blur_px:
-        blur = check_lens_blur(lens_blur_px)
-        scenario.ports = [replace(p, lens_blur_px=blur) for p in scenario.ports]
+    if lens_blur is not None:
+        scenario.ports = [replace(p, lens_blur=lens_blur) for p in scenario.ports]
     return scenario

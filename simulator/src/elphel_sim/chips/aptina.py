@@ -115,6 +115,6 @@ class SimAptinaChip(SimLatchedChip, SimSensor):
             record.pose,
             window=readout.window_on(intrinsics),
             times_s=record.strip_times_s(),
-            sigma_px=context.lens_blur_px,
+            blur=context.lens_blur,
         )
         return read_out(rgb, readout, model=context.model, rng=context.rng)

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_sim.render.optics import SHARP, LensBlur
+
 if TYPE_CHECKING:
     from elphel_sim.fpga import FrameRecord
     from elphel_sim.render import Intrinsics, SensorModel
@@ -44,15 +46,15 @@ class ImageContext:
     """What forming a frame's image needs besides its record.
 
     The world seen, the port's camera intrinsics and sensor model, the noise generator
-    (None: no noise) and the lens's Gaussian blur in sensor px (0: none; the Aptina
-    sensors apply it, the Lepton's optics are its own).
+    (None: no noise) and the lens's blur (the Aptina sensors apply it, the Lepton's
+    optics are its own).
     """
 
     world: World
     intrinsics: Intrinsics
     model: SensorModel
     rng: np.random.Generator | None
-    lens_blur_px: float = 0.0
+    lens_blur: LensBlur = SHARP
 
 
 class SimSensor(ABC):
@@ -93,10 +95,10 @@ class SimSensor(ABC):
         intrinsics: Intrinsics,
         model: SensorModel,
         rng: np.random.Generator | None,
-        lens_blur_px: float = 0.0,
+        lens_blur: LensBlur = SHARP,
     ) -> NDArray[np.uint16]:
         """The image of a recorded frame (from the record alone, not the chip's state)."""
-        return self.render(record, ImageContext(world, intrinsics, model, rng, lens_blur_px))
+        return self.render(record, ImageContext(world, intrinsics, model, rng, lens_blur))
 
     @abstractmethod
     def render(self, record: FrameRecord, context: ImageContext) -> NDArray[np.uint16]:

@@ -10,7 +10,7 @@ is importable from here.
 
 from __future__ import annotations
 
-from elphel_sim.render.optics import MAX_LENS_BLUR_PX, blurred_strips, check_lens_blur
+from elphel_sim.render.optics import MAX_LENS_BLUR_PX, LensBlur, blurred_strips, check_lens_blur
 from elphel_sim.render.radiance import Intrinsics, Window, render_radiance, render_strips
 from elphel_sim.render.radiance_cache import RADIANCE_CACHE, RadianceCache
 from elphel_sim.render.sensor import (
@@ -28,6 +28,7 @@ __all__ = [
     "MAX_LENS_BLUR_PX",
     "RADIANCE_CACHE",
     "Intrinsics",
+    "LensBlur",
     "RadianceCache",
     "Readout",
     "SensorModel",
