@@ -218,9 +218,10 @@ def estimate_psf(
     Returns
     -------
     PsfEstimate
-        ``source="estimated"``: ``sigma`` the blur to deconvolve (model ``"none"`` when it
-        comes out below 0.05 HR px), ``prior_sigma`` the softness left to the prior,
-        ``apparent_sigma`` what the search found (both 0 when its interval reaches 0).
+        ``source="estimated"``: ``apparent_sigma`` what the search found, ``sigma`` the
+        blur to deconvolve (model ``"none"`` when it comes out below 0.05 HR px) and
+        ``prior_sigma`` the softness left to the prior; ``sigma`` and ``prior_sigma`` are
+        0 when the search's interval reaches 0.
     """
     n = len(frames)
     check_frames(frames)
@@ -321,10 +322,10 @@ def estimate_psf(
     told = interval[0] > 0
     soft = SCENE_SOFTNESS * ap
     blur = float(np.sqrt(max(sigma * sigma - soft * soft, 0.0))) if told else 0.0
-    model = "gaussian" if blur >= 0.05 else "none"
-    blur = blur if model == "gaussian" else 0.0
+    if blur < 0.05:
+        blur = 0.0
     return PsfEstimate(
-        model,
+        "gaussian" if blur else "none",
         blur,
         "estimated",
         tau=tau if choose_tau else None,
