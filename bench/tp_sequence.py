@@ -1,4 +1,4 @@
-"""Sequence throughput of the tile processor: many quads on a local Dask cluster vs one process.
+"""Sequence throughput of the tile processor: many quads on Dask clusters vs one process.
 
 Renders a few distinct simulated 2592x1936 quads (the standard scene, different noise
 seeds) and lays them out as a sequence of ``--quads`` quad directories (hard links to
@@ -8,22 +8,28 @@ the rendered files). In the same run it computes every DSI
   (one thread: ``sequential_1_thread``) and with the single-quad command's default of two
   threads (``sequential_default_threads``), and
 * through ``elphel tp QUAD_DIR... --out-dir DIR`` on a local cluster (one worker process
-  per core, one quad per task),
+  per core, one quad per task), and
+* through the same command with ``--scheduler ADDRESS`` on a real cluster on loopback:
+  a ``dask scheduler`` and one ``dask worker --nthreads 1`` per core (each with its
+  nanny, as a user starts them), started by this script before the first turn with the
+  environment docs/tile-processor.md recommends,
 
-and checks that the cluster's DSIs are bit for bit the sequential ones. The single-threaded
-sequence and the cluster take turns, twice, in the order sequential, cluster, cluster,
-sequential (``--rounds``), and the ratio is of their summed times: how fast the host runs
-the two vCPUs drifts by 10-20 % over minutes, and a drift that is linear in time then
-favours neither side. Both sides' imports in this process are done before anything is
-timed; the cluster's start, its worker processes and their imports, is timed in every
-turn. The worker processes import the script that started them as their main module:
-this script's top level imports what the `elphel` command's does (``elphel_host.cli``)
-and no more, so that its workers start as the command's do (with the simulator and the
-tile processor imported at the top, a local cluster took 0.74-0.89 s to start instead
-of 0.43-0.49 s). Prints exactly one JSON object; nothing is hard-coded.
+and checks that both clusters' DSIs are bit for bit the sequential ones. The
+single-threaded sequence and the clusters take turns, twice, in the order sequential,
+local, real, real, local, sequential (``--rounds``), and the ratios are of their summed
+times: how fast the host runs the two vCPUs drifts by 10-20 % over minutes, and a drift
+that is linear in time then favours no side. Every side's imports in this process are
+done before anything is timed; the local cluster's start, its worker processes and their
+imports, is timed in every turn; the real cluster's first turn includes its workers'
+imports of the tile processor. The local cluster's worker processes import the script
+that started them as their main module: this script's top level imports what the
+`elphel` command's does (``elphel_host.cli``) and no more, so that its workers start as
+the command's do (with the simulator and the tile processor imported at the top, a local
+cluster took 0.74-0.89 s to start instead of 0.43-0.49 s). Prints exactly one JSON
+object; nothing is hard-coded.
 
     .venv/bin/python bench/tp_sequence.py [--quads 40 --distinct 2 --width 2592 --height 1936]
-                                          [--rounds 2]
+                                          [--rounds 2] [--workers N]
 """
 
 from __future__ import annotations
@@ -33,9 +39,11 @@ import contextlib
 import io as stdio
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -76,14 +84,60 @@ def sequential(quads: list[Path], out: Path, config: TpConfig) -> float:
     return time.perf_counter() - t0
 
 
-def cluster(sequence: Path, out: Path, workers: int) -> tuple[float, dict[str, Any]]:
-    """``elphel tp SEQUENCE --out-dir OUT`` on a local cluster: seconds (cluster start
-    included) and the command's JSON report."""
+DASK = Path(sys.executable).with_name("dask")
+START_TIMEOUT_S = 90.0
+
+
+@contextlib.contextmanager
+def real_cluster(root: Path, workers: int) -> Iterator[str]:
+    """``dask scheduler`` and ``workers`` x ``dask worker --nthreads 1`` on 127.0.0.1,
+    with the environment docs/tile-processor.md recommends; yields the address, and
+    stops the processes afterwards."""
+    from dask.distributed import Client
+
+    from elphel_host.parallel import dask_environment
+
+    env = {**os.environ, **dask_environment()}
+    sched_file = root / "scheduler.json"
+    procs: list[subprocess.Popen[bytes]] = []
+    with (root / "dask.log").open("wb") as log:
+        try:
+
+            def start(*args: str) -> None:
+                cmd = [str(DASK), *args, "--host", "127.0.0.1", "--no-dashboard"]
+                procs.append(subprocess.Popen(cmd, stdout=log, stderr=log, env=env))
+
+            start("scheduler", "--port", "0", "--scheduler-file", str(sched_file))
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while not sched_file.is_file():
+                if procs[0].poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"dask scheduler did not start; see {root / 'dask.log'}")
+                time.sleep(0.2)
+            address = str(json.loads(sched_file.read_text())["address"])
+            for _ in range(workers):
+                start("worker", address, "--nthreads", "1")
+            with Client(address, timeout="30s") as client:
+                client.wait_for_workers(workers, timeout=START_TIMEOUT_S)
+            yield address
+        finally:
+            for p in procs:
+                p.terminate()
+            for p in procs:
+                try:
+                    p.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+
+
+def cluster(sequence: Path, out: Path, where: list[str]) -> tuple[float, dict[str, Any]]:
+    """``elphel tp SEQUENCE --out-dir OUT`` plus ``where`` (``--workers N`` for a local
+    cluster, ``--scheduler ADDRESS``): seconds (a local cluster's start included) and the
+    command's JSON report."""
     buf = stdio.StringIO()
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(stdio.StringIO()):
-        args = ["tp", str(sequence), "--out-dir", str(out), "--workers", str(workers), "--json"]
-        rc = elphel(args)
+        rc = elphel(["tp", str(sequence), "--out-dir", str(out), *where, "--json"])
     seconds = time.perf_counter() - t0
     report: dict[str, Any] = json.loads(buf.getvalue())
     report["rc"] = rc
@@ -131,25 +185,28 @@ def main() -> int:
 
         load_before = os.getloadavg()[0]
         one = TpConfig(threads=1)
-        seq1_runs: list[float] = []
-        cluster_runs: list[float] = []
-        identical = True
-        failed = 0
-        for r in range(args.rounds):
-            # taking turns: sequential, cluster, cluster, sequential, ...
-            for side in ("sequential", "cluster") if r % 2 == 0 else ("cluster", "sequential"):
-                if side == "sequential":
-                    seq1_runs.append(sequential(quads, root / f"seq1-{r}", one))
-                    continue
-                seconds, report = cluster(root / "sequence", root / f"cluster-{r}", args.workers)
-                cluster_runs.append(seconds)
-                failed += report["failed"]
-                identical &= report["rc"] == 0 and same_dsis(
-                    root / "seq1-0", root / f"cluster-{r}", names
-                )
+        runs: dict[str, list[float]] = {"sequential": [], "local": [], "real": []}
+        identical = {"local": True, "real": True}
+        failed = {"local": 0, "real": 0}
+        with real_cluster(root, args.workers) as address:
+            where = {"local": ["--workers", str(args.workers)], "real": ["--scheduler", address]}
+            for r in range(args.rounds):
+                # taking turns: sequential, local, real, real, local, sequential, ...
+                order = ("sequential", "local", "real")
+                for side in order if r % 2 == 0 else order[::-1]:
+                    out = root / f"{side}-{r}"
+                    if side == "sequential":
+                        runs[side].append(sequential(quads, out, one))
+                        continue
+                    seconds, report = cluster(root / "sequence", out, where[side])
+                    runs[side].append(seconds)
+                    failed[side] += report["failed"]
+                    identical[side] &= report["rc"] == 0 and same_dsis(
+                        root / "sequential-0", out, names
+                    )
         seq2_s = sequential(quads, root / "seq2", replace(one, threads=TpConfig().threads))
-        identical_threads = same_dsis(root / "seq1-0", root / "seq2", names)
-    seq1_s, cluster_s = sum(seq1_runs), sum(cluster_runs)
+        identical_threads = same_dsis(root / "sequential-0", root / "seq2", names)
+    seq1_s, local_s, real_s = (sum(runs[k]) for k in ("sequential", "local", "real"))
     result: dict[str, Any] = {
         "conditions": {
             "cpus": os.cpu_count(),
@@ -166,8 +223,8 @@ def main() -> int:
             "render_s": round(render_s, 1),
         },
         "sequential_1_thread": {
-            "runs_s": [round(t, 3) for t in seq1_runs],
-            "quads_per_s": args.quads * len(seq1_runs) / seq1_s,
+            "runs_s": [round(t, 3) for t in runs["sequential"]],
+            "quads_per_s": args.quads * len(runs["sequential"]) / seq1_s,
         },
         "sequential_default_threads": {
             "threads": TpConfig().threads,
@@ -176,25 +233,40 @@ def main() -> int:
         },
         "local_cluster": {
             "workers": args.workers,
-            "runs_s_including_cluster_start": [round(t, 3) for t in cluster_runs],
-            "failed_quads": failed,
-            "quads_per_s": args.quads * len(cluster_runs) / cluster_s,
+            "runs_s_including_cluster_start": [round(t, 3) for t in runs["local"]],
+            "failed_quads": failed["local"],
+            "quads_per_s": args.quads * len(runs["local"]) / local_s,
+        },
+        "real_cluster": {
+            "workers": args.workers,
+            "processes": "dask scheduler + dask worker --nthreads 1 (with nanny), loopback",
+            "runs_s": [round(t, 3) for t in runs["real"]],
+            "failed_quads": failed["real"],
+            "quads_per_s": args.quads * len(runs["real"]) / real_s,
         },
         "ratios": {
-            "sequential_1_thread_time_over_cluster_time": round(seq1_s / cluster_s, 3),
-            "per_round": [round(a / b, 3) for a, b in zip(seq1_runs, cluster_runs, strict=True)],
+            "sequential_1_thread_time_over_cluster_time": round(seq1_s / local_s, 3),
+            "per_round": [
+                round(a / b, 3) for a, b in zip(runs["sequential"], runs["local"], strict=True)
+            ],
+            "sequential_1_thread_time_over_real_cluster_time": round(seq1_s / real_s, 3),
+            "per_round_real_cluster": [
+                round(a / b, 3) for a, b in zip(runs["sequential"], runs["real"], strict=True)
+            ],
             "sequential_default_threads_time_over_cluster_time": round(
-                seq2_s * len(cluster_runs) / cluster_s, 3
+                seq2_s * len(runs["local"]) / local_s, 3
             ),
         },
         "identical_dsis": {
-            "cluster_vs_sequential": identical,
+            "cluster_vs_sequential": identical["local"],
+            "real_cluster_vs_sequential": identical["real"],
             "one_vs_two_threads": identical_threads,
         },
     }
     result["targets_met"] = {
-        "cluster_1.7x_faster_than_sequential_1_thread": seq1_s >= 1.7 * cluster_s,
-        "identical_dsis": identical,
+        "cluster_1.7x_faster_than_sequential_1_thread": seq1_s >= 1.7 * local_s,
+        "real_cluster_1.7x_faster_than_sequential_1_thread": seq1_s >= 1.7 * real_s,
+        "identical_dsis": identical["local"] and identical["real"],
     }
     print(json.dumps(result, sort_keys=True))
     return 0
