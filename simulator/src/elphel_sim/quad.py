@@ -288,10 +288,13 @@ def write_quad_dir(
     model: SensorModel = DEFAULT_SENSOR,
     extra: dict[str, object] | None = None,
     kernels: tuple[NDArray[np.float32], int] | None = None,
+    kernel_target_sigma_px: float | None = None,
 ) -> Path:
     """Write a quad directory: quad.json + cam0..3.tif (+ kernels.npy, step).
 
-    The format is in docs/tile-processor.md, Files.
+    ``kernel_target_sigma_px``: the Gaussian the kernels correct to (`correction_kernels`'
+    ``target_sigma_px``), recorded beside them. The format is in docs/tile-processor.md,
+    Files.
     """
     if images.shape[0] != 4:
         raise ValueError(f"images must have shape (4, H, W), got {images.shape}")
@@ -304,7 +307,9 @@ def write_quad_dir(
             "pixel_pitch_um": rig.pixel_pitch_um,
             "baseline_mm": rig.baseline_mm,
         },
-        kernels=None if kernels is None else quad_format.KernelFile("kernels.npy", int(kernels[1])),
+        kernels=None
+        if kernels is None
+        else quad_format.KernelFile("kernels.npy", int(kernels[1]), kernel_target_sigma_px),
         extra=dict(extra or {}),
     )
     return quad_format.write_quad_dir(

@@ -67,11 +67,16 @@ def test_written_directory_reads_back(tmp_path: Path) -> None:
     manifest = QuadManifest(
         cameras=quad_cameras(SQUARE),
         full_scale_dn=4095,
-        kernels=KernelFile("kernels.npy", 16),
+        kernels=KernelFile("kernels.npy", 16, target_sigma_px=1.3),
         extra={"note": "test"},
     )
     write_quad_dir(tmp_path, manifest, list(images), kernels=kernels)
     assert json.loads((tmp_path / "quad.json").read_text()) == manifest.to_json()
+    assert manifest.to_json()["kernels"] == {
+        "file": "kernels.npy",
+        "step": 16,
+        "target_sigma_px": 1.3,
+    }
     qs = read_quad_dir(tmp_path)
     assert qs.manifest == QuadManifest.from_json(manifest.to_json())
     assert qs.full_scale_dn == 4095.0
@@ -85,6 +90,14 @@ def test_written_directory_reads_back(tmp_path: Path) -> None:
         (lambda m: m.update(optics=3), "optics=3; allowed: an object"),
         (lambda m: m.update(full_scale_dn=0), "full_scale_dn=0; allowed: a number > 0"),
         (lambda m: m.update(kernels={"step": 16}), "kernels=.*allowed"),
+        (
+            lambda m: m.update(kernels={"file": "k.npy", "target_sigma_px": 0}),
+            "kernels.target_sigma_px=0; allowed: a number of sensor px > 0 and <= 5.0",
+        ),
+        (
+            lambda m: m.update(kernels={"file": "k.npy", "target_sigma_px": "1"}),
+            "kernels.target_sigma_px='1'",
+        ),
         (lambda m: m["cameras"][0].pop("file"), r"cameras\[0\] needs 'file' and 'position'"),
         (lambda m: m["cameras"][3].update(position=[True, 0]), r"cameras\[3\].position"),
     ],

@@ -72,9 +72,11 @@ def register(subparsers: Any) -> None:
         default=None,
         metavar="PSF",
         help="optics blur the robust method deconvolves: auto (default: estimated from the "
-        "burst), none (the pixel aperture alone), sigma=S (a Gaussian of S output px) or "
+        "burst), none (the pixel aperture alone), sigma=S (a Gaussian of S output px), "
         "FILE.npy (a PSF on the output grid, odd sides up to 31; or 4-D, rows x columns "
-        "of regions x the PSF: one PSF per image region)",
+        "of regions x the PSF: one PSF per image region) or quad=QUAD_DIR[,camera=N] (the "
+        "PSFs behind the aberration-correction kernels of a tile-processor quad directory, "
+        "one per kernel cell; the burst must cover that camera's whole image)",
     )
     p.add_argument(
         "--psf-regions",
@@ -116,13 +118,46 @@ def psf_regions(text: str | None) -> tuple[int, int]:
 
 
 def robust_config(
-    psf: str | None, blur_sigma: float | None = None, regions: str | None = None
+    psf: str | None,
+    blur_sigma: float | None = None,
+    regions: str | None = None,
+    *,
+    scale: int | None = None,
 ) -> RobustConfig:
-    """The robust method's options from ``--psf``, ``--blur-sigma`` and ``--psf-regions``."""
+    """The robust method's options from ``--psf``, ``--blur-sigma`` and ``--psf-regions``.
+
+    ``scale``: the output's, which a quad's PSFs (``--psf quad=DIR``) are drawn at.
+    """
     try:
+        if psf is not None and psf.strip().startswith("quad="):
+            if scale is None:
+                raise ValueError("--psf quad=DIR needs the output's scale")
+            if regions is not None:
+                raise InputFormatError(
+                    f"--psf-regions {regions} and --psf {psf}: the quad's kernel grid sets "
+                    "the regions; give one of them"
+                )
+            return _quad_config(psf, blur_sigma, scale)
         return replace(_psf_config(psf, blur_sigma), psf_regions=psf_regions(regions))
     except ValueError as e:
         raise InputFormatError(str(e)) from e
+
+
+def _quad_config(psf: str, blur_sigma: float | None, scale: int) -> RobustConfig:
+    """``--psf quad=DIR[,camera=N]``: the PSFs recovered from a quad's kernel file."""
+    from elphel_host.mfsr.psf_tp import quad_psfs
+
+    if blur_sigma is not None:
+        raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
+    where, _, rest = psf.strip()[len("quad=") :].partition(",")
+    camera = rest[len("camera=") :] if rest.startswith("camera=") else None
+    if not where or (rest and (camera is None or not camera.isdigit())):
+        raise InputFormatError(f"--psf {psf!r}; allowed: quad=QUAD_DIR or quad=QUAD_DIR,camera=N")
+    psfs = quad_psfs(where, int(camera or 0))
+    grid = psfs.grid(scale)
+    if grid.shape[:2] == (1, 1):
+        return RobustConfig(psf_kernel=grid[0, 0], psf_frame=psfs.frame)
+    return RobustConfig(psf_grid=grid, psf_frame=psfs.frame)
 
 
 def _psf_config(psf: str | None, blur_sigma: float | None) -> RobustConfig:
@@ -166,7 +201,9 @@ def _fuse_one(
 
 
 def run(args: argparse.Namespace) -> int:
-    args.robust_config = robust_config(args.psf, args.blur_sigma, args.psf_regions)
+    args.robust_config = robust_config(
+        args.psf, args.blur_sigma, args.psf_regions, scale=args.scale
+    )
     if args.burst_dirs[0] == "compare":
         return run_compare(args)
     dirs = args.burst_dirs

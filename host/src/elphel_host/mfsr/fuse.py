@@ -196,6 +196,13 @@ def fuse_registered(
 
     Returns the image (RGB for a Bayer burst) and the method's details.
     """
+    frame = tuple(frames[0].shape)
+    if method == "robust" and config.psf_frame is not None and frame != config.psf_frame:
+        raise ValueError(
+            f"the given PSFs were made for {config.psf_frame[1]}x{config.psf_frame[0]} frames "
+            f"(their quad's images); these frames are {frame[1]}x{frame[0]}; allowed: the "
+            "same sensor area"
+        )
     if method == "robust" and config.psf_regions != (1, 1):
         from elphel_host.mfsr.regions import fuse_regions
 

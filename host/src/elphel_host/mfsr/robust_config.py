@@ -60,6 +60,9 @@ class RobustConfig:
     psf_grid
         Given PSFs per region, ``(rows, columns, h, w)`` on the output's HR grid
         (:func:`elphel_host.mfsr.psf_given.check_kernel_grid`); sets ``psf_regions``.
+    psf_frame
+        (height, width) of the frames a given PSF or grid was made for (e.g. a quad's
+        calibration, :mod:`elphel_host.mfsr.psf_tp`); frames of another size are refused.
     fit_noise
         Estimate the noise from the residuals of a weakly regularised fit of the burst
         (:func:`~elphel_host.mfsr.robust.fit_noise`) when there are enough frames; False:
@@ -81,6 +84,7 @@ class RobustConfig:
     psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     psf_regions: tuple[int, int] = (1, 1)
     psf_grid: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    psf_frame: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         if self.passes < 0:

@@ -7,7 +7,8 @@ camera's ``file`` names its burst directory instead. ``quad.json`` is one frozen
 simulator) goes through :meth:`QuadManifest.to_json` / :meth:`QuadManifest.from_json`.
 
 The DSI and ML_DATA files live in :mod:`elphel_host.tp.dsi`; their functions are
-importable from here too.
+importable from here too. The ``kernels`` entry and its array are
+:mod:`elphel_host.tp.kernel_file`'s.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from elphel_host.tp.dsi import write_dsi as write_dsi
 from elphel_host.tp.dsi import write_ml_data as write_ml_data
 from elphel_host.tp.geometry import QuadGeometry
 from elphel_host.tp.images import QuadImages
+from elphel_host.tp.kernel_file import KernelFile, kernel_file, load_kernels
 
 F32 = NDArray[np.float32]
 
@@ -106,22 +108,6 @@ def quad_cameras(
         QuadCamera(file=f"cam{i}.tif", position=(float(p[0]), float(p[1])), fields=dict(f))
         for i, (p, f) in enumerate(zip(positions, per_camera, strict=True))
     )
-
-
-@dataclass(frozen=True)
-class KernelFile:
-    """``"kernels": {"file": "kernels.npy", "step": 16}``: aberration kernels of the quad.
-
-    The file holds a NumPy array ``(4, colours, ky, kx, 15, 15)``: a grid of pixel-domain
-    convolution kernels ``step`` pixels apart (see docs/tile-processor.md).
-    """
-
-    file: str
-    step: int = 16
-
-    def to_json(self) -> dict[str, Any]:
-        """The ``kernels`` entry of ``quad.json``."""
-        return {"file": self.file, "step": self.step}
 
 
 @dataclass(frozen=True)
@@ -238,7 +224,7 @@ class QuadManifest:
             bayer=bayer,
             full_scale_dn=full,
             optics=optics,
-            kernels=_kernel_file(doc.get("kernels"), source),
+            kernels=kernel_file(doc.get("kernels"), source),
             extra={k: v for k, v in doc.items() if k not in cls.FIELDS},
         )
 
@@ -256,19 +242,6 @@ class QuadManifest:
         """Write ``root/quad.json`` (atomically)."""
         text = json.dumps(self.to_json(), indent=2) + "\n"
         return write_atomic(Path(root) / MANIFEST, text.encode())
-
-
-def _kernel_file(spec: Any, source: str) -> KernelFile | None:
-    if spec is None:
-        return None
-    if not isinstance(spec, dict) or "file" not in spec:
-        raise InputFormatError(
-            f"{source}: kernels={spec!r}; allowed: {{'file': NAME.npy, 'step': 16}}"
-        )
-    step = spec.get("step", 16)
-    if not isinstance(step, int) or step < 1:
-        raise InputFormatError(f"{source}: kernels.step={step!r}; allowed: an integer >= 1")
-    return KernelFile(file=str(spec["file"]), step=step)
 
 
 def write_quad_dir(
@@ -364,7 +337,7 @@ def read_quad_dir(path: str | Path) -> QuadSet:
         np.divide(im, np.float32(full), out=out, dtype=np.float32)
     kernels = None
     if manifest.kernels is not None:
-        kernels = _load_kernels(root / manifest.kernels.file, source)
+        kernels = load_kernels(root / manifest.kernels.file, source)
     quad = QuadImages(
         stack,
         bayer=manifest.bayer,
@@ -373,13 +346,3 @@ def read_quad_dir(path: str | Path) -> QuadSet:
         kernel_step=16 if manifest.kernels is None else manifest.kernels.step,
     )
     return QuadSet(quad=quad, full_scale_dn=float(full), manifest=manifest)
-
-
-def _load_kernels(file: Path, source: Path) -> F32:
-    if not file.is_file():
-        raise InputFormatError(f"{source}: kernels.file {file} does not exist")
-    try:
-        data = np.load(file, allow_pickle=False)
-    except ValueError as e:
-        raise InputFormatError(f"{file}: not a .npy array ({e})") from e
-    return np.asarray(data, dtype=np.float32)
