@@ -20,6 +20,8 @@ from scipy.special import ndtri
 from elphel_sim.render.radiance import Intrinsics, Window
 from elphel_sim.world import FloatArray
 
+F32 = NDArray[np.float32]
+
 BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 _CHANNEL = {"R": 0, "G": 1, "B": 2}
 
@@ -220,7 +222,6 @@ def read_out(
 # The colour-filtered radiance of the last few read-only radiances (a still scene's,
 # which `render_strips` keeps for reuse), keyed by the radiance array's identity and the
 # filter's phase and gains: a full frame's four strided copies cost 18 ms of 83.
-F32 = NDArray[np.float32]
 _FilterKey = tuple[int, str, int, int, tuple[float, ...]]
 _FILTERED: dict[_FilterKey, tuple[weakref.ref[FloatArray], F32, F32]] = {}
 _FILTERED_KEEP = 2
