@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from elphel_sim.render.sensor import Readout, SensorModel, read_out, standard_normal
+from elphel_sim.render.sensor import Readout, SensorModel, _filtered, read_out, standard_normal
 
 
 def test_table_normal_draws_are_standard_normal() -> None:
@@ -46,3 +46,22 @@ def test_kept_filtered_radiance_gives_the_same_frames() -> None:
             got = read_out(kept, readout, model=model, rng=np.random.default_rng(7))
             np.testing.assert_array_equal(got, want)
     assert kept.flags.writeable is False and np.array_equal(kept, radiance)
+
+
+def test_filtered_radiance_is_kept_for_views_and_apart_from_the_gains() -> None:
+    # `render_strips` hands out a new read-only view of the kept radiance each time.
+    kept = np.random.default_rng(2).uniform(0.2, 0.8, (1, 48, 64, 3))
+    kept.flags.writeable = False
+    first, gain = _filtered(kept.view(), _readout())
+    again, _ = _filtered(kept.view(), _readout())
+    assert again is first  # the same view of the same array: not filtered again
+    other_gain, other = _filtered(kept.view(), _readout(gains=(2.0, 1.0, 1.0, 1.0)))[::-1]
+    assert other is first and not np.array_equal(other_gain, gain)  # a gain is not a filter
+    assert _filtered(kept.view(), _readout(left=1))[0] is not first  # another Bayer phase
+    assert _filtered(kept[:, 1:].view(), _readout())[0] is not first  # another part of it
+    writeable = kept.copy()
+    assert _filtered(writeable, _readout())[0] is not _filtered(writeable, _readout())[0]
+    # a read-only view of an array that can still change is not kept either
+    ro = writeable.view()
+    ro.flags.writeable = False
+    assert _filtered(ro, _readout())[0] is not _filtered(ro, _readout())[0]
