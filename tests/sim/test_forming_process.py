@@ -6,16 +6,19 @@ a scene changed after the child started must be seen; a child that died must not
 the board down with it.
 """
 
+import mmap
 import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from elphel_camd.errors import CaptureUnavailableError
 from elphel_sim.board import SimCameraBoard, make_sim_board
+from elphel_sim.forming import CHILD_ENVIRONMENT, FormingProcess, image_buffer
 from elphel_sim.scenarios import build
 
 LEPTON = 2  # the mixed scenario's 160x120 Lepton: quick to form
@@ -125,3 +128,62 @@ def test_the_daemons_board_forms_in_a_child_and_unknown_modes_are_refused():
         board.close()
     with pytest.raises(ValueError, match="allowed: thread, process"):
         SimCameraBoard(build("mixed", seed=4), forming="gpu")
+
+
+def test_a_frame_waits_for_a_warm_child_while_a_cold_one_is_warmed(monkeypatch):
+    # A cold child boots and renders the radiance from scratch (seconds for a full frame):
+    # a frame asked for while the only warm child is busy waits for that child instead,
+    # and a second child is warmed meanwhile for the next frames asked for together.
+    board = SimCameraBoard(build("mixed", seed=4), seed=4, forming="process")
+    try:
+        board.capture(LEPTON)
+        (warm,) = board._former.processes
+        slow = threading.Event()
+        form = FormingProcess.form
+        calls = []  # (child, frame, a capture's (seeded) or a warm-up's (noise-free))
+
+        def form_slowly(self, spec, record, scene, seed):
+            calls.append((self, record.frame, seed is not None))
+            if self is warm and not slow.is_set():
+                slow.set()
+                time.sleep(1.0)  # busy: the next capture comes meanwhile
+            return form(self, spec, record, scene, seed)
+
+        monkeypatch.setattr(FormingProcess, "form", form_slowly)
+        first = threading.Thread(target=board.capture, args=(LEPTON,))
+        first.start()
+        assert slow.wait(10)
+        board.sim_advance(frames=1, port=LEPTON)
+        got = board.capture(LEPTON)  # while the warm child is still busy
+        first.join(timeout=30)
+        assert got.image.shape == (120, 160)
+        cold = next(f for f in board._former.processes if f is not warm)
+        assert LEPTON in {key[1] for key in warm.warm}
+        deadline = time.monotonic() + 60
+        while not cold.warm and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert {key[1] for key in cold.warm} == {LEPTON}  # warmed with the same port's frame
+        # the cold child's first frame was its warm-up; a capture came to it warm or never
+        assert next(seeded for child, _, seeded in calls if child is cold) is False
+        assert len(board._former.processes) == 2
+    finally:
+        board.close()
+
+
+def test_memory_stays_out_of_the_page_fault_path(boards):
+    # The child reuses its heap and asks for no huge pages; the daemon's side receives a
+    # full frame into a mapping of its own (freed with the image), in small pages.
+    _, there = boards
+    there.capture(LEPTON)
+    former = there._former.processes[0]
+    environ = dict(
+        item.split("=", 1)
+        for item in Path(f"/proc/{former.pid}/environ").read_text().split("\0")
+        if "=" in item
+    )
+    assert {k: environ.get(k) for k in CHILD_ENVIRONMENT} == CHILD_ENVIRONMENT
+    full = image_buffer((1944, 2592), np.dtype(np.uint16))
+    assert full.shape == (1944, 2592) and full.flags.writeable and full.flags.c_contiguous
+    assert isinstance(full.base.base.obj, mmap.mmap)  # a view of a memoryview of the mapping
+    small = image_buffer((120, 160), np.dtype(np.uint16))
+    assert small.base is None and small.shape == (120, 160)

@@ -176,7 +176,7 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None) -> 
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
-_MMAP_THRESHOLD_MAX = 32 * 2**20  # glibc's largest allowed on 64-bit
+MMAP_THRESHOLD_MAX = 32 * 2**20  # glibc's largest allowed on 64-bit
 
 
 def _libc() -> Any:
@@ -222,7 +222,7 @@ def heap_reuse() -> Iterator[None]:
         return
     trim = int(fixed[0] or 128 * 1024)
     mmap = int(fixed[1] or 128 * 1024)
-    _LIBC.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX)
+    _LIBC.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_MAX)
     _LIBC.mallopt(_M_TRIM_THRESHOLD, 2**30)
     try:
         yield

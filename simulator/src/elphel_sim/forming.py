@@ -1,7 +1,7 @@
 """Frames' images formed in a child process, as a camera's sensor and FPGA form them.
 
 The simulated board forms a frame's image when a capture asks for it: seconds of CPU for
-a full frame of a scene seen for the first time, about 0.15 s when its radiance is reused.
+a full frame of a scene seen for the first time, about 35 ms when its radiance is reused.
 Formed in the daemon's process, that CPU and the interpreter lock are taken from the
 request handling, which on a camera never does this work. `FormingProcess` does it in
 one child process instead: a frame's record goes there, its pixels come back through
@@ -12,16 +12,26 @@ of them, so that a full capture and a ring fetch asked for at once form side by 
 The child keeps its own copy of the scene. It is sent again when the scene's planes or
 background change (planes compared by identity, as the radiance cache keys them);
 changing a texture's array in place is not seen.
+
+Memory is kept out of the page-fault path on both sides: the child reuses its heap for
+the frame-sized arrays it makes for every frame (glibc's thresholds fixed in its
+environment), and the daemon's side receives each image into a mapping of its own in
+small pages (`image_buffer`). With NumPy's default (transparent huge pages asked for on
+every array of 4 MiB and more) a fresh 2 MiB page can stall in the kernel's compaction:
+under bench/load.py a frame's forming took 132-197 ms of CPU at the 99th percentile
+instead of 33 ms, 80-180 ms of it in the kernel.
 """
 
 from __future__ import annotations
 
 import contextlib
+import mmap
 import os
 import socket
 import subprocess
 import sys
 import threading
+from collections.abc import Hashable
 from dataclasses import replace
 from multiprocessing.connection import Connection
 from typing import Any
@@ -30,12 +40,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd.errors import CaptureUnavailableError
-from elphel_host.parallel import fix_mmap_threshold
+from elphel_host.parallel import MMAP_THRESHOLD_MAX, fix_mmap_threshold
 from elphel_sim.fpga import FrameRecord
 from elphel_sim.scenarios import PortSpec
 from elphel_sim.world import Scene, World
 
 START_TIMEOUT_S = 120.0  # the child imports NumPy and SciPy first
+
+# The child's environment: its frame-sized arrays come from the heap and go back to it
+# (mapped anew and freed for every frame, each one's pages faulted in again), in small
+# pages (NumPy's huge-page advice off: see the module's docstring).
+CHILD_ENVIRONMENT = {
+    "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD_MAX),
+    "MALLOC_TRIM_THRESHOLD_": str(2**30),
+    "NUMPY_MADVISE_HUGEPAGE": "0",
+}
 
 
 def _serve(conn: Connection, pixels: socket.socket) -> None:
@@ -92,6 +111,7 @@ class FormingProcess:
         self._process: subprocess.Popen[bytes] | None = None
         self._scene_key: tuple[Any, ...] | None = None
         self._scene_planes: tuple[object, ...] = ()  # held so that their ids stay theirs
+        self._closed = False
         self._start()
 
     def _start(self) -> None:
@@ -102,6 +122,7 @@ class FormingProcess:
             [sys.executable, "-m", "elphel_sim.forming", str(child.fileno())],
             pass_fds=(child.fileno(),),
             stdin=subprocess.DEVNULL,
+            env={**os.environ, **CHILD_ENVIRONMENT},
         )
         child.close()
         # Messages are pickled through a Connection; the pixels come raw on the same
@@ -110,6 +131,7 @@ class FormingProcess:
         self._pixels = parent
         self._scene_key = None
         self._ready = False
+        self.warm: set[Hashable] = set()  # `warm_key`s of the frames this child formed
 
     def _stop(self) -> None:
         if self._conn is not None:
@@ -128,6 +150,7 @@ class FormingProcess:
 
     def close(self) -> None:
         with self._lock:
+            self._closed = True
             self._stop()
 
     def form(
@@ -135,6 +158,8 @@ class FormingProcess:
     ) -> NDArray[Any]:
         """The image of a frame of port ``spec``, with noise seeded by ``seed`` (None: none)."""
         with self._lock:
+            if self._closed:
+                raise CaptureUnavailableError(f"port {record.port}: the board is closed")
             if self._conn is None or self._process is None or self._process.poll() is not None:
                 self._stop()
                 self._start()
@@ -162,11 +187,10 @@ class FormingProcess:
                 raise EOFError("the image-forming process did not start")
             conn.recv()
             self._ready = True
-        planes = tuple(scene.planes)
-        key = (tuple(id(p) for p in planes), np.float64(float(scene.background)).tobytes())
+        key = scene_key(scene)
         if key != self._scene_key:
             conn.send(("scene", scene))
-            self._scene_key, self._scene_planes = key, planes
+            self._scene_key, self._scene_planes = key, tuple(scene.planes)
         conn.send(("form", spec, replace(record, image=None), seed))
         answer = conn.recv()
         if answer[0] == "error":
@@ -174,9 +198,35 @@ class FormingProcess:
                 f"port {record.port}: forming frame {record.frame} failed: {answer[1]}"
             )
         _, shape, dtype = answer
-        image = np.empty(shape, dtype=np.dtype(dtype))
+        image = image_buffer(shape, np.dtype(dtype))
         _receive_pixels(pixels, image)
+        self.warm.add(warm_key(spec, record, scene))
         return image
+
+
+def scene_key(scene: Scene) -> tuple[Any, ...]:
+    """What tells a scene from a changed one: its planes' identities and background."""
+    return (tuple(id(p) for p in scene.planes), np.float64(float(scene.background)).tobytes())
+
+
+def warm_key(spec: PortSpec, record: FrameRecord, scene: Scene) -> Hashable:
+    """A child that formed a frame of this key has the radiance the next one reuses."""
+    return (scene_key(scene), record.port, spec.model)
+
+
+def image_buffer(shape: tuple[int, ...], dtype: np.dtype[Any]) -> NDArray[Any]:
+    """An empty image; from `IMAGE_MMAP_BYTES` up in an anonymous mapping of its own.
+
+    Such an image's memory goes back to the system when the image is freed, and its
+    pages are small ones (NumPy would ask for huge pages, whose faults can stall).
+    """
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    if nbytes < IMAGE_MMAP_BYTES:
+        return np.empty(shape, dtype=dtype)
+    memory = mmap.mmap(-1, nbytes)
+    with contextlib.suppress(AttributeError, OSError):  # the advice exists on Linux only
+        memory.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(memory, dtype=dtype).reshape(shape)
 
 
 def _receive_pixels(sock: socket.socket, image: NDArray[Any]) -> None:
@@ -217,8 +267,13 @@ def _images_in_their_own_mappings() -> None:
 class FormingPool:
     """Up to ``size`` `FormingProcess` children: frames asked for at once form side by side.
 
-    A child is started when every started one is busy (one capture at a time uses one).
-    The pool's process keeps large arrays in their own mappings
+    A frame goes to a free child that has formed one of its scene and port before (a
+    *warm* child: it reuses the radiance, tens of milliseconds for a full frame). While
+    every warm child is busy the frame waits for one rather than going to a cold child
+    (seconds for a full frame: a new child boots and renders the radiance from scratch),
+    and a cold child is warmed meanwhile with the same frame, so that frames asked for at
+    once next time form side by side. Children start on demand (one capture at a time
+    never starts a second). The pool's process keeps large arrays in their own mappings
     (`_images_in_their_own_mappings`).
     """
 
@@ -227,32 +282,79 @@ class FormingPool:
             raise ValueError(f"size={size}; allowed: >= 1")
         _images_in_their_own_mappings()
         self.size = size
-        self._lock = threading.Lock()
+        self._cond = threading.Condition()
         self._free: list[FormingProcess] = []
         self._all: list[FormingProcess] = []
-        self._available = threading.Semaphore(size)
+        self._warming: set[Hashable] = set()  # keys a child is being warmed for
 
     @property
     def processes(self) -> list[FormingProcess]:
-        with self._lock:
+        with self._cond:
             return list(self._all)
 
     def form(
         self, spec: PortSpec, record: FrameRecord, scene: Scene, seed: list[int] | None
     ) -> NDArray[Any]:
-        """As `FormingProcess.form`, in a child that is free now."""
-        with self._available:
-            with self._lock:
-                if self._free:
-                    former = self._free.pop()
-                else:
-                    former = FormingProcess()
-                    self._all.append(former)
+        """As `FormingProcess.form`, in a warm child if there is one (see the class)."""
+        key = warm_key(spec, record, scene)
+        with self._cond:
+            while True:
+                former = self._take(key)
+                if former is not None:
+                    break
+                self._warm_another(key, spec, record, scene)
+                self._cond.wait()
+        try:
+            return former.form(spec, record, scene, seed)
+        finally:
+            self._give_back(former)
+
+    def _take(self, key: Hashable) -> FormingProcess | None:
+        """A child for a frame of ``key`` now, or None: wait for a warm one (lock held)."""
+        for former in reversed(self._free):
+            if key in former.warm:
+                self._free.remove(former)
+                return former
+        if any(key in former.warm for former in self._all):
+            return None  # busy now, free within one frame's forming
+        return self._cold()
+
+    def _cold(self) -> FormingProcess | None:
+        """A free child or a new one, if the pool has one to give (lock held)."""
+        if self._free:
+            return self._free.pop()
+        if len(self._all) < self.size:
+            former = FormingProcess()
+            self._all.append(former)
+            return former
+        return None
+
+    def _give_back(self, former: FormingProcess) -> None:
+        with self._cond:
+            self._free.append(former)
+            self._cond.notify_all()
+
+    def _warm_another(
+        self, key: Hashable, spec: PortSpec, record: FrameRecord, scene: Scene
+    ) -> None:
+        """Warm a cold child for ``key`` in the background, if none is warming (lock held)."""
+        if key in self._warming:
+            return
+        former = self._cold()
+        if former is None:
+            return
+        self._warming.add(key)
+
+        def warm() -> None:
             try:
-                return former.form(spec, record, scene, seed)
+                with contextlib.suppress(CaptureUnavailableError):
+                    former.form(spec, record, scene, None)  # noise-free: the radiance counts
             finally:
-                with self._lock:
-                    self._free.append(former)
+                with self._cond:
+                    self._warming.discard(key)
+                self._give_back(former)
+
+        threading.Thread(target=warm, name="sim-forming-warm-up", daemon=True).start()
 
     def close(self) -> None:
         for former in self.processes:
