@@ -16,7 +16,7 @@ import argparse
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import tifffile
@@ -33,6 +33,10 @@ from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import save_preview
 from elphel_host.progress import ProgressLine
+
+if TYPE_CHECKING:  # the quad's PSFs are imported when asked for (SciPy's optimiser)
+    from elphel_host.burst.io import Burst
+    from elphel_host.mfsr.psf_tp import QuadPsfs
 
 
 def register(subparsers: Any) -> None:
@@ -126,38 +130,51 @@ def robust_config(
 ) -> RobustConfig:
     """The robust method's options from ``--psf``, ``--blur-sigma`` and ``--psf-regions``.
 
-    ``scale``: the output's, which a quad's PSFs (``--psf quad=DIR``) are drawn at.
+    ``scale``: the output's, which a quad's PSFs (``--psf quad=DIR``) are drawn at, for
+    frames that are the quad's whole images (`elphel_host.mfsr.psf_tp.burst_config` draws
+    them for a burst's own window).
     """
     try:
-        if psf is not None and psf.strip().startswith("quad="):
+        quad = quad_option(psf, blur_sigma, regions)
+        if quad is not None:
             if scale is None:
                 raise ValueError("--psf quad=DIR needs the output's scale")
-            if regions is not None:
-                raise InputFormatError(
-                    f"--psf-regions {regions} and --psf {psf}: the quad's kernel grid sets "
-                    "the regions; give one of them"
-                )
-            return _quad_config(psf, blur_sigma, scale)
+            from elphel_host.mfsr.psf_tp import quad_config
+
+            return quad_config(quad, scale)
         return replace(_psf_config(psf, blur_sigma), psf_regions=psf_regions(regions))
     except ValueError as e:
         raise InputFormatError(str(e)) from e
 
 
-def _quad_config(psf: str, blur_sigma: float | None, scale: int) -> RobustConfig:
+def quad_option(psf: str | None, blur_sigma: float | None, regions: str | None) -> QuadPsfs | None:
     """``--psf quad=DIR[,camera=N]``: the PSFs recovered from a quad's kernel file."""
+    if psf is None or not psf.strip().startswith("quad="):
+        return None
     from elphel_host.mfsr.psf_tp import quad_psfs
 
+    if regions is not None:
+        raise InputFormatError(
+            f"--psf-regions {regions} and --psf {psf}: the quad's kernel grid sets "
+            "the regions; give one of them"
+        )
     if blur_sigma is not None:
         raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
     where, _, rest = psf.strip()[len("quad=") :].partition(",")
     camera = rest[len("camera=") :] if rest.startswith("camera=") else None
     if not where or (rest and (camera is None or not camera.isdigit())):
         raise InputFormatError(f"--psf {psf!r}; allowed: quad=QUAD_DIR or quad=QUAD_DIR,camera=N")
-    psfs = quad_psfs(where, int(camera or 0))
-    grid = psfs.grid(scale)
-    if grid.shape[:2] == (1, 1):
-        return RobustConfig(psf_kernel=grid[0, 0], psf_frame=psfs.frame)
-    return RobustConfig(psf_grid=grid, psf_frame=psfs.frame)
+    return quad_psfs(where, int(camera or 0))
+
+
+def _burst_config(
+    config: RobustConfig, quad: QuadPsfs | None, burst_dir: str, burst: Burst, scale: int
+) -> RobustConfig:
+    if quad is None:
+        return config
+    from elphel_host.mfsr.psf_tp import burst_config
+
+    return burst_config(quad, burst_dir, burst, scale)
 
 
 def _psf_config(psf: str | None, blur_sigma: float | None) -> RobustConfig:
@@ -186,6 +203,7 @@ def _fuse_one(
     as_float: bool,
     config: RobustConfig,
     use_prior: bool,
+    quad: QuadPsfs | None = None,
 ) -> dict[str, Any]:
     burst = read_burst(burst_dir)
     res = fuse_burst(
@@ -193,7 +211,7 @@ def _fuse_one(
         scale=scale,
         method=method,
         use_prior=use_prior,
-        config=config,
+        config=_burst_config(config, quad, burst_dir, burst, scale),
     )
     meta = fused_meta(method=method, scale=scale, burst=burst_dir, bayer=burst.bayer)
     written = write_image(Path(out), res.image, as_float=as_float, meta=meta)
@@ -201,8 +219,11 @@ def _fuse_one(
 
 
 def run(args: argparse.Namespace) -> int:
-    args.robust_config = robust_config(
-        args.psf, args.blur_sigma, args.psf_regions, scale=args.scale
+    args.quad_psfs = quad_option(args.psf, args.blur_sigma, args.psf_regions)
+    args.robust_config = (
+        RobustConfig()  # the quad's PSFs are drawn per burst, under its window
+        if args.quad_psfs is not None
+        else robust_config(args.psf, args.blur_sigma, args.psf_regions, scale=args.scale)
     )
     if args.burst_dirs[0] == "compare":
         return run_compare(args)
@@ -216,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
             args.float,
             args.robust_config,
             not args.no_prior,
+            args.quad_psfs,
         )
         human = (
             f"{result['out']}: {result['method']} x{args.scale}, {result['used']}/"
@@ -277,6 +299,7 @@ def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
                     args.float,
                     args.robust_config,
                     not args.no_prior,
+                    args.quad_psfs,
                     pure=False,
                 ): i
                 for i, (d, o) in enumerate(zip(args.burst_dirs, outs, strict=True))
@@ -302,6 +325,9 @@ def run_compare(args: argparse.Namespace) -> int:
     if len(args.burst_dirs) != 2:
         raise InputFormatError(f"compare takes one BURST_DIR, got {args.burst_dirs[1:]}")
     burst = read_burst(args.burst_dirs[1])
+    config = _burst_config(
+        args.robust_config, args.quad_psfs, args.burst_dirs[1], burst, args.scale
+    )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     ref = None
@@ -315,7 +341,7 @@ def run_compare(args: argparse.Namespace) -> int:
             scale=args.scale,
             method=method,
             use_prior=not args.no_prior,
-            config=args.robust_config,
+            config=config,
         )
         entry = write_image(
             out / f"{method}.tif",

@@ -9,20 +9,31 @@ kernel is only known up to the sensor's Nyquist frequency, and a parametric PSF 
 it beyond, where super-resolution needs it. The PSFs are drawn on the output grid and
 laid out as one per MFSR region, the nearest cell's (as the tile processor uses the
 nearest kernel per tile).
+
+A burst need not be the quad's whole image: each frame's TIFF metadata (as elphel-camd
+writes it) gives its window on the sensor (``WOI_LEFT``, ``WOI_TOP``) and its flips
+(``FLIPH``, ``FLIPV``), and the quad's images may carry theirs. The regions then take the
+cells under the burst's window, and a PSF is mirrored where the two images are flipped
+differently. A quad image without them is the whole sensor from its corner, unflipped;
+a burst without them must be the quad's whole image.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tifffile
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from elphel_host.burst.io import Burst
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.psf_given import MAX_KERNEL, MAX_REGIONS
+from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.tp.io import MANIFEST, QuadManifest
 from elphel_host.tp.kernel_file import load_kernels
 
@@ -44,6 +55,14 @@ class GaussianPsf:
         """Standard deviations along the principal axes, larger first."""
         ev = np.linalg.eigvalsh(self.cov)
         return float(np.sqrt(max(ev[1], 0.0))), float(np.sqrt(max(ev[0], 0.0)))
+
+    def mirrored(self, *, flip_y: bool, flip_x: bool) -> GaussianPsf:
+        """The PSF as seen in an image mirrored top-bottom (``flip_y``) and/or left-right."""
+        sy, sx = (-1.0 if flip_y else 1.0), (-1.0 if flip_x else 1.0)
+        m = np.diag([sy, sx])
+        return replace(
+            self, cov=m @ self.cov @ m, offset=(sy * self.offset[0], sx * self.offset[1])
+        )
 
     def on_grid(self, scale: int) -> F64:
         """The PSF on the output grid (``scale`` output px per sensor px), sum 1, odd sides."""
@@ -89,31 +108,133 @@ def psf_from_kernel(kernel: NDArray[np.floating], target_sigma_px: float) -> Gau
 
 
 @dataclass(frozen=True)
+class SensorWindow:
+    """Where an image lies on the sensor: its window (origin, size) and its flips."""
+
+    left: int
+    top: int
+    height: int
+    width: int
+    fliph: bool = False
+    flipv: bool = False
+
+    def to_sensor(self, y: float, x: float) -> tuple[float, float]:
+        """Sensor coordinates of image point (y, x) (continuous: pixel i spans [i, i+1))."""
+        return (
+            self.top + (self.height - y if self.flipv else y),
+            self.left + (self.width - x if self.fliph else x),
+        )
+
+    def from_sensor(self, y: float, x: float) -> tuple[float, float]:
+        """Image coordinates of sensor point (y, x)."""
+        y, x = y - self.top, x - self.left
+        return (self.height - y if self.flipv else y), (self.width - x if self.fliph else x)
+
+    def covers(self, other: SensorWindow) -> bool:
+        """``other`` lies within this window on the sensor."""
+        return (
+            self.left <= other.left
+            and self.top <= other.top
+            and other.left + other.width <= self.left + self.width
+            and other.top + other.height <= self.top + self.height
+        )
+
+    def describe(self) -> str:
+        flips = [name for name, on in (("FLIPH", self.fliph), ("FLIPV", self.flipv)) if on]
+        return f"{self.width}x{self.height} at ({self.left}, {self.top})" + (
+            f" {'+'.join(flips)}" if flips else ""
+        )
+
+
+def image_window(path: str | Path, shape: tuple[int, ...]) -> SensorWindow | None:
+    """Where an image of ``shape`` lies on the sensor, from its TIFF's JSON metadata.
+
+    elphel-camd writes ``WOI_LEFT``, ``WOI_TOP``, ``FLIPH`` and ``FLIPV`` there (flips
+    missing: none); None for an image without its window in its metadata.
+    """
+    meta: dict[str, Any] = {}
+    with tifffile.TiffFile(path) as tif:
+        text = tif.pages.first.description
+    try:
+        found = json.loads(text) if text else {}
+    except ValueError:
+        found = {}  # a description that is not elphel-camd's metadata
+    if isinstance(found, dict):
+        meta = found
+    if "WOI_LEFT" not in meta or "WOI_TOP" not in meta:
+        return None
+
+    def number(key: str) -> int:
+        value = meta.get(key, 0)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise InputFormatError(
+                f"{path}: metadata {key}={value!r}; allowed: a whole number >= 0"
+            )
+        return value
+
+    return SensorWindow(
+        left=number("WOI_LEFT"),
+        top=number("WOI_TOP"),
+        height=int(shape[0]),
+        width=int(shape[1]),
+        fliph=bool(number("FLIPH")),
+        flipv=bool(number("FLIPV")),
+    )
+
+
+@dataclass(frozen=True)
 class QuadPsfs:
-    """A quad camera's PSFs per kernel cell, and the frame they cover."""
+    """A quad camera's PSFs per kernel cell, and where its images lie on the sensor."""
 
-    psfs: list[list[GaussianPsf]]  # [ky][kx]
+    psfs: list[list[GaussianPsf]]  # [ky][kx], on the quad's image
     step: int
-    frame: tuple[int, int]  # (height, width) of the quad's images
+    window: SensorWindow  # of the quad's images
 
-    def grid(self, scale: int) -> F64:
-        """PSFs on the output grid per MFSR region, ``(rows, columns, h, w)``.
+    @property
+    def frame(self) -> tuple[int, int]:
+        """(height, width) of the quad's images."""
+        return self.window.height, self.window.width
 
-        Up to :data:`MAX_REGIONS` regions a side, each the PSF of the kernel cell nearest
-        its centre, padded to one size.
+    def grid(self, scale: int, frame: SensorWindow | None = None) -> F64:
+        """PSFs on the output grid per MFSR region of ``frame``, ``(rows, columns, h, w)``.
+
+        ``frame``: where the burst's frames lie on the sensor (default: the quad's whole
+        image). One region per kernel cell the frame spans, up to :data:`MAX_REGIONS` a
+        side, each the PSF of the cell under its centre, mirrored where the frame and the
+        quad's images are flipped differently; padded to one size.
+
+        Raises
+        ------
+        ValueError
+            The frame does not lie within the quad's images on the sensor.
         """
-        h, w = self.frame
+        quad = self.window
+        frame = frame or quad
+        if not quad.covers(frame):
+            raise ValueError(
+                f"the burst's frames ({frame.describe()} on the sensor) do not lie within "
+                f"the quad's images ({quad.describe()}) the PSFs were calibrated on"
+            )
         ky, kx = len(self.psfs), len(self.psfs[0])
-        rows, cols = min(ky, MAX_REGIONS), min(kx, MAX_REGIONS)
-        kernels = [
-            [
-                self.psfs[min(int((i + 0.5) * h / rows) // self.step, ky - 1)][
-                    min(int((j + 0.5) * w / cols) // self.step, kx - 1)
-                ].on_grid(scale)
-                for j in range(cols)
-            ]
-            for i in range(rows)
-        ]
+        flip_y, flip_x = frame.flipv != quad.flipv, frame.fliph != quad.fliph
+
+        def cell(y: float, x: float) -> tuple[int, int]:  # a point of the frame
+            qy, qx = quad.from_sensor(*frame.to_sensor(y, x))
+            return min(max(int(qy // self.step), 0), ky - 1), min(
+                max(int(qx // self.step), 0), kx - 1
+            )
+
+        (y0, x0), (y1, x1) = cell(0.5, 0.5), cell(frame.height - 0.5, frame.width - 0.5)
+        rows = min(abs(y1 - y0) + 1, MAX_REGIONS)
+        cols = min(abs(x1 - x0) + 1, MAX_REGIONS)
+        kernels = []
+        for i in range(rows):
+            row = []
+            for j in range(cols):
+                cy, cx = cell((i + 0.5) * frame.height / rows, (j + 0.5) * frame.width / cols)
+                psf = self.psfs[cy][cx].mirrored(flip_y=flip_y, flip_x=flip_x)
+                row.append(psf.on_grid(scale))
+            kernels.append(row)
         side = max(k.shape[0] for row in kernels for k in row)
         out = np.zeros((rows, cols, side, side))
         for i, row in enumerate(kernels):
@@ -152,8 +273,9 @@ def quad_psfs(quad_dir: str | Path, camera: int = 0) -> QuadPsfs:
         raise InputFormatError(
             f"{root / spec.file}: shape {kernels.shape}; allowed: (4, {colours}, ky, kx, 15, 15)"
         )
-    with tifffile.TiffFile(root / manifest.cameras[camera].file) as tif:
-        frame = tuple(int(v) for v in tif.pages[0].shape[:2])
+    image = root / manifest.cameras[camera].file
+    with tifffile.TiffFile(image) as tif:
+        shape = tif.pages[0].shape
     colour = colours - 1  # green of R, B, G; the one colour of mono
     ky, kx = kernels.shape[2:4]
     target = spec.target_sigma_px
@@ -161,4 +283,27 @@ def quad_psfs(quad_dir: str | Path, camera: int = 0) -> QuadPsfs:
         [psf_from_kernel(kernels[camera, colour, iy, ix], target) for ix in range(kx)]
         for iy in range(ky)
     ]
-    return QuadPsfs(psfs=psfs, step=spec.step, frame=(frame[0], frame[1]))
+    window = image_window(image, shape) or SensorWindow(0, 0, int(shape[0]), int(shape[1]))
+    return QuadPsfs(psfs=psfs, step=spec.step, window=window)
+
+
+def quad_config(quad: QuadPsfs, scale: int, frame: SensorWindow | None = None) -> RobustConfig:
+    """The quad's PSFs for frames lying at ``frame`` on the sensor (default: its images)."""
+    try:
+        grid = quad.grid(scale, frame)
+    except ValueError as e:
+        raise InputFormatError(str(e)) from e
+    size = quad.frame if frame is None else (frame.height, frame.width)
+    if grid.shape[:2] == (1, 1):
+        return RobustConfig(psf_kernel=grid[0, 0], psf_frame=size)
+    return RobustConfig(psf_grid=grid, psf_frame=size)
+
+
+def burst_config(quad: QuadPsfs, burst_dir: str | Path, burst: Burst, scale: int) -> RobustConfig:
+    """The quad's PSFs under a burst's window on the sensor (its first frame's metadata).
+
+    A burst whose frames do not give their window is taken for the quad's whole image
+    (frames of another size are refused when fused).
+    """
+    first = Path(burst_dir) / burst.infos[0].file
+    return quad_config(quad, scale, image_window(first, burst.frames.shape[1:]))
