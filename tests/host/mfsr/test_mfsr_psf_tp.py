@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,14 +12,17 @@ from scipy import ndimage
 
 from elphel_host.burst.io import write_burst
 from elphel_host.cli import main
+from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr
 from elphel_host.mfsr.psf_tp import (
     GaussianPsf,
     QuadPsfs,
     SensorWindow,
     psf_from_kernel,
+    quad_config,
     quad_psfs,
 )
+from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 from elphel_sim import quad as simquad
 
@@ -218,3 +222,78 @@ def test_a_burst_of_a_window_gets_the_psfs_under_it(
     args = ["mfsr", str(outside), "--scale", "2", "--out", str(tmp_path / "o.tif")]
     assert main([*args, "--psf", f"quad={quad}"]) != 0
     assert "do not lie within the quad's images (256x256 at (0, 0))" in capsys.readouterr().err
+
+
+def test_a_bayer_quads_colours_each_get_their_own_psf(tmp_path: Path) -> None:
+    import skimage.data as sd
+
+    blur = {"R": 1.0, "G": 0.6, "B": 0.8}  # sensor px: a lens with axial colour
+    rig = simquad.QuadRig(width=SIZE, height=SIZE, bayer="GRBG")
+    psfs = np.empty((4, 3, 1, 1, 15, 15))
+    for c, name in enumerate("RGB"):
+        psfs[:, c, 0, 0] = _gauss15(blur[name])
+    ab = simquad.Aberrations(psfs, step=SIZE)
+    fix = simquad.correction_kernels(ab, bayer="GRBG", target_sigma_px=TARGET)
+    images = np.zeros((4, SIZE, SIZE), np.uint16)
+    quad = simquad.write_quad_dir(
+        tmp_path / "quad", images, rig, kernels=(fix, ab.step), kernel_target_sigma_px=TARGET
+    )
+    found = quad_psfs(quad)
+    assert found.colour_psfs is not None
+    got = [round(p[0][0].sigmas[0], 2) for p in found.colour_psfs]
+    assert np.allclose(got, [1.0, 0.6, 0.8], atol=0.03), got  # R, G, B
+    assert found.psfs is found.colour_psfs[1]  # green serves where one PSF does
+
+    hr = np.asarray(sd.astronaut(), np.float32)[:512, :512] / 255.0
+    shifts = random_shifts(16, seed=7, spread=2.0)
+    planes = [
+        make_burst(
+            ndimage.gaussian_filter(hr[..., c], 2 * blur[name], mode="nearest"),
+            shifts,
+            scale=2,
+            noise_sigma=0.005,
+            seed=8 + c,
+        )
+        for c, name in enumerate("RGB")
+    ]
+    mosaics = []
+    for k in range(16):
+        m = planes[1][k].copy()  # GRBG
+        m[0::2, 1::2] = planes[0][k][0::2, 1::2]
+        m[1::2, 0::2] = planes[2][k][1::2, 0::2]
+        mosaics.append(m)
+    config = quad_config(found, 2)
+    assert config.psf_rgb is not None and config.psf_rgb.shape[0] == 3
+    own = fuse_frames(mosaics, scale=2, bayer="GRBG", config=config)
+    green = fuse_frames(mosaics, scale=2, bayer="GRBG", config=replace(config, psf_rgb=None))
+    assert own.info["psf"]["per_colour"] is True
+    score = {
+        (name, c): psnr(hr[..., c], result.image[..., c], data_range=1.0, border=16)
+        for name, result in (("own", own), ("green", green))
+        for c in range(3)
+    }
+    # measured: red 28.03 against 26.32 dB, blue 28.39 against 27.54 dB with their own
+    # PSFs; green 30.21 dB either way
+    assert score["own", 0] > score["green", 0] + 1.0, score
+    assert score["own", 2] > score["green", 2] + 0.5, score
+    assert abs(score["own", 1] - score["green", 1]) < 0.05, score
+
+
+def test_per_colour_psfs_are_checked() -> None:
+    k = _gauss15(0.8)
+    ok = RobustConfig(psf_kernel=k, psf_rgb=np.stack([k, k, k]))
+    assert ok.psf_rgb is not None and ok.psf_rgb.shape == (3, 15, 15)
+    grid = np.broadcast_to(k, (2, 2, 15, 15))
+    assert RobustConfig(psf_grid=grid, psf_rgb=np.stack([grid] * 3)).psf_rgb.shape[:3] == (3, 2, 2)
+    cases = [
+        (dict(psf_rgb=np.stack([k, k, k])), r"allowed: \(3, h, w\) with psf_kernel"),
+        (dict(psf_kernel=k, psf_rgb=np.stack([k, k])), r"allowed: \(3, h, w\) with psf_kernel"),
+        (dict(psf_kernel=k, psf_rgb=np.stack([k, k, -k])), r"psf_rgb\[2\]: allowed: finite"),
+        (
+            dict(psf_grid=grid, psf_rgb=np.stack([grid[:1]] * 3)),
+            r"psf_rgb: \(1, 2\) regions; psf_grid has \(2, 2\)",
+        ),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(ValueError, match=message):
+            RobustConfig(**kwargs)

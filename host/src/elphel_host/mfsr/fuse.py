@@ -249,11 +249,16 @@ def fuse_registered(
         if psf.source == "estimated":
             config = with_psf(config, psf)
         planes = []
-        for pf, ps in colours:
-            plane, rinfo = reconstruct(pf, ps, scale=2 * scale, aperture=scale, config=config)
+        for c, (pf, ps) in enumerate(colours):
+            own = config  # or the colour's own given PSF
+            if config.psf_rgb is not None:
+                own = replace(config, psf_kernel=config.psf_rgb[c], psf_rgb=None)
+            plane, rinfo = reconstruct(pf, ps, scale=2 * scale, aperture=scale, config=own)
             planes.append(plane)
             info.setdefault("noise_sigma_rgb", []).append(rinfo["noise_sigma"])
         info["psf"] = {**psf.to_json(), "tau_used": round(config.tau, 4)}
+        if config.psf_rgb is not None:
+            info["psf"]["per_colour"] = True
         img = np.stack(planes, axis=-1)
     return np.asarray(img, np.float32), info
 

@@ -186,22 +186,29 @@ def image_window(path: str | Path, shape: tuple[int, ...]) -> SensorWindow | Non
 class QuadPsfs:
     """A quad camera's PSFs per kernel cell, and where its images lie on the sensor."""
 
-    psfs: list[list[GaussianPsf]]  # [ky][kx], on the quad's image
+    psfs: list[list[GaussianPsf]]  # [ky][kx], on the quad's image; green's for Bayer
     step: int
     window: SensorWindow  # of the quad's images
+    colour_psfs: tuple[list[list[GaussianPsf]], ...] | None = None  # R, G, B (Bayer)
 
     @property
     def frame(self) -> tuple[int, int]:
         """(height, width) of the quad's images."""
         return self.window.height, self.window.width
 
-    def grid(self, scale: int, frame: SensorWindow | None = None) -> F64:
+    def grid(
+        self,
+        scale: int,
+        frame: SensorWindow | None = None,
+        psfs: list[list[GaussianPsf]] | None = None,
+    ) -> F64:
         """PSFs on the output grid per MFSR region of ``frame``, ``(rows, columns, h, w)``.
 
         ``frame``: where the burst's frames lie on the sensor (default: the quad's whole
         image). One region per kernel cell the frame spans, up to :data:`MAX_REGIONS` a
         side, each the PSF of the cell under its centre, mirrored where the frame and the
-        quad's images are flipped differently; padded to one size.
+        quad's images are flipped differently; padded to one size. ``psfs``: the cells'
+        PSFs (default ``self.psfs``).
 
         Raises
         ------
@@ -215,7 +222,8 @@ class QuadPsfs:
                 f"the burst's frames ({frame.describe()} on the sensor) do not lie within "
                 f"the quad's images ({quad.describe()}) the PSFs were calibrated on"
             )
-        ky, kx = len(self.psfs), len(self.psfs[0])
+        cells = psfs or self.psfs
+        ky, kx = len(cells), len(cells[0])
         flip_y, flip_x = frame.flipv != quad.flipv, frame.fliph != quad.fliph
 
         def cell(y: float, x: float) -> tuple[int, int]:  # a point of the frame
@@ -232,22 +240,34 @@ class QuadPsfs:
             row = []
             for j in range(cols):
                 cy, cx = cell((i + 0.5) * frame.height / rows, (j + 0.5) * frame.width / cols)
-                psf = self.psfs[cy][cx].mirrored(flip_y=flip_y, flip_x=flip_x)
+                psf = cells[cy][cx].mirrored(flip_y=flip_y, flip_x=flip_x)
                 row.append(psf.on_grid(scale))
             kernels.append(row)
         side = max(k.shape[0] for row in kernels for k in row)
-        out = np.zeros((rows, cols, side, side))
-        for i, row in enumerate(kernels):
-            for j, k in enumerate(row):
-                m = (side - k.shape[0]) // 2
-                out[i, j, m : m + k.shape[0], m : m + k.shape[1]] = k
-        return out
+        return np.stack([np.stack([_padded(k, side) for k in row]) for row in kernels])
+
+    def grid_rgb(self, scale: int, frame: SensorWindow | None = None) -> F64 | None:
+        """`grid` of each colour, ``(3, rows, columns, h, w)`` (R, G, B); None for mono."""
+        if self.colour_psfs is None:
+            return None
+        grids = [self.grid(scale, frame, psfs) for psfs in self.colour_psfs]
+        side = max(g.shape[-1] for g in grids)
+        return np.stack([[[_padded(k, side) for k in row] for row in g] for g in grids])
+
+
+def _padded(kernel: F64, side: int) -> F64:
+    """``kernel`` (square, odd) centred in a ``side`` x ``side`` array of zeros."""
+    m = (side - kernel.shape[0]) // 2
+    out = np.zeros((side, side))
+    out[m : m + kernel.shape[0], m : m + kernel.shape[1]] = kernel
+    return out
 
 
 def quad_psfs(quad_dir: str | Path, camera: int = 0) -> QuadPsfs:
     """The PSFs of ``camera`` recovered from a quad directory's kernel file.
 
-    Bayer kernels (colours R, B, G): green's, the colour MFSR estimates its PSF on.
+    ``psfs`` are green's for Bayer kernels (colours R, B, G in the file), the colour MFSR
+    estimates its PSF on, and ``colour_psfs`` each colour's.
 
     Raises
     ------
@@ -276,27 +296,32 @@ def quad_psfs(quad_dir: str | Path, camera: int = 0) -> QuadPsfs:
     image = root / manifest.cameras[camera].file
     with tifffile.TiffFile(image) as tif:
         shape = tif.pages[0].shape
-    colour = colours - 1  # green of R, B, G; the one colour of mono
     ky, kx = kernels.shape[2:4]
     target = spec.target_sigma_px
-    psfs = [
-        [psf_from_kernel(kernels[camera, colour, iy, ix], target) for ix in range(kx)]
-        for iy in range(ky)
+    fitted = [  # per colour of the file: R, B, G; the one colour of mono
+        [
+            [psf_from_kernel(kernels[camera, colour, iy, ix], target) for ix in range(kx)]
+            for iy in range(ky)
+        ]
+        for colour in range(colours)
     ]
     window = image_window(image, shape) or SensorWindow(0, 0, int(shape[0]), int(shape[1]))
-    return QuadPsfs(psfs=psfs, step=spec.step, window=window)
+    rgb = None if colours == 1 else (fitted[0], fitted[2], fitted[1])
+    return QuadPsfs(psfs=fitted[-1], step=spec.step, window=window, colour_psfs=rgb)
 
 
 def quad_config(quad: QuadPsfs, scale: int, frame: SensorWindow | None = None) -> RobustConfig:
     """The quad's PSFs for frames lying at ``frame`` on the sensor (default: its images)."""
     try:
         grid = quad.grid(scale, frame)
+        rgb = quad.grid_rgb(scale, frame)
     except ValueError as e:
         raise InputFormatError(str(e)) from e
     size = quad.frame if frame is None else (frame.height, frame.width)
     if grid.shape[:2] == (1, 1):
-        return RobustConfig(psf_kernel=grid[0, 0], psf_frame=size)
-    return RobustConfig(psf_grid=grid, psf_frame=size)
+        one = None if rgb is None else rgb[:, 0, 0]
+        return RobustConfig(psf_kernel=grid[0, 0], psf_rgb=one, psf_frame=size)
+    return RobustConfig(psf_grid=grid, psf_rgb=rgb, psf_frame=size)
 
 
 def burst_config(quad: QuadPsfs, burst_dir: str | Path, burst: Burst, scale: int) -> RobustConfig:

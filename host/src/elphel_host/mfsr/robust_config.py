@@ -60,6 +60,12 @@ class RobustConfig:
     psf_grid
         Given PSFs per region, ``(rows, columns, h, w)`` on the output's HR grid
         (:func:`elphel_host.mfsr.psf_given.check_kernel_grid`); sets ``psf_regions``.
+    psf_rgb
+        Given PSFs of a Bayer burst's red, green and blue planes, each reconstructed with
+        its own: ``(3, h, w)`` beside ``psf_kernel``, or ``(3, rows, columns, h, w)``
+        beside ``psf_grid`` (each colour's grid; e.g. a quad's per-colour calibration,
+        :mod:`elphel_host.mfsr.psf_tp`). ``psf_kernel`` / ``psf_grid`` is the one used
+        where one PSF serves (mono bursts, the green plane's estimates).
     psf_frame
         (height, width) of the frames a given PSF or grid was made for (e.g. a quad's
         calibration, :mod:`elphel_host.mfsr.psf_tp`); frames of another size are refused.
@@ -84,6 +90,7 @@ class RobustConfig:
     psf_kernel: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     psf_regions: tuple[int, int] = (1, 1)
     psf_grid: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    psf_rgb: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     psf_frame: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
@@ -109,6 +116,8 @@ class RobustConfig:
                 raise ValueError(f"psf_regions={self.psf_regions}; psf_grid has {grid.shape[:2]}")
             object.__setattr__(self, "psf_grid", grid)
             object.__setattr__(self, "psf_regions", (int(grid.shape[0]), int(grid.shape[1])))
+        if self.psf_rgb is not None:
+            object.__setattr__(self, "psf_rgb", self._checked_rgb(self.psf_rgb))
         ky, kx = self.psf_regions
         if not (1 <= ky <= MAX_REGIONS and 1 <= kx <= MAX_REGIONS):
             raise ValueError(f"psf_regions={self.psf_regions}; allowed: 1..{MAX_REGIONS} a side")
@@ -116,6 +125,22 @@ class RobustConfig:
             raise ValueError(f"pad={self.pad}; allowed: >= 0")
         if self.refine_window < 32:
             raise ValueError(f"refine_window={self.refine_window}; allowed: >= 32")
+
+    def _checked_rgb(self, rgb: NDArray[np.float64]) -> NDArray[np.float64]:
+        arr = np.asarray(rgb, dtype=np.float64)
+        if arr.ndim == 3 and len(arr) == 3 and self.psf_kernel is not None:
+            return np.stack([check_kernel(k, f"psf_rgb[{c}]") for c, k in enumerate(arr)])
+        if arr.ndim == 5 and len(arr) == 3 and self.psf_grid is not None:
+            grids = [check_kernel_grid(g, f"psf_rgb[{c}]") for c, g in enumerate(arr)]
+            if grids[0].shape[:2] != self.psf_grid.shape[:2]:
+                raise ValueError(
+                    f"psf_rgb: {grids[0].shape[:2]} regions; psf_grid has {self.psf_grid.shape[:2]}"
+                )
+            return np.stack(grids)
+        raise ValueError(
+            f"psf_rgb: shape {arr.shape}; allowed: (3, h, w) with psf_kernel, or "
+            "(3, rows, columns, h, w) with psf_grid"
+        )
 
 
 DEFAULT_CONFIG = RobustConfig()
