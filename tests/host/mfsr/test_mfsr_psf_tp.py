@@ -25,6 +25,7 @@ from elphel_host.mfsr.psf_tp import (
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 from elphel_sim import quad as simquad
+from elphel_sim.render.sensor import mosaic
 
 TARGET = 1.3  # sensor px: the Gaussian the kernels correct to
 LEFT, RIGHT = 0.6, 1.0  # the lens's blur (sensor px) in the left and right halves
@@ -256,12 +257,7 @@ def test_a_bayer_quads_colours_each_get_their_own_psf(tmp_path: Path) -> None:
         )
         for c, name in enumerate("RGB")
     ]
-    mosaics = []
-    for k in range(16):
-        m = planes[1][k].copy()  # GRBG
-        m[0::2, 1::2] = planes[0][k][0::2, 1::2]
-        m[1::2, 0::2] = planes[2][k][1::2, 0::2]
-        mosaics.append(m)
+    mosaics = [mosaic(np.stack([p[k] for p in planes], axis=-1), "GRBG") for k in range(16)]
     config = quad_config(found, 2)
     assert config.psf_rgb is not None and config.psf_rgb.shape[0] == 3
     own = fuse_frames(mosaics, scale=2, bayer="GRBG", config=config)
