@@ -47,9 +47,9 @@ from elphel_sim.world import Scene, World
 
 START_TIMEOUT_S = 120.0  # the child imports NumPy and SciPy first
 
-# The child's environment: its frame-sized arrays come from the heap and go back to it
-# (mapped anew and freed for every frame, each one's pages faulted in again), in small
-# pages (NumPy's huge-page advice off: see the module's docstring).
+# The child's environment: its frame-sized arrays come from the heap and go back to it,
+# instead of being mapped anew for every frame and their pages faulted in again, and in
+# small pages (NumPy's huge-page advice off: see the module's docstring).
 CHILD_ENVIRONMENT = {
     "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD_MAX),
     "MALLOC_TRIM_THRESHOLD_": str(2**30),
