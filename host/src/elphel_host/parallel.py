@@ -192,18 +192,6 @@ def _libc() -> Any:
 _LIBC = _libc()
 
 
-def fix_mmap_threshold(nbytes: int) -> None:
-    """Allocations of ``nbytes`` and more get their own memory mapping, from now on.
-
-    glibc's threshold is dynamic: once a mapped block is freed it rises to that block's
-    size, and later blocks of that size come from the heap, where freed ones can leave
-    holes the heap does not give back. Fixed, each such block goes back to the system
-    when freed. A no-op without glibc.
-    """
-    if _LIBC is not None:
-        _LIBC.mallopt(_M_MMAP_THRESHOLD, nbytes)
-
-
 @contextmanager
 def heap_reuse() -> Iterator[None]:
     """Let glibc reuse freed heap memory for large arrays during the body.

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_camd.errors import CaptureUnavailableError
-from elphel_host.parallel import MMAP_THRESHOLD_MAX, fix_mmap_threshold
+from elphel_host.parallel import MMAP_THRESHOLD_MAX
 from elphel_sim.fpga import FrameRecord
 from elphel_sim.scenarios import PortSpec
 from elphel_sim.world import Scene, World
@@ -214,11 +214,19 @@ def warm_key(spec: PortSpec, record: FrameRecord, scene: Scene) -> Hashable:
     return (scene_key(scene), record.port, spec.model)
 
 
+#: Images from this size up get a memory mapping of their own (`image_buffer`).
+IMAGE_MMAP_BYTES = 4 * 2**20
+
+
 def image_buffer(shape: tuple[int, ...], dtype: np.dtype[Any]) -> NDArray[Any]:
     """An empty image; from `IMAGE_MMAP_BYTES` up in an anonymous mapping of its own.
 
-    Such an image's memory goes back to the system when the image is freed, and its
-    pages are small ones (NumPy would ask for huge pages, whose faults can stall).
+    The board keeps each formed frame's pixels (10 MB at full resolution) on its ring
+    record until the frame leaves the 64-frame ring. From glibc's heap, freed images
+    left holes the heap could not give back (under bench/load.py the daemon's RSS grew
+    26 % after minute 2); in a mapping of its own an image's memory goes back to the
+    system when it is freed. Its pages are small ones (NumPy would ask for huge pages,
+    whose faults can stall).
     """
     nbytes = int(np.prod(shape)) * dtype.itemsize
     if nbytes < IMAGE_MMAP_BYTES:
@@ -246,24 +254,6 @@ def _receive_pixels(sock: socket.socket, image: NDArray[Any]) -> None:
         got += n
 
 
-#: Arrays from this size up get their own memory mapping in the process that keeps the
-#: formed images (see `_images_in_their_own_mappings`).
-IMAGE_MMAP_BYTES = 4 * 2**20
-
-
-def _images_in_their_own_mappings() -> None:
-    """Fix glibc's mmap threshold at `IMAGE_MMAP_BYTES` in this process.
-
-    The board keeps each formed frame's pixels (10 MB at full resolution) on its ring
-    record until the frame leaves the 64-frame ring. With glibc's dynamic threshold, the
-    first freed image raises the threshold above the image size, later images come from
-    the heap, and freed ones leave holes the heap cannot give back: under bench/load.py
-    the daemon's RSS grew 26 % after minute 2. Mapped on their own, freed images go back
-    to the system at once.
-    """
-    fix_mmap_threshold(IMAGE_MMAP_BYTES)
-
-
 class FormingPool:
     """Up to ``size`` `FormingProcess` children: frames asked for at once form side by side.
 
@@ -273,14 +263,12 @@ class FormingPool:
     (seconds for a full frame: a new child boots and renders the radiance from scratch),
     and a cold child is warmed meanwhile with the same frame, so that frames asked for at
     once next time form side by side. Children start on demand (one capture at a time
-    never starts a second). The pool's process keeps large arrays in their own mappings
-    (`_images_in_their_own_mappings`).
+    never starts a second).
     """
 
     def __init__(self, size: int = 2) -> None:
         if size < 1:
             raise ValueError(f"size={size}; allowed: >= 1")
-        _images_in_their_own_mappings()
         self.size = size
         self._cond = threading.Condition()
         self._free: list[FormingProcess] = []

@@ -20,10 +20,8 @@ a burst without them must be the quad's whole image.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import tifffile
@@ -34,6 +32,7 @@ from elphel_host.burst.io import Burst
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.psf_given import MAX_KERNEL, MAX_REGIONS
 from elphel_host.mfsr.robust_config import RobustConfig
+from elphel_host.recordings.frames import complete_tiff_metadata
 from elphel_host.tp.io import MANIFEST, QuadManifest
 from elphel_host.tp.kernel_file import load_kernels
 
@@ -152,15 +151,7 @@ def image_window(path: str | Path, shape: tuple[int, ...]) -> SensorWindow | Non
     elphel-camd writes ``WOI_LEFT``, ``WOI_TOP``, ``FLIPH`` and ``FLIPV`` there (flips
     missing: none); None for an image without its window in its metadata.
     """
-    meta: dict[str, Any] = {}
-    with tifffile.TiffFile(path) as tif:
-        text = tif.pages.first.description
-    try:
-        found = json.loads(text) if text else {}
-    except ValueError:
-        found = {}  # a description that is not elphel-camd's metadata
-    if isinstance(found, dict):
-        meta = found
+    meta = complete_tiff_metadata(Path(path)) or {}  # none, or not elphel-camd's JSON
     if "WOI_LEFT" not in meta or "WOI_TOP" not in meta:
         return None
 
