@@ -121,6 +121,33 @@ def test_prior_sigma_shapes_the_denoising_only(blurred):
         RobustConfig(prior_sigma=-0.1)
 
 
+def test_a_burst_cannot_tell_a_soft_scene_from_a_wider_blur():
+    # why no blind estimate recovers the lens's width on every photograph: a photograph
+    # softer by 0.5 HR px seen through a blur of sqrt(0.7^2 - 0.5^2) = 0.49 HR px makes the
+    # same burst as the sharper one through 0.7 (Gaussian widths add in quadrature), so
+    # whatever one burst reports, it misses one of the two widths by more than 0.1 px
+    def fourier_blur(x: np.ndarray, s: float) -> np.ndarray:
+        f = np.hypot(*np.meshgrid(np.fft.fftfreq(x.shape[1]), np.fft.fftfreq(x.shape[0])))
+        return np.fft.ifft2(np.fft.fft2(x) * np.exp(-2 * (np.pi * s * f) ** 2)).real
+
+    sharp = _camera().astype(np.float64)
+    soft = fourier_blur(sharp, 0.5)
+    narrow = float(np.sqrt(0.7**2 - 0.5**2))
+    shifts = random_shifts(16, seed=11, spread=2.0)
+    a, b = (
+        make_burst(
+            fourier_blur(scene, s).astype(np.float32), shifts, scale=2, noise_sigma=0.01, seed=12
+        )
+        for scene, s in ((sharp, 0.7), (soft, narrow))
+    )
+    assert max(float(np.abs(fa - fb).max()) for fa, fb in zip(a, b, strict=True)) < 1e-5
+    assert 0.7 - narrow > 0.2
+    # and the two scenes differ: the truth the width is measured against is not in the burst
+    assert psnr(sharp, soft, data_range=1.0, border=8) < 35  # measured 34.35 dB
+    est = [estimate_psf(f, [(float(y), float(x)) for y, x in shifts], scale=2) for f in (a, b)]
+    assert est[0].apparent_sigma == pytest.approx(est[1].apparent_sigma, abs=0.01)
+
+
 def test_given_sigma_is_used_without_search(blurred):
     _, frames, shifts = blurred
     _, info = reconstruct(frames, shifts, scale=2, config=RobustConfig(blur_sigma=0.8))
