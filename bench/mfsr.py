@@ -12,6 +12,9 @@ sharp HR image. robust is the default (``--psf auto``: the blur estimated from t
 the estimate and its error are reported), robust_no_psf the pixel aperture alone
 (``--psf none``, the robust method before the blur estimate), both with bicubic and
 baseline in the same run; the blur-free bursts report robust_no_psf as well.
+Field-varying blur: the photographs through a lens blurring 0.4 HR px on the axis to 1.2
+at the corners; one PSF estimated (the default) against one per region, estimated
+(``--psf-regions 3x3``) or given (the lens's own, as a 4-D PSF file); see _mfsr_optics.py.
 The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
 (peak memory = that process's max RSS, including the frames it loads), each method twice
 in turns, the faster run reported.
@@ -30,54 +33,38 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+from _mfsr_optics import (
+    NO_PSF,
+    SIGMA,
+    Maker,
+    blurred,
+    crop_to,
+    field_varying,
+    gaussian_blur,
+    load,
+    mean_db,
+    summarise_blurred,
+    summarise_field_varying,
+)
 
 from elphel_host.mfsr.fuse import fuse_frames, peak_memory_mb
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.registration import register_frames
 from elphel_host.mfsr.robust import reconstruct
-from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import area_downsample, make_burst, random_shifts, tilted_line_shifts
 
 IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")
-SIGMA = 0.01
-BLURS = (0.5, 0.7, 1.0)
-NO_PSF = RobustConfig(estimate_psf=False)
 SPEED_RUNS = 2
-
-
-def load(name: str) -> np.ndarray:
-    import skimage.data as sd
-
-    img = getattr(sd, name)()
-    if img.ndim == 3:
-        img = img.mean(axis=2)
-    return (np.asarray(img, np.float32) / 255.0).astype(np.float32)
-
-
-def crop_to(img: np.ndarray, s: int) -> np.ndarray:
-    return img[: img.shape[0] // s * s, : img.shape[1] // s * s]
 
 
 def rms(est: list[Any], truth: np.ndarray) -> float:
     e = np.asarray(est, dtype=np.float64) - truth
     return float(np.sqrt(np.mean(np.sum(e[1:] ** 2, axis=1))))
-
-
-# (shifts, scale, seed, optics blur sigma in HR px) -> (frames, sharp HR truth)
-Maker = Callable[..., tuple[list[np.ndarray], np.ndarray]]
-
-
-def gaussian_blur(img: np.ndarray, sigma: float) -> np.ndarray:
-    if sigma <= 0:
-        return img
-    out = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REFLECT_101)
-    return np.asarray(out, np.float32)
 
 
 def image_maker(name: str) -> Maker:
@@ -177,78 +164,6 @@ def quality(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
     return per
 
 
-def blurred(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
-    """x2, 16 frames, random 2-D offsets, optics blur unknown to the methods."""
-    per: dict[str, Any] = {}
-    for n_img, (name, make) in enumerate(makers.items()):
-        row: dict[str, Any] = {}
-        for blur in BLURS:
-            shifts = random_shifts(16, seed=seed + n_img, spread=2.0)
-            frames, hr = make(shifts, 2, seed + 100 + n_img, blur)
-            rng_ = float(hr.max() - hr.min()) if name == "simulator" else 1.0
-            res = {m: fuse_frames(frames, scale=2, method=m) for m in ("bicubic", "baseline")}
-            res["robust"] = fuse_frames(frames, scale=2, method="robust")
-            res["robust_no_psf"] = fuse_frames(frames, scale=2, method="robust", config=NO_PSF)
-            r: dict[str, Any] = {
-                m: {
-                    "psnr_db": round(psnr(hr, v.image, data_range=rng_, border=8), 3),
-                    "ssim": round(ssim(hr, v.image, data_range=rng_, border=8), 4),
-                }
-                for m, v in res.items()
-            }
-            psf = res["robust"].info["psf"]
-            r["psf"] = psf
-            r["psf_sigma_error_hr_px"] = round(psf["sigma_hr_px"] - blur, 4)
-            r["apparent_sigma_error_hr_px"] = round(psf["apparent_sigma_hr_px"] - blur, 4)
-            row[f"sigma_{blur}"] = r
-        per[name] = row
-    return per
-
-
-def _mean(xs: list[float]) -> float:
-    return round(float(np.mean(xs)), 3)
-
-
-def summarise_blurred(per: dict[str, Any]) -> dict[str, Any]:
-    def gains(a: str, b: str, blur: float | None = None) -> list[float]:
-        return [
-            v[k][a]["psnr_db"] - v[k][b]["psnr_db"]
-            for v in per.values()
-            for k in v
-            if blur is None or k == f"sigma_{blur}"
-        ]
-
-    def errors(key: str) -> dict[str, Any]:
-        e = [abs(v[k][key]) for v in per.values() for k in v]
-        return {
-            "abs_mean": round(float(np.mean(e)), 4),
-            "abs_max": round(float(np.max(e)), 4),
-            "within_0.1_px": f"{sum(x <= 0.1 for x in e)}/{len(e)}",
-        }
-
-    out: dict[str, Any] = {
-        "robust_gain_over_bicubic_db_mean": _mean(gains("robust", "bicubic")),
-        "robust_gain_over_baseline_db_mean": _mean(gains("robust", "baseline")),
-        "robust_gain_over_baseline_db_min": round(float(np.min(gains("robust", "baseline"))), 3),
-        "robust_no_psf_gain_over_bicubic_db_mean": _mean(gains("robust_no_psf", "bicubic")),
-        "robust_gain_over_no_psf_db_mean": _mean(gains("robust", "robust_no_psf")),
-        "psf_sigma_error_hr_px": errors("psf_sigma_error_hr_px"),
-        "apparent_sigma_error_hr_px": errors("apparent_sigma_error_hr_px"),
-    }
-    for blur in BLURS:
-        out[f"sigma_{blur}"] = {
-            "robust_gain_over_bicubic_db_mean": _mean(gains("robust", "bicubic", blur)),
-            "robust_gain_over_baseline_db_mean": _mean(gains("robust", "baseline", blur)),
-            "robust_gain_over_baseline_db_min": round(
-                float(np.min(gains("robust", "baseline", blur))), 3
-            ),
-            "robust_no_psf_gain_over_bicubic_db_mean": _mean(
-                gains("robust_no_psf", "bicubic", blur)
-            ),
-        }
-    return out
-
-
 def summarise(per: dict[str, Any]) -> dict[str, Any]:
     def gains(s: str, a: str, b: str) -> list[float]:
         return [v[s][a]["psnr_db"] - v[s][b]["psnr_db"] for v in per.values()]
@@ -264,19 +179,19 @@ def summarise(per: dict[str, Any]) -> dict[str, Any]:
     out = {
         "x2_registration_rms_lr_px_ecc": round(float(np.sqrt(np.mean(np.square(reg)))), 4),
         "x2_registration_rms_lr_px_refined": round(float(np.sqrt(np.mean(np.square(regr)))), 4),
-        "x2_robust_gain_over_bicubic_db_mean": _mean(g2b),
-        "x2_robust_gain_over_baseline_db_mean": _mean(g2base),
+        "x2_robust_gain_over_bicubic_db_mean": mean_db(g2b),
+        "x2_robust_gain_over_baseline_db_mean": mean_db(g2base),
         "x2_robust_gain_over_baseline_db_min": round(float(np.min(g2base)), 3),
-        "x2_baseline_gain_over_bicubic_db_mean": _mean(base2),
-        "x4_robust_gain_over_bicubic_db_mean": _mean(g4b),
+        "x2_baseline_gain_over_bicubic_db_mean": mean_db(base2),
+        "x4_robust_gain_over_bicubic_db_mean": mean_db(g4b),
         "x4_robust_gain_over_bicubic_db_min": round(float(np.min(g4b)), 3),
-        "x2_tilted_line_loss_vs_2d_db_mean": _mean(tilt),
+        "x2_tilted_line_loss_vs_2d_db_mean": mean_db(tilt),
         "x2_tilted_line_loss_vs_2d_db_max": round(float(np.max(tilt)), 3),
-        "x2_untilted_line_loss_vs_2d_db_mean": _mean(untilt),
+        "x2_untilted_line_loss_vs_2d_db_mean": mean_db(untilt),
     }
     for s in ("x2", "x4"):  # the blur estimate against the pixel aperture alone, blur-free
         d = gains(s, "robust", "robust_no_psf")
-        out[f"{s}_robust_minus_no_psf_db_mean"] = _mean(d)
+        out[f"{s}_robust_minus_no_psf_db_mean"] = mean_db(d)
         out[f"{s}_robust_minus_no_psf_db_min"] = round(float(np.min(d)), 3)
     return out
 
@@ -350,7 +265,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="three images only")
     ap.add_argument("--no-speed", action="store_true")
-    ap.add_argument("--no-blur", action="store_true", help="skip the blurred bursts")
+    ap.add_argument("--no-blur", action="store_true", help="skip the bursts through a lens")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--speed-child", nargs=2, metavar=("NPY", "METHOD"), help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -382,6 +297,9 @@ def main() -> None:
         bl = blurred(makers, a.seed)
         result["blurred_summary"] = summarise_blurred(bl)
         result["blurred_per_image"] = bl
+        fv = field_varying(names, a.seed)
+        result["field_varying_summary"] = summarise_field_varying(fv)
+        result["field_varying_per_image"] = fv
     if not a.no_speed:
         result["speed"] = speed(a.seed)
     result["bench_seconds"] = round(time.perf_counter() - t0, 1)
