@@ -192,7 +192,8 @@ def _psf_config(psf: str | None, blur_sigma: float | None) -> RobustConfig:
         return RobustConfig(psf_grid=given.kernel)
     if given.kernel is not None:
         return RobustConfig(psf_kernel=given.kernel)
-    return RobustConfig(blur_sigma=given.sigma, estimate_psf=False)
+    # a given sigma: its prior's tau is still chosen (`none`: the pixel aperture alone, no search)
+    return RobustConfig(blur_sigma=given.sigma, estimate_psf=given.sigma > 0)
 
 
 def _fuse_one(

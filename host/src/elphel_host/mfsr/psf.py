@@ -8,17 +8,13 @@ spectrum is expected to look like, and the sigma (with the prior's weight) that 
 reconstruction from some frames best predict the frames it has not seen is the one whose
 assumed spectrum matches the data's.
 
-Procedure, on a central window of the burst (``window`` LR px, the frames aligned and
-mirror-padded as the reconstruction does them): the frames are split into ``folds``
-interleaved groups; for each group, the others' spectra are accumulated once (the
-right-hand side of the Fourier solver does not depend on the blur or the prior) and, for
-every candidate (sigma, tau), the exact regularised solution is computed and the group's
-frames are predicted; the candidate with the least mean squared prediction error over
-the groups' interior valid pixels wins. The search: tau over its grid at sigma 0.8, sigma
-over its grid (0..1.6 HR px, steps of 0.2) at that tau, steps of 0.05 around the best,
-and a parabola through the best and its neighbours. A burst with too few frames for a
-determined fit at the output scale is searched at a smaller scale (x2) and the result
-converted to the output's HR px.
+Procedure, on a central window of the burst (``window`` LR px): every candidate (sigma,
+tau) is scored by how well reconstructions from some frames predict the others
+(:mod:`elphel_host.mfsr.psf_cv`), and the least error wins. The search: tau over its
+grid at sigma 0.8, sigma over its grid (0..1.6 HR px, steps of 0.2) at that tau, steps of
+0.05 around the best, and a parabola through the best and its neighbours. A burst with
+too few frames for a determined fit at the output scale is searched at a smaller scale
+(x2) and the result converted to the output's HR px.
 
 What the search finds is the burst's apparent softness: the lens's blur and the scene's
 own softness together (Gaussian widths add in quadrature), which no burst tells apart, since
@@ -27,6 +23,9 @@ truth (up to 10 dB lost on band-limited scenes), so the estimate is split: the b
 ``SCENE_SOFTNESS`` sensor px (in quadrature) is deconvolved, and the rest, up to that much,
 only shapes the prior (:attr:`ForwardModel.prior_sigma`), which denoises as the apparent
 softness asks without sharpening anything.
+
+A given PSF (a calibrated lens: a sigma, a kernel, a region's kernel) gets its prior's tau
+from the same cross-validation with the optics fixed (``estimate_psf(..., given=PSF)``).
 
 Confidence: the prediction error of each sigma is compared with the best's fold by fold;
 the sigmas whose excess is within two standard errors (over the folds) of zero form the
@@ -37,17 +36,13 @@ sigma of the grid stands out, 0 when an interval of 0.5 HR px fits as well.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import ForwardModel, FourierSolver
-from elphel_host.mfsr.frames import aligned, central_window, check_frames, estimate_noise, padded
-from elphel_host.mfsr.ldl import solve_blocks
-from elphel_host.parallel import parallel_map
+from elphel_host.mfsr.psf_cv import CrossValidation
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -132,58 +127,6 @@ class PsfEstimate:
 NO_BLUR = PsfEstimate("none", 0.0, "disabled")
 
 
-class _Fold:
-    """One cross-validation group: the others' right-hand side, its own frames to predict."""
-
-    def __init__(
-        self,
-        shape: tuple[int, int],
-        scale: int,
-        aperture: int,
-        frac: F64,
-        frames: Sequence[F32],
-        valid: Sequence[NDArray[np.bool_]],
-        test: list[int],
-        interior: NDArray[np.bool_],
-    ) -> None:
-        train = [k for k in range(len(frames)) if k not in test]
-        self.shape, self.scale, self.aperture = shape, scale, aperture
-        self.train_shifts = [(float(frac[k, 0]), float(frac[k, 1])) for k in train]
-        acc = FourierSolver(ForwardModel(shape, scale, aperture), self.train_shifts, lam=1.0)
-        # the solver's frames are numbered 0..len(train)-1
-        acc.add_frames(list(range(len(train))), [frames[k] for k in train])
-        self.rhs = acc.rhs
-        self.test = test
-        pred = FourierSolver(
-            ForwardModel(shape, scale, aperture),
-            [(float(frac[k, 0]), float(frac[k, 1])) for k in test],
-            lam=1.0,
-        )
-        self.pred_solver = pred
-        self.targets = np.stack([frames[k] for k in test])
-        self.masks = np.stack([valid[k] & interior for k in test])
-
-    def error(self, sigma: float, lam: float) -> float:
-        """Mean squared prediction error of the held-out frames for (sigma, lam)."""
-        model = ForwardModel(self.shape, self.scale, self.aperture, sigma)
-        solver = FourierSolver(model, self.train_shifts, lam=lam)
-        s2 = np.float32(self.scale**2)
-        d, l2 = solver._block_factors()
-        mu = np.float32(lam) * s2 * l2
-        X = solve_blocks(d, solver.G.astype(np.complex64), mu, s2 * d * self.rhs)
-        ps = self.pred_solver
-        ny, nx = self.shape
-        z = ((d / s2) * X).reshape(len(solver.offsets), -1)
-        q = (ps.C.conj() @ z).reshape(len(self.test), ny, ps.nxh)
-        for i in range(len(self.test)):
-            ry, rx = ps._ramps(i)
-            q[i] *= ry.conj()[:, None]
-            q[i] *= rx.conj()[None, :]
-        pred = sfft.irfft2(q, s=(ny, nx), axes=(-2, -1), workers=1)
-        r = (self.targets - pred)[self.masks]
-        return float(np.dot(r, r)) / max(int(r.size), 1)
-
-
 def estimate_psf(
     frames: Sequence[F32],
     shifts: Sequence[tuple[float, float]],
@@ -196,6 +139,7 @@ def estimate_psf(
     folds: int = 4,
     choose_tau: bool = True,
     default_tau: float = 0.04,
+    given: PsfEstimate | None = None,
 ) -> PsfEstimate:
     """Gaussian blur of the optics (HR px) from a registered burst, by cross-validation.
 
@@ -214,6 +158,11 @@ def estimate_psf(
         must keep at least ``scale**2`` frames.
     choose_tau
         Choose tau jointly with sigma (else ``default_tau`` is kept).
+    given
+        Optics not to search (``source="given"``: a Gaussian, a kernel on the output's HR
+        grid, a prior shape): only the prior's tau is chosen for them, and ``given`` is
+        returned with it (with ``tau`` None when a kernel cannot be used at the scale the
+        fit must run at, a smaller one than the output's).
 
     Returns
     -------
@@ -223,61 +172,22 @@ def estimate_psf(
         ``prior_sigma`` the softness left to the prior; ``sigma`` and ``prior_sigma`` are
         0 when the search's interval reaches 0.
     """
-    n = len(frames)
-    check_frames(frames)
-    if len(shifts) != n:
-        raise ValueError(f"len(shifts)={len(shifts)}; allowed: {n} (one per frame)")
-    ap = int(aperture or scale)
-    folds = min(folds, n)
-    train_n = n - (n + folds - 1) // folds
-    # the largest scale s <= scale whose training sets stay determined (and whose pixel
-    # aperture is whole in its HR px); its sigma is converted to the output's HR px
-    fit_scale = next(
-        (s for s in range(int(scale), 1, -1) if train_n >= s * s and (ap * s) % scale == 0),
-        None,
-    )
-    if folds < 2 or fit_scale is None:
-        raise ValueError(
-            f"{n} frames; allowed: at least 5 frames, so that a fit at x2 without one of "
-            f"{folds} groups is determined"
-        )
-    ap_fit = ap * fit_scale // int(scale)
-    crop = central_window([np.asarray(f, np.float32) for f in frames], window)
-    wy, wx = crop[0].shape
-    ref = crop[0]
-    sh = np.asarray(shifts, np.float64) + np.asarray(origin_shift, np.float64)
-    n_int = np.rint(sh).astype(int)
-    frac = sh - n_int
-    p = min(16, wy - 1, wx - 1)
-    ny, nx = sfft.next_fast_len(wy + 2 * p), sfft.next_fast_len(wx + 2 * p)
-    pads = (p, ny - wy - p, p, nx - wx - p)
-    if pads[1] >= wy or pads[3] >= wx:
-        ny, nx = wy + 2 * p, wx + 2 * p
-        pads = (p, p, p, p)
-    fr: list[F32] = []
-    va: list[NDArray[np.bool_]] = []
-    for k in range(n):
-        f, v = aligned(crop[k], ref, (int(n_int[k, 0]), int(n_int[k, 1])))
-        fr.append(np.asarray(padded(f, pads, mode="reflect"), np.float32))
-        va.append(np.asarray(padded(v, pads, mode="zero"), bool))
-    interior = np.zeros((ny, nx), bool)
-    m = 4  # LR px kept clear of the padding's seam
-    interior[p + m : p + wy - m, p + m : p + wx - m] = True
-    groups = [[k for k in range(n) if k % folds == g] for g in range(folds)]
-    fl = [_Fold((ny, nx), fit_scale, ap_fit, frac, fr, va, g, interior) for g in groups]
-
-    lo, hi = np.percentile(ref, [0.1, 99.9])
-    span = max(float(hi - lo), 1e-6)
-    sigma_n = float(noise_sigma) if noise_sigma is not None else estimate_noise(ref)
-    sigma_n = max(sigma_n, 1e-6 * span)
+    cv = CrossValidation(frames, shifts, scale, aperture, origin_shift, noise_sigma, window, folds)
+    fit_scale = cv.fit_scale
+    to_fit = fit_scale / float(scale)  # output HR px -> fit HR px
+    if given is not None:
+        if given.kernel is not None and fit_scale != int(scale):
+            return given
+        sig, pri = given.sigma * to_fit, given.prior_sigma * to_fit
+        tau = min(TAU_GRID, key=lambda t: float(cv.errors(sig, t, given.kernel, pri).sum()))
+        return replace(given, tau=tau)
 
     cache: dict[tuple[float, float], F64] = {}
 
     def errs(sig: float, tau: float) -> F64:
         key = (round(sig, 4), tau)
         if key not in cache:
-            lam = max((sigma_n / (tau * span)) ** 2, 1e-6)
-            cache[key] = np.array(parallel_map(lambda f: f.error(sig, lam), fl))
+            cache[key] = cv.errors(sig, tau)
         return cache[key]
 
     # coordinate search: tau at a middle sigma, sigma at that tau, then finer sigma steps
@@ -320,7 +230,7 @@ def estimate_psf(
     # a burst that cannot tell its softness from none gets the plain model; otherwise the
     # blur beyond a scene's own softness is deconvolved and the rest shapes the prior
     told = interval[0] > 0
-    soft = SCENE_SOFTNESS * ap
+    soft = SCENE_SOFTNESS * int(aperture or scale)
     blur = float(np.sqrt(max(sigma * sigma - soft * soft, 0.0))) if told else 0.0
     if blur < 0.05:
         blur = 0.0

@@ -46,7 +46,10 @@ def _ramp(n: int, lo: int, hi: int, margin: int, first: bool, last: bool) -> F32
 
 
 def cell_config(config: RobustConfig, iy: int, ix: int) -> RobustConfig:
-    """The options one cell is fused with: its kernel from the grid, else an estimate."""
+    """The options one cell is fused with: its kernel from the grid, else an estimate.
+
+    A cell with its kernel still gets its own prior's tau searched (``estimate_psf``).
+    """
     if config.psf_grid is None:
         return replace(config, psf_regions=(1, 1), psf_frame=None)
     return replace(
@@ -56,7 +59,6 @@ def cell_config(config: RobustConfig, iy: int, ix: int) -> RobustConfig:
         psf_frame=None,
         psf_kernel=config.psf_grid[iy, ix],
         psf_rgb=None if config.psf_rgb is None else config.psf_rgb[:, iy, ix],
-        estimate_psf=False,
     )
 
 

@@ -134,18 +134,21 @@ def psf_for(
     """The PSF a reconstruction with ``config`` uses: given, disabled, or estimated.
 
     Estimated (``config.estimate_psf`` and no ``blur_sigma``, ``prior_sigma`` or
-    ``psf_kernel`` given): the shifts are first refined
-    and the noise fitted by a reconstruction of a central window without blur, then
-    :func:`elphel_host.mfsr.psf.estimate_psf` searches that window. Bursts too small for
-    cross-validation (fewer than 5 frames) get no blur.
+    ``psf_kernel`` given): the shifts are first refined and the noise fitted by a
+    reconstruction of a central window, then :func:`elphel_host.mfsr.psf.estimate_psf`
+    searches that window. Given optics with ``config.estimate_psf`` (the default) get the
+    prior's tau searched the same way, the optics fixed. Bursts too small for
+    cross-validation (fewer than 5 frames) get no blur and no search.
     """
+    given: PsfEstimate | None = None
     if config.psf_kernel is not None:
-        return PsfEstimate("kernel", 0.0, "given", kernel=config.psf_kernel)
-    if config.blur_sigma > 0 or config.prior_sigma > 0:
+        given = PsfEstimate("kernel", 0.0, "given", kernel=config.psf_kernel)
+    elif config.blur_sigma > 0 or config.prior_sigma > 0:
         model = "gaussian" if config.blur_sigma > 0 else "none"
-        return PsfEstimate(model, config.blur_sigma, "given", prior_sigma=config.prior_sigma)
+        given = PsfEstimate(model, config.blur_sigma, "given", prior_sigma=config.prior_sigma)
     if not config.estimate_psf or len(frames) < 5:
-        return PsfEstimate("none", 0.0, "disabled" if not config.estimate_psf else "too few frames")
+        reason = "disabled" if not config.estimate_psf else "too few frames"
+        return given or PsfEstimate("none", 0.0, reason)
     crop = central_window([np.asarray(f, np.float32) for f in frames], _PSF_WINDOW)
     _, info = reconstruct(
         crop,
@@ -164,6 +167,7 @@ def psf_for(
         noise_sigma=float(info["noise_sigma"]),
         window=_PSF_WINDOW,
         default_tau=config.tau,
+        given=given,
     )
 
 
@@ -177,6 +181,8 @@ def with_psf(config: RobustConfig, psf: PsfEstimate) -> RobustConfig:
     default; text, blur-free: 39.11 against 37.88 and 37.84).
     """
     tau = config.tau if psf.tau is None else float(np.sqrt(config.tau * psf.tau))
+    if psf.source == "given":  # the optics are config's own
+        return replace(config, tau=tau, estimate_psf=False)
     return replace(
         config,
         blur_sigma=psf.sigma,
@@ -232,7 +238,7 @@ def reconstruct(
         origin_shift=origin_shift,
         config=config,
     )
-    if psf.source == "estimated":
+    if psf.source == "estimated" or psf.tau is not None:
         config = with_psf(config, psf)
     ref = np.asarray(frames[0], dtype=np.float32)
     # the noise sets the prior's weight and the first clipping level

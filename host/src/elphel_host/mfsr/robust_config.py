@@ -49,7 +49,9 @@ class RobustConfig:
         apparent softness (and the prior's tau with it) by cross-validation
         (:mod:`elphel_host.mfsr.psf`), deconvolve the part beyond a scene's own softness
         and shape the prior with the rest. False: the pixel aperture alone. A given
-        ``blur_sigma``, ``prior_sigma`` or ``psf_kernel`` is used instead of an estimate.
+        ``blur_sigma``, ``prior_sigma``, ``psf_kernel`` or ``psf_grid`` is used instead of
+        an estimate; with ``estimate_psf`` its prior's tau is still cross-validated (False:
+        ``tau`` as it is).
     psf_kernel
         A given PSF on the output's HR grid (:func:`elphel_host.mfsr.psf_given.check_kernel`),
         used in place of the Gaussian.
