@@ -60,10 +60,14 @@ def serve(
     )
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
-    deadline = time.monotonic() + 10
-    while not server.started and time.monotonic() < deadline:
+    start = time.monotonic()
+    while not server.started and time.monotonic() < start + 10:
         time.sleep(0.01)
     served = Served(f"http://127.0.0.1:{port}", server, thread)
+    if not server.started:  # say so here rather than as a later test's timeout
+        served.stop()
+        sock.close()
+        raise RuntimeError(f"the server did not start within {time.monotonic() - start:.1f} s")
     try:
         yield served
     finally:

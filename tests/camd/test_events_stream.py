@@ -256,7 +256,10 @@ def test_shutdown_ends_event_streams_within_a_second(service):
             r.start()
         # Every stream is live (its status and at least one event arrived) before the stop;
         # subscribed alone is not enough: under a loaded CI the first frame can come later.
-        assert wait_until(lambda: service.events.subscribers == 3)
+        start = time.monotonic()
+        live = wait_until(lambda: service.events.subscribers == 3)
+        waited = time.monotonic() - start
+        assert live, (f"{service.events.subscribers} of 3 streams after {waited:.1f} s", outs)
         assert wait_until(lambda: all(len(out) > 1 for out in outs))
         took = srv.stop()
         assert took < 1.5 and not srv.thread.is_alive()
