@@ -156,10 +156,13 @@ def field_sigma(shape: tuple[int, int], ys: np.ndarray, xs: np.ndarray) -> np.nd
     return np.asarray(centre + (corner - centre) * r2)
 
 
-def field_blur(img: np.ndarray) -> np.ndarray:
-    """``img`` through the field-varying lens (hat-weighted levels, as the simulator's)."""
-    h, w = img.shape
-    sig = field_sigma((h, w), np.arange(h)[:, None], np.arange(w)[None, :])
+def field_sigma_map(shape: tuple[int, int]) -> np.ndarray:
+    """The field-varying lens's sigma (HR px) at every pixel of an image of ``shape``."""
+    return field_sigma(shape, np.arange(shape[0])[:, None], np.arange(shape[1])[None, :])
+
+
+def field_blur(img: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    """``img`` through the lens of sigmas ``sig`` (hat-weighted levels, as the simulator's)."""
     lo, hi = FIELD_BLUR
     pos = (sig - lo) / (hi - lo) * (FIELD_LEVELS - 1)
     out = np.zeros(img.shape, np.float64)
@@ -196,23 +199,23 @@ def field_varying(names: tuple[str, ...], seed: int) -> dict[str, Any]:
     per: dict[str, Any] = {}
     for n_img, name in enumerate(names):
         hr = crop_to(load(name), 2)
+        sig, regions = field_sigma_map(hr.shape), field_regions(hr.shape)
         shifts = random_shifts(16, seed=seed + n_img, spread=2.0)
         frames = make_burst(
-            field_blur(hr), shifts, scale=2, noise_sigma=SIGMA, seed=seed + 300 + n_img
+            field_blur(hr, sig), shifts, scale=2, noise_sigma=SIGMA, seed=seed + 300 + n_img
         )
         configs = {
             "robust": RobustConfig(),
-            "robust_regions_estimated": RobustConfig(psf_regions=field_regions(hr.shape)),
+            "robust_regions_estimated": RobustConfig(psf_regions=regions),
             "robust_regions_given": RobustConfig(psf_grid=field_psf_grid(hr.shape)),
         }
         res = {m: fuse_frames(frames, scale=2, method=m) for m in ("bicubic", "baseline")}
         for m, cfg in configs.items():
             res[m] = fuse_frames(frames, scale=2, method="robust", config=cfg)
-        h, w = hr.shape
-        outer = field_sigma((h, w), np.arange(h)[:, None], np.arange(w)[None, :]) >= 1.0
+        outer = sig >= 1.0
         inside = np.zeros_like(outer)
         inside[8:-8, 8:-8] = True
-        row: dict[str, Any] = {"regions": list(field_regions(hr.shape))}
+        row: dict[str, Any] = {"regions": list(regions)}
         for m, v in res.items():
             err = (v.image - hr)[outer & inside].astype(np.float64)
             row[m] = {

@@ -246,8 +246,7 @@ def fuse_registered(
             colours.append((pf, ps))
         # one lens for the three colours: estimated on green (twice the samples)
         psf = psf_for(*colours[1], scale=2 * scale, aperture=scale, config=config)
-        if psf.source == "estimated" or psf.tau is not None:
-            config = with_psf(config, psf)
+        config = with_psf(config, psf)
         planes = []
         for c, (pf, ps) in enumerate(colours):
             own = config  # or the colour's own given PSF

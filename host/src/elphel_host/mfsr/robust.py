@@ -172,14 +172,15 @@ def psf_for(
 
 
 def with_psf(config: RobustConfig, psf: PsfEstimate) -> RobustConfig:
-    """``config`` reconstructing with ``psf``, no new search.
+    """``config`` reconstructing with ``psf`` (itself when there is nothing to apply).
 
-    The cross-validation's tau is the one that best predicts LR frames; the HR image is
-    better served by a stronger prior: tau halfway (on a log scale) between the default
-    and that choice. On the benchmark's blurred and blur-free bursts this beat both ends
-    (camera, sigma 0.5: 33.69 dB against 32.97 with the CV's tau and 33.11 with the
-    default; text, blur-free: 39.11 against 37.88 and 37.84).
+    Nothing to apply: disabled, too few frames, a kernel the fit could not use. The
+    cross-validation's tau best predicts LR frames; the HR image is better served by a
+    stronger prior: tau halfway (on a log scale) between the default and that choice,
+    which beat both ends on the benchmark's bursts when it was chosen (docs/mfsr.md).
     """
+    if psf.source != "estimated" and psf.tau is None:  # nothing found to apply
+        return config
     tau = config.tau if psf.tau is None else float(np.sqrt(config.tau * psf.tau))
     if psf.source == "given":  # the optics are config's own
         return replace(config, tau=tau, estimate_psf=False)
@@ -238,8 +239,7 @@ def reconstruct(
         origin_shift=origin_shift,
         config=config,
     )
-    if psf.source == "estimated" or psf.tau is not None:
-        config = with_psf(config, psf)
+    config = with_psf(config, psf)
     ref = np.asarray(frames[0], dtype=np.float32)
     # the noise sets the prior's weight and the first clipping level
     if config.noise_sigma is not None:
