@@ -2,7 +2,8 @@
 
 - the command line is the edge: only CLI modules import CLI modules;
 - private names stay private: no module imports a ``_name`` from another module;
-- files stay readable: no source file over 400 lines, register tables excepted.
+- functions stay readable: none over 80 lines, in the sources and the firmware;
+- lines are laid out by the formatter: no ``fmt: skip`` packing.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SOURCES = [REPO / "host" / "src", REPO / "target" / "camera" / "src", REPO / "simulator" / "src"]
 PACKAGES = ("elphel_host", "elphel_camd", "elphel_sim")
-MAX_LINES = 400
+MAX_FUNCTION_LINES = 80
+FIRMWARE = REPO / "target" / "esp8266"
 
 
 def _modules() -> list[tuple[str, Path]]:
@@ -80,13 +82,31 @@ def test_no_private_names_imported_from_other_modules(module: str, path: Path) -
     assert not bad, "; ".join(bad)
 
 
-def _is_register_table(path: Path) -> bool:
-    return "registers" in path.stem or path.parent.name == "registers"
+def _source_files() -> list[Path]:
+    return [path for _, path in MODULES] + sorted(FIRMWARE.glob("*.py"))
 
 
-@pytest.mark.parametrize(("module", "path"), MODULES, ids=[m for m, _ in MODULES])
-def test_source_files_stay_under_400_lines(module: str, path: Path) -> None:
-    if _is_register_table(path):
-        return
-    lines = len(path.read_text().splitlines())
-    assert lines <= MAX_LINES, f"{path.relative_to(REPO)} has {lines} lines (at most {MAX_LINES})"
+SOURCE_FILES = _source_files()
+_IDS = [str(path.relative_to(REPO)) for path in SOURCE_FILES]
+
+
+def _long_functions(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return [
+        f"{path.relative_to(REPO)}:{node.lineno} {node.name} has {length} lines"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        and (length := (node.end_lineno or node.lineno) - node.lineno + 1) > MAX_FUNCTION_LINES
+    ]
+
+
+@pytest.mark.parametrize("path", SOURCE_FILES, ids=_IDS)
+def test_functions_stay_under_80_lines(path: Path) -> None:
+    long = _long_functions(path)
+    assert not long, f"at most {MAX_FUNCTION_LINES} lines a function: " + "; ".join(long)
+
+
+@pytest.mark.parametrize("path", SOURCE_FILES, ids=_IDS)
+def test_no_formatter_packing(path: Path) -> None:
+    marked = [n for n, line in enumerate(path.read_text().splitlines(), 1) if "fmt: skip" in line]
+    assert not marked, f"{path.relative_to(REPO)} packs lines past the formatter at {marked}"
