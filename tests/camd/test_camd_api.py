@@ -298,7 +298,7 @@ def test_concurrent_patches_never_interleave(client, camera):
 
 
 def test_security_token_read_protection_cors_and_size_limit(camera):
-    with TestClient(create_app(camera, token=TOKEN, read_protected=True)) as c:
+    with TestClient(create_app(camera, token=TOKEN)) as c:
         assert c.get("/api/v1/ports/0/params").status_code == 401
         assert c.get("/api/v1/events").status_code == 401
         assert c.get("/api/v1/ports/0/params", headers=AUTH).status_code == 200

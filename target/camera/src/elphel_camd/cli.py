@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         type=Path,
         help="JSON settings file (default /etc/elphel-camd/config.json if it exists), e.g. "
-        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "read_protected": true}',
+        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "public_reads": true}',
     )
     p.add_argument("--bus", action="append", default=[], help="I2C bus URL per port (i2c board)")
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
@@ -59,12 +59,6 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         default=None,
         help="answer reads without the token (by default every request but /health needs it)",
-    )
-    p.add_argument(
-        "--read-protected",
-        action="store_true",
-        default=None,
-        help="the default (reads need the token); kept for old scripts",
     )
     p.add_argument(
         "--allow-host",
@@ -92,7 +86,6 @@ _SETTING_OPTIONS = (
     "token",
     "token_file",
     "state_dir",
-    "read_protected",
     "public_reads",
     "allowed_hosts",
     "cors_origins",
@@ -186,8 +179,6 @@ def build_service(settings: DaemonSettings) -> CameraService:
         raise
 
 
-build_camera = build_service  # the old name
-
 
 def main(argv: Sequence[str] | None = None) -> int:
     from elphel_camd.api import create_app
@@ -227,7 +218,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         app = create_app(
             service,
             token=token,
-            public_reads=settings.reads_public,
+            public_reads=settings.public_reads,
             max_body_bytes=settings.max_body_bytes,
             allowed_hosts=[settings.host, *settings.allowed_hosts],
             cors_origins=settings.cors_origins,
@@ -250,7 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scheme,
             host,
             port,
-            "public" if settings.reads_public else "need the token",
+            "public" if settings.public_reads else "need the token",
             http_stack(config),
         )
         # What exists now (modules, the board, the app) lives as long as the daemon: kept

@@ -53,8 +53,6 @@ _NEEDS = {
 class CameraService:
     """The daemon's view of a board: sensors, their sequencers, capture with metadata.
 
-    Formerly ``elphel_camd.board.Camera``.
-
     Parameters
     ----------
     board

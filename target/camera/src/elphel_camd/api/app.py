@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import html
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI
@@ -45,7 +44,6 @@ def create_app(
     *,
     token: str | TokenSource,
     public_reads: bool = False,
-    read_protected: bool | None = None,
     max_body_bytes: int = 65536,
     keepalive_s: float = 15.0,
     allowed_hosts: Sequence[str] | None = None,
@@ -63,8 +61,6 @@ def create_app(
         changes) that requests must carry.
     public_reads
         Answer reads without the token (the health check never needs it).
-    read_protected
-        The former option: False means ``public_reads=True``.
     max_body_bytes
         Largest request body; larger ones get 413.
     keepalive_s
@@ -79,8 +75,6 @@ def create_app(
         (`elphel_camd.api.fast_path`; the same answers). False only to compare.
     """
     source = token if isinstance(token, TokenSource) else TokenSource(token)
-    if read_protected is not None:
-        public_reads = not read_protected
     app = FastAPI(
         title="elphel-camd",
         version=__version__,
@@ -195,7 +189,3 @@ def docs_page(schema: dict[str, Any]) -> str:
         f"<th>answers</th></tr>{''.join(rows)}</table></body></html>"
     )
 
-
-def token_source(token: str | None, path: Path) -> TokenSource:
-    """The daemon's token: fixed if given, else the token file (re-read when replaced)."""
-    return TokenSource(token) if token else TokenSource(path=path)

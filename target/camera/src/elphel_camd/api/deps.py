@@ -138,10 +138,6 @@ class ApiOptions:
     keepalive_s: float = 15.0
     failed: FailedAuth = field(default_factory=FailedAuth)
 
-    @property
-    def read_protected(self) -> bool:
-        return not self.public_reads
-
 
 async def get_service(request: Request) -> CameraService:
     """The camera service the app was built for."""
