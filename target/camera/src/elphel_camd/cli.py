@@ -179,7 +179,6 @@ def build_service(settings: DaemonSettings) -> CameraService:
         raise
 
 
-
 def main(argv: Sequence[str] | None = None) -> int:
     from elphel_camd.api import create_app
     from elphel_camd.api.deps import TokenSource

@@ -163,4 +163,3 @@ def load_settings(config: Path | None = None, **overrides: Any) -> DaemonSetting
         where = f"config {config} or " if config is not None else ""
         raise ConfigError(f"invalid settings ({where}ELPHEL_CAMD_* environment): {e}") from e
     return loaded
-

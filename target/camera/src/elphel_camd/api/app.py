@@ -188,4 +188,3 @@ def docs_page(schema: dict[str, Any]) -> str:
         "the bearer token).</p><table><tr><th>method</th><th>path</th><th>what</th>"
         f"<th>answers</th></tr>{''.join(rows)}</table></body></html>"
     )
-
