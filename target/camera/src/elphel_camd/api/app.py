@@ -93,23 +93,38 @@ def create_app(
         app.add_middleware(ParamsFastPath)  # added first: the innermost, under every limit
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
     if cors_origins:
-        app.add_middleware(
-            CORSMiddleware,
-            allow_origins=list(cors_origins),
-            allow_methods=["GET", "PATCH", "PUT", "POST"],
-            allow_headers=["Authorization", "Content-Type", "Last-Event-ID"],
-            expose_headers=["X-Frame-Number", "X-Frame-Count"],
-        )
+        add_cors(app, cors_origins)
     if allowed_hosts is not None:
         app.add_middleware(HostAllowList, allowed=allowed_hosts)
     add_error_handlers(app)
+    include_routes(app)
+    serve_contract(app, public_reads=public_reads)
+    return app
+
+
+def add_cors(app: FastAPI, origins: Sequence[str]) -> None:
+    """Let browser pages of ``origins`` call the API (and read the frame headers)."""
+    app.add_middleware(
+        CORSMiddleware,
+        allow_origins=list(origins),
+        allow_methods=["GET", "PATCH", "PUT", "POST"],
+        allow_headers=["Authorization", "Content-Type", "Last-Event-ID"],
+        expose_headers=["X-Frame-Number", "X-Frame-Count"],
+    )
+
+
+def include_routes(app: FastAPI) -> None:
+    """The API's routers under `API`, then the browser page: its API, / and /web/."""
     for router in ROUTERS:
         app.include_router(router, prefix=API)
-    # The browser page: its API (previews, the parameter description), / and /web/.
     app.include_router(param_schema.router, prefix=API)
     app.include_router(preview_routes.router, prefix=API)
     app.include_router(page.router)
     app.mount("/web", page.static_files(), name="web")
+
+
+def serve_contract(app: FastAPI, *, public_reads: bool) -> None:
+    """Make ``app.openapi()`` the `contract` schema, and ``/docs`` the page that lists it."""
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
@@ -127,8 +142,6 @@ def create_app(
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:
         return HTMLResponse(docs_page(openapi()))
-
-    return app
 
 
 def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
