@@ -21,7 +21,7 @@ from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 
 #: The given PSFs' gain over one estimated PSF on the `varying` burst.
-GIVEN_GAIN_DB = 0.0
+GIVEN_GAIN_DB = 1.0  # measured +1.71 dB (33.90 against 32.19)
 
 
 def _image(name: str = "astronaut") -> np.ndarray:

@@ -247,6 +247,27 @@ def _crop(image: NDArray[np.float32], size: int) -> NDArray[np.float32]:
     return image[y0 : y0 + size, x0 : x0 + size]
 
 
+def _scores(
+    ref: NDArray[np.float32], image: NDArray[np.float32], scale: int, name: str
+) -> dict[str, float]:
+    """PSNR and SSIM of ``image`` against the reference ``ref`` (luminance of RGB)."""
+    if ref.shape != image.shape:
+        raise InputFormatError(
+            f"{name}: shape={ref.shape}; allowed: {image.shape} (the output grid)"
+        )
+    # scores relative to the reference's own span (a 12-bit image in 16-bit containers
+    # would otherwise look 24 dB better than it is)
+    rng = max(float(ref.max() - ref.min()), 1e-12)
+    b = 4 * scale
+    a2 = image if image.ndim == 2 else image.mean(axis=2)
+    r2 = ref if ref.ndim == 2 else ref.mean(axis=2)
+    return {
+        "psnr_db": round(psnr(r2, a2, data_range=rng, border=b), 3),
+        "ssim": round(ssim(r2, a2, data_range=rng, border=b), 4),
+        "data_range": rng,
+    }
+
+
 def run_compare(args: argparse.Namespace) -> int:
     if len(args.burst_dirs) != 2:
         raise InputFormatError(f"compare takes one BURST_DIR, got {args.burst_dirs[1:]}")
@@ -277,20 +298,7 @@ def run_compare(args: argparse.Namespace) -> int:
         if "psf" in res.info:
             entry["psf"] = res.info["psf"]
         if ref is not None:
-            if ref.shape != res.image.shape:
-                raise InputFormatError(
-                    f"{args.reference}: shape={ref.shape}; allowed: "
-                    f"{res.image.shape} (the output grid)"
-                )
-            # scores relative to the reference's own span (a 12-bit image in 16-bit
-            # containers would otherwise look 24 dB better than it is)
-            rng = max(float(ref.max() - ref.min()), 1e-12)
-            b = 4 * args.scale
-            a2 = res.image if res.image.ndim == 2 else res.image.mean(axis=2)
-            r2 = ref if ref.ndim == 2 else ref.mean(axis=2)
-            entry["psnr_db"] = round(psnr(r2, a2, data_range=rng, border=b), 3)
-            entry["ssim"] = round(ssim(r2, a2, data_range=rng, border=b), 4)
-            entry["data_range"] = rng
+            entry.update(_scores(ref, res.image, args.scale, args.reference))
         results[method] = entry
         crops.append(_crop(res.image, 256))
     side = np.concatenate([np.asarray(c, np.float32) for c in crops], axis=1)
