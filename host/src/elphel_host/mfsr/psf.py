@@ -190,6 +190,21 @@ class _Search:
     def total(self, sig: float, tau: float) -> float:
         return float(self.errs(sig, tau).sum())
 
+    # a coordinate search: tau at a middle sigma, sigma at that tau, then finer sigma
+    # steps around the best (each candidate's errors are kept)
+    def tau(self, taus: Sequence[float]) -> float:
+        """The tau of ``taus`` with the least error at the middle sigma of the grid."""
+        return min(taus, key=lambda t: self.total(SIGMA_GRID[len(SIGMA_GRID) // 2], t))
+
+    def curve(self, tau: float) -> tuple[list[float], dict[float, F64]]:
+        """Sigmas of the grid and 0.05 steps around its best at ``tau``, with their errors."""
+        sig0 = min(SIGMA_GRID, key=lambda sg: self.total(sg, tau))
+        fine = sorted(
+            {round(sig0 + d, 3) for d in np.arange(-0.1, 0.101, 0.05) if sig0 + d >= 0}
+            | set(SIGMA_GRID)
+        )
+        return fine, {sg: self.errs(sg, tau) for sg in fine}
+
 
 def _parabola_min(fine: list[float], curve: dict[float, F64], i: int) -> float:
     """The minimum of the parabola through ``fine[i]`` and its neighbours (their errors)."""
@@ -272,16 +287,8 @@ def estimate_psf(
     """
     cv = CrossValidation(frames, shifts, scale, aperture, origin_shift, noise_sigma, window, folds)
     search = _Search(cv)
-    # coordinate search: tau at a middle sigma, sigma at that tau, then finer sigma steps
-    # around the best (each candidate's errors are kept)
-    taus = TAU_GRID if choose_tau else (default_tau,)
-    tau = min(taus, key=lambda t: search.total(SIGMA_GRID[len(SIGMA_GRID) // 2], t))
-    sig0 = min(SIGMA_GRID, key=lambda sg: search.total(sg, tau))
-    fine = sorted(
-        {round(sig0 + d, 3) for d in np.arange(-0.1, 0.101, 0.05) if sig0 + d >= 0}
-        | set(SIGMA_GRID)
-    )
-    curve = {sg: search.errs(sg, tau) for sg in fine}
+    tau = search.tau(TAU_GRID if choose_tau else (default_tau,))
+    fine, curve = search.curve(tau)
     s_best = min(curve, key=lambda s: curve[s].sum())
     i = fine.index(s_best)
     sigma = _parabola_min(fine, curve, i) if 0 < i < len(fine) - 1 else float(s_best)

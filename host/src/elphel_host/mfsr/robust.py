@@ -119,17 +119,17 @@ def resolve_psf(
     start = ResolvedPsf(given or NO_OPTICS, config.tau)
     _, info = reconstruct_resolved(crop, shifts, geometry, start, config)
     refined = [(a, b) for a, b in info["shifts_refined"]]
-    where = dict(
-        scale=int(geometry.scale),
-        aperture=geometry.aperture,
-        origin_shift=geometry.origin_shift,
-        noise_sigma=float(info["noise_sigma"]),
-        window=_PSF_WINDOW,
-    )
+    where: dict[str, Any] = {
+        "scale": int(geometry.scale),
+        "aperture": geometry.aperture,
+        "origin_shift": geometry.origin_shift,
+        "noise_sigma": float(info["noise_sigma"]),
+        "window": _PSF_WINDOW,
+    }
     if given is not None:
-        tau_cv = cross_validated_tau(crop, refined, given, **where)  # type: ignore[arg-type]
+        tau_cv = cross_validated_tau(crop, refined, given, **where)
         return _resolved(given, _blended_tau(config.tau, tau_cv), "given", tau_cv)
-    est = estimate_psf(crop, refined, default_tau=config.tau, **where)  # type: ignore[arg-type]
+    est = estimate_psf(crop, refined, default_tau=config.tau, **where)
     tau = _blended_tau(config.tau, est.tau)
     return ResolvedPsf(est.optics, tau, {**est.to_json(), "tau_used": round(tau, 4)})
 
