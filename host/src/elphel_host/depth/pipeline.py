@@ -37,7 +37,8 @@ from elphel_host.depth.products import (
     dsi_depth,
 )
 from elphel_host.errors import InputFormatError
-from elphel_host.mfsr.fuse import bayer_luma, fuse_frames, register_lumas
+from elphel_host.mfsr.bayer import bayer_luma
+from elphel_host.mfsr.fuse import fuse_frames, register_lumas
 from elphel_host.mfsr.local_motion import (
     ParallaxModel,
     camera_view_disparity,
