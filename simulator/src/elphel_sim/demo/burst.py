@@ -14,8 +14,8 @@ from typing import Any
 
 import httpx
 
-from elphel_sim.demo_report import burst_crops, reference_image
-from elphel_sim.demo_rig import elphel, read_frame_metadata, simulated_rig, step
+from elphel_sim.demo.report import burst_crops, reference_image
+from elphel_sim.demo.rig import elphel, read_frame_metadata, simulated_rig, step
 
 # The `elphel` commands of these steps (the demo's progress bar counts them).
 COMMANDS = 9

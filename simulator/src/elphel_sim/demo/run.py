@@ -4,13 +4,13 @@ Starts a simulated rig with `elphel-sim up` and drives it only through what a us
 the `elphel` CLI and the REST API. Steps: detect the sensor and capture a frame; home and
 calibrate the stage and check it against the simulator's truth; capture a sub-pixel burst
 and fuse it, and the same burst again through a blurred lens (`elphel-sim up
---lens-blur`; both in `elphel_sim.demo_burst`); capture one trigger-synchronised set
+--lens-blur`; both in `elphel_sim.demo.burst`); capture one trigger-synchronised set
 from the simulated quad camera (`elphel-sim up --scenario quad`) and compute its
 disparity map; read a recording of a simulated stock NC393; and last, put the quad on
 the stage carriage, capture a quad burst and turn it into super-resolved depth
-(`elphel_sim.demo_depth`). Everything goes under ``out/`` with a summary a person can
+(`elphel_sim.demo.depth`). Everything goes under ``out/`` with a summary a person can
 read (``summary.json`` and the printed lines).
-The rig and the user's tools the steps go through are in `elphel_sim.demo_rig`.
+The rig and the user's tools the steps go through are in `elphel_sim.demo.rig`.
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ import numpy as np
 
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_map_picture, save_preview
-from elphel_sim.demo_burst import COMMANDS as BURST_COMMANDS
-from elphel_sim.demo_burst import burst_step, lens_blur_step
-from elphel_sim.demo_depth import COMMANDS as DEPTH_COMMANDS
-from elphel_sim.demo_depth import depth_step
-from elphel_sim.demo_rig import (
+from elphel_sim.demo.burst import COMMANDS as BURST_COMMANDS
+from elphel_sim.demo.burst import burst_step, lens_blur_step
+from elphel_sim.demo.depth import COMMANDS as DEPTH_COMMANDS
+from elphel_sim.demo.depth import depth_step
+from elphel_sim.demo.rig import (
     DEMO_PROGRESS,
     DemoError,
     elphel,
@@ -262,6 +262,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

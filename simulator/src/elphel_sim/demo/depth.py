@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from PIL import Image
 
 from elphel_host.preview import map_picture
-from elphel_sim.demo_rig import elphel, simulated_rig, step
+from elphel_sim.demo.rig import elphel, simulated_rig, step
 
 # `elphel` commands of this step: 4 windows, home, plan, capture, tp, depth, 2 compares.
 COMMANDS = 11
