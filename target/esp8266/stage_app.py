@@ -303,6 +303,14 @@ class StageApp:
             sealed = sealed or e.sealed
         return proto.seal(reply) if sealed else reply
 
+    def answers(self, framer, data):
+        """The reply to each request line that ``data`` completes in ``framer``."""
+        for item in framer.feed(data):
+            if isinstance(item, proto.ProtocolError):
+                yield proto.err("?", item.code, item.text)
+            elif item:
+                yield self.handle_line(item)
+
     def idle_caliper(self):
         """Background caliper reading while the motor is idle, every poll_ms."""
         hw = self.hw

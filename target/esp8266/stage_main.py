@@ -154,13 +154,7 @@ class Links:
             sent += n or 0
 
     def handle_bytes(self, ch, data):
-        for item in ch.framer.feed(data):
-            if isinstance(item, proto.ProtocolError):
-                reply = proto.err("?", item.code, item.text)
-            elif not item:
-                continue
-            else:
-                reply = self.app.handle_line(item)
+        for reply in self.app.answers(ch.framer, data):
             ch.write(reply)
 
     def accept(self):
