@@ -139,7 +139,7 @@ MIN_DEPTH_DISPARITY_PX = 0.25
 
 def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
     """The quad camera of the simulator: one synchronised set captured, then its DSI."""
-    from elphel_host.tp.io import read_dsi
+    from elphel_host.tp.dsi import read_dsi
 
     step("starting the simulated quad camera (elphel-sim up --scenario quad)")
     with simulated_rig(seed=seed, scenario="quad") as rig:

@@ -262,14 +262,14 @@ def up(
         cameras += [Served(imgsrv_app(stock, p), sock) for p, sock in enumerate(imgsrv)]
         host, port = cameras[0].sock.getsockname()[:2]
         camera_url, token = f"nc393://{host}:{port}?imgsrv={imgsrv[0].getsockname()[1]}", None
-        hint = f"elphel camera info --url {camera_url}"
+        hint = f"elphel camera info --camera {camera_url}"
     else:
         # As the daemon: reads need the token (unless public_reads), Host must be an
         # address or localhost.
         app = create_app(camera, token=secret, public_reads=public_reads, allowed_hosts=[])
         cameras = [Served(app, bind_loopback(camera_port))]
         camera_url = cameras[0].url
-        hint = f"elphel camera info --url {camera_url} --token {token}"
+        hint = f"elphel camera info --camera {camera_url} --token {token}"
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))

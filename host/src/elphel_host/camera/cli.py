@@ -31,7 +31,7 @@ from elphel_host.errors import CameraAuthError, CameraClientError, CameraParamet
 
 def register(sub: Any) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    add_camera_options(common, aliases=("--url",))
+    add_camera_options(common)
     add_json_option(common)
     ported = argparse.ArgumentParser(add_help=False)
     add_sensor_port_option(ported)

@@ -15,7 +15,6 @@ from typing import Any
 import httpx
 
 from elphel_host.camera.events import CameraEvent, SSEParser
-from elphel_host.camera.frames import Burst as Burst  # re-exported: the older name
 from elphel_host.camera.frames import (
     CapturedBurst,
     CapturedFrame,
@@ -23,10 +22,8 @@ from elphel_host.camera.frames import (
     read_tiff_metadata,
     read_tiff_pages,
 )
-from elphel_host.camera.frames import read_burst as read_burst  # re-exported: the older name
 from elphel_host.camera.retry import Backoff, retryable
-from elphel_host.camera.staging import Applied as Applied  # re-exported: its older home
-from elphel_host.camera.staging import Staging
+from elphel_host.camera.staging import Applied, Staging
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraAuthError, CameraClientError
 
