@@ -1,7 +1,7 @@
 """Camera clients: one interface (`CameraInterface`), two backends picked by the URL (`connect`).
 
 ``http(s)://HOST:PORT`` is elphel-camd (`CameraClient`), ``nc393://HOST[:HTTP_PORT]
-[?imgsrv=BASE]`` a stock NC393 (`elphel_host.camera.nc393.NC393Client`).
+[?imgsrv=BASE]`` a stock NC393 (`elphel_host.camera.nc393.client.NC393Client`).
 """
 
 from __future__ import annotations
@@ -27,4 +27,3 @@ __all__ = [
     "UnsupportedError",
     "connect",
 ]
-

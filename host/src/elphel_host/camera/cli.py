@@ -221,9 +221,7 @@ def cmd_params(args: argparse.Namespace) -> int:
         sensor = ports[args.sensor_port]["sensor"] or {}
         values = client.params(args.sensor_port)
     schema = daemon_schema(args.camera) if info.get("daemon") == "elphel-camd" else table_schema()
-    rows = param_rows(
-        schema, values, sensor_code=sensor.get("sensor_code"), port=args.sensor_port
-    )
+    rows = param_rows(schema, values, sensor_code=sensor.get("sensor_code"), port=args.sensor_port)
     width = max(len(r.name) for r in rows)
     lines = [
         f"{r.name:<{width}}  {'' if r.value is None else r.value:>10}  {r.unit:<8} "
@@ -372,8 +370,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             ports = sorted(p["port"] for p in client.info()["ports"])
             if args.sensor_port not in ports:
                 raise CameraClientError(
-                    f"port {args.sensor_port} does not exist; ports: "
-                    + ", ".join(map(str, ports))
+                    f"port {args.sensor_port} does not exist; ports: " + ", ".join(map(str, ports))
                 )
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):

@@ -182,4 +182,3 @@ def read_partial_tiff(data: bytes) -> tuple[list[NDArray[Any]], list[dict[str, A
 
 def _u32(b: bytes) -> int:
     return int.from_bytes(b, "little")
-

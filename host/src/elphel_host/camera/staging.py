@@ -33,7 +33,9 @@ class Staging:
     @contextlib.contextmanager
     def staged(
         self: CameraInterface,
-        changes: Mapping[str, int] | Mapping[int, Mapping[str, int]], *, port: int = 0
+        changes: Mapping[str, int] | Mapping[int, Mapping[str, int]],
+        *,
+        port: int = 0,
     ) -> Iterator[dict[int, Applied]]:
         """Apply settings for a block and put the previous values back on exit.
 

@@ -25,10 +25,10 @@ from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_dsi, write_ml_data
 from elphel_host.tp.io import read_quad_dir
 from elphel_host.tp.layout import read_layout
-from elphel_host.tp.pipeline import correlation_tiles
 from elphel_host.tp.processor import disparity_map
 from elphel_host.tp.sequence import find_quads, plan_jobs, run_sequence
 from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
+from elphel_host.tp.tile_pass import correlation_tiles
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
