@@ -265,9 +265,14 @@ def write_quad_burst(
     burst_optics = {k: v for k, v in (optics or {}).items() if k in OPTICS}
     for i, cam in enumerate(cams):
         write_burst(
-            root / cam.file, list(a[i]), infos=infos, bayer=bayer, optics=burst_optics,
-            stage=stage, extra={"quad_camera": i},
-        )  # fmt: skip
+            root / cam.file,
+            list(a[i]),
+            infos=infos,
+            bayer=bayer,
+            optics=burst_optics,
+            stage=stage,
+            extra={"quad_camera": i},
+        )
     manifest = QuadManifest(
         cameras=cams,
         bayer=bayer,

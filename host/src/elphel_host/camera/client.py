@@ -182,13 +182,8 @@ class CameraClient(Staging, Closing):
         result: dict[str, int] = self._json("GET", f"/ports/{port}/params", params=query)
         return result
 
-    def set_params(
-        self,
-        changes: Mapping[str, int],
-        *,
-        port: int = 0,
-        frame: int | None = None,
-        ahead: int | None = None,
+    def _set_params(
+        self, changes: Mapping[str, int], port: int, frame: int | None, ahead: int | None
     ) -> Applied:
         """Change parameters all-or-nothing, at once, at frame ``frame`` or ``ahead`` frames on.
 

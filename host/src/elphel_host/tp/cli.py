@@ -12,8 +12,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.depth.cli import add_disagreement_option, max_disagreement
@@ -22,11 +20,10 @@ from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_de
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
-from elphel_host.tp.dsi import write_dsi, write_ml_data
+from elphel_host.tp.dsi import write_ml_data
 from elphel_host.tp.io import read_quad_dir
 from elphel_host.tp.layout import read_layout
-from elphel_host.tp.processor import disparity_map
-from elphel_host.tp.sequence import find_quads, plan_jobs, run_sequence
+from elphel_host.tp.sequence import find_quads, plan_jobs, quad_dsi, run_sequence
 from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
 from elphel_host.tp.tile_pass import correlation_tiles
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
@@ -277,27 +274,7 @@ def run_tp(args: argparse.Namespace) -> int:
         fat_zero=args.fat_zero,
         threads=args.threads,
     )
-    t0 = time.perf_counter()
-    dsi = disparity_map(qs.quad, config=config)
-    seconds = time.perf_counter() - t0
-    h, w = qs.quad.images.shape[1:]
-    write_dsi(
-        args.out,
-        dsi,
-        image_size=(w, h),
-        geometry=qs.quad.geometry,
-        bayer=qs.quad.bayer,
-        extra={"fatZero": config.fat_zero, "refinePasses": config.refine_passes},
-    )
-    result: dict[str, Any] = {
-        "dsi": str(args.out),
-        "tiles_x": int(dsi["disparity"].shape[1]),
-        "tiles_y": int(dsi["disparity"].shape[0]),
-        "layers": list(dsi),
-        "seconds": round(seconds, 3),
-        "disparity_median": float(np.nanmedian(dsi["disparity"])),
-        "strength_median": float(np.nanmedian(dsi["strength"])),
-    }
+    dsi, result = quad_dsi(qs, args.out, config)
     if args.ml_data:
         corr = correlation_tiles(qs.quad, dsi["target_disparity"], config=config)
         write_ml_data(
@@ -320,7 +297,7 @@ def run_tp(args: argparse.Namespace) -> int:
         result["depth"] = {**depth.summary(), **write_depth_products(args.ply, depth, optics)}
     human = (
         f"{result['dsi']}: {result['tiles_x']}x{result['tiles_y']} tiles, {len(dsi)} layers, "
-        f"{seconds:.2f} s; median disparity {result['disparity_median']:.3f} px"
+        f"{result['seconds']:.2f} s; median disparity {result['disparity_median']:.3f} px"
     )
     if "depth" in result:
         d = result["depth"]

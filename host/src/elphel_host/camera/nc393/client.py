@@ -160,13 +160,8 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
             )
         return got if names is None or "FRAME" in names else {n: got[n] for n in names}
 
-    def set_params(
-        self,
-        changes: Mapping[str, int],
-        *,
-        port: int = 0,
-        frame: int | None = None,
-        ahead: int | None = None,
+    def _set_params(
+        self, changes: Mapping[str, int], port: int, frame: int | None, ahead: int | None
     ) -> Applied:
         """Check, write in one request ``ahead`` frames on (or at ``frame``), confirm.
 
