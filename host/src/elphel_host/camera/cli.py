@@ -56,9 +56,26 @@ def register(sub: Any) -> None:
     get.add_argument("--frame", type=int, help="parameters of a recent or scheduled frame")
     get.set_defaults(func=cmd_get, parser=get)
 
+    _add_set(cmd, [common, ported])
+    _add_capture(cmd, [common, ported])
+
+    watch = cmd.add_parser(
+        "watch",
+        parents=[common],
+        help="print the daemon's events (frames, parameter changes, errors)",
+    )
+    watch.add_argument(
+        "--types", default="frame,params,error", help="comma-separated: frame,params,error"
+    )
+    add_sensor_port_option(watch, default=None, help="only this sensor port's events")
+    watch.add_argument("--count", type=int, help="stop after N events")
+    watch.set_defaults(func=cmd_watch, parser=watch)
+
+
+def _add_set(cmd: Any, parents: list[argparse.ArgumentParser]) -> None:
     set_ = cmd.add_parser(
         "set",
-        parents=[common, ported],
+        parents=parents,
         help="set parameters (e.g. EXPOS=5000 GAINR=0x20000; names in any case, "
         "`elphel camera params` lists them): all or none on elphel-camd; "
         "on a stock NC393 checked first, written in one request, read back",
@@ -69,9 +86,11 @@ def register(sub: Any) -> None:
     when.add_argument("--ahead", type=int, help="apply this many frames from now")
     set_.set_defaults(func=cmd_set, parser=set_)
 
+
+def _add_capture(cmd: Any, parents: list[argparse.ArgumentParser]) -> None:
     cap = cmd.add_parser(
         "capture",
-        parents=[common, ported],
+        parents=parents,
         help="capture the next frame (or a recent one, or a burst) as a 16-bit TIFF",
     )
     cap.add_argument("--out", type=Path, help="TIFF path (default: portP-frameN.tif)")
@@ -92,18 +111,6 @@ def register(sub: Any) -> None:
         "and record each row's time",
     )
     cap.set_defaults(func=cmd_capture, parser=cap)
-
-    watch = cmd.add_parser(
-        "watch",
-        parents=[common],
-        help="print the daemon's events (frames, parameter changes, errors)",
-    )
-    watch.add_argument(
-        "--types", default="frame,params,error", help="comma-separated: frame,params,error"
-    )
-    add_sensor_port_option(watch, default=None, help="only this sensor port's events")
-    watch.add_argument("--count", type=int, help="stop after N events")
-    watch.set_defaults(func=cmd_watch, parser=watch)
 
 
 def _client(args: argparse.Namespace, *, retry_s: float = 0.0) -> CameraInterface:

@@ -58,6 +58,13 @@ def register(subparsers: Any) -> None:
         help="DSI.tif to write (ImageJ stack); with `capture`, the quad directory to create",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    _add_capture_options(p)
+    _add_tp_options(p)
+    _add_sequence_options(p)
+    p.set_defaults(func=run, parser=p)
+
+
+def _add_capture_options(p: argparse.ArgumentParser) -> None:
     cap = p.add_argument_group("capture (elphel tp capture ...)")
     add_camera_options(cap)
     cap.add_argument(
@@ -83,6 +90,9 @@ def register(subparsers: Any) -> None:
         metavar="S",
         help="seconds to wait for the frames (default 60)",
     )
+
+
+def _add_tp_options(p: argparse.ArgumentParser) -> None:
     tp = p.add_argument_group("tile processor (elphel tp QUAD_DIR ...)")
     tp.add_argument(
         "--refine", type=int, default=1, metavar="N", help="refinement passes (default 1)"
@@ -108,8 +118,6 @@ def register(subparsers: Any) -> None:
         help="also write an RGBA float32 TIFF: the four cameras blended at the measured disparity",
     )
     add_depth_options(tp)
-    _add_sequence_options(p)
-    p.set_defaults(func=run, parser=p)
 
 
 def add_depth_options(group: Any) -> None:
