@@ -299,11 +299,7 @@ class CameraClient(Staging, Closing):
         remaining = count
         backoff = Backoff(self.retry_s)
         while True:
-            query: dict[str, Any] = {"types": ",".join(types)}
-            if port is not None:
-                query["port"] = port
-            if remaining is not None:
-                query["count"] = remaining
+            query = _event_query(types, port=port, count=remaining)
             headers = {} if last_id is None else {"Last-Event-ID": str(last_id)}
             timeout = httpx.Timeout(self.timeout_s, read=None)
             try:
@@ -354,3 +350,13 @@ def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:
         for image, meta in zip(pages, metadata, strict=True):
             tif.write(image, description=json.dumps(meta), metadata=None)
     return buffer.getvalue()
+
+
+def _event_query(types: tuple[str, ...], *, port: int | None, count: int | None) -> dict[str, Any]:
+    """The query of ``GET /events``: the types, and the port and count when given."""
+    query: dict[str, Any] = {"types": ",".join(types)}
+    if port is not None:
+        query["port"] = port
+    if count is not None:
+        query["count"] = count
+    return query

@@ -28,6 +28,7 @@ definition):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,25 +133,7 @@ def camera_transform(
     cell = 1 if bayer is None else 2
     # a tile starts on either parity; its cell-aligned footprint is one sample wider
     span = TILE if bayer is None else TILE // 2 + 1
-    rows: list[int] = []
-    cols: list[int] = []
-    blocks: list[tuple[slice, F32]] = []
-    for colour in range(ncol):
-        members = [lat for lat in lats if lat.colour == colour]
-        first = len(rows)
-        mats = []
-        for lat in members:
-            rows.append(lat.row)
-            cols.append(lat.col)
-            mats.append(_plane_matrix(lat, span, fset, sizes[colour]))
-        m = np.concatenate(mats, axis=0)
-        # fold in the square root of the colour weight: the pair product then carries it once
-        wgt = colour_weights[colour][
-            fset.kh[: sizes[colour]], :, fset.kv[: sizes[colour]]
-        ]  # (F, which)
-        root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
-        m = m * np.repeat(root.ravel(), 2)[None, :]
-        blocks.append((slice(first, len(rows)), m.astype(np.float32)))
+    rows, cols, blocks = _colour_blocks(lats, colour_weights, fset, sizes, span)
     f = fset.size
     angles = np.zeros((2, 2 * f))
     angles[0] = np.tile(OMEGA[fset.kh], 2)
@@ -169,6 +152,34 @@ def camera_transform(
         angles=angles.astype(np.float32),
         pad=pad,
     )
+
+
+def _colour_blocks(
+    lats: Sequence[Lattice],
+    colour_weights: NDArray[np.floating],
+    fset: FrequencySet,
+    sizes: tuple[int, ...],
+    span: int,
+) -> tuple[list[int], list[int], list[tuple[slice, F32]]]:
+    """Per colour, its planes' (row, col) in the cell and its weighted transform matrix."""
+    rows: list[int] = []
+    cols: list[int] = []
+    blocks: list[tuple[slice, F32]] = []
+    for colour, size in enumerate(sizes):
+        members = [lat for lat in lats if lat.colour == colour]
+        first = len(rows)
+        mats = []
+        for lat in members:
+            rows.append(lat.row)
+            cols.append(lat.col)
+            mats.append(_plane_matrix(lat, span, fset, size))
+        m = np.concatenate(mats, axis=0)
+        # fold in the square root of the colour weight: the pair product then carries it once
+        wgt = colour_weights[colour][fset.kh[:size], :, fset.kv[:size]]  # (F, which)
+        root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
+        m = m * np.repeat(root.ravel(), 2)[None, :]
+        blocks.append((slice(first, len(rows)), m.astype(np.float32)))
+    return rows, cols, blocks
 
 
 def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
