@@ -220,7 +220,7 @@ def save_quad_pictures(
 
 def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
     """The quad camera of the simulator: one synchronised set captured, then its DSI."""
-    from elphel_host.tp.io import read_dsi
+    from elphel_host.tp.dsi import read_dsi
 
     step("starting the simulated quad camera (elphel-sim up --scenario quad)")
     with simulated_rig(seed=seed, scenario="quad") as rig:
