@@ -17,7 +17,6 @@ from typing import Any
 CAMERA_URL_ENV = "ELPHEL_CAMERA_URL"
 CAMERA_TOKEN_ENV = "ELPHEL_CAMERA_TOKEN"
 STAGE_URL_ENV = "ELPHEL_STAGE_URL"
-DEFAULT_STAGE_MODEL = Path.home() / ".config" / "elphel" / "stage-model.json"
 
 
 def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
@@ -71,8 +70,18 @@ def add_stage_option(parser: Any) -> None:
 
 
 def add_stage_model_option(parser: Any, *, help: str = "stage calibration file") -> None:
-    """``--model PATH``: the stage calibration (``elphel stage calibrate`` writes it)."""
-    parser.add_argument("--model", type=Path, default=DEFAULT_STAGE_MODEL, help=help)
+    """``--model PATH``: the stage calibration (``elphel stage calibrate`` writes it).
+
+    Without it, the stage's own file is used: named by the serial the stage reports.
+    """
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help=f"{help} (default: $XDG_CONFIG_HOME/elphel/stages/SERIAL.json, "
+        "XDG_CONFIG_HOME defaulting to ~/.config, SERIAL the one the stage reports)",
+    )
 
 
 def add_sensor_port_option(parser: Any, *, default: int | None = 0, help: str = "") -> None:

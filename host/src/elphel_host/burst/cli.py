@@ -31,7 +31,7 @@ from elphel_host.errors import FusionError, InputFormatError, ScaleError
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
 from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
-from elphel_host.stage.model import StageModel
+from elphel_host.stage.model import load_stage_model
 from elphel_host.stage.positioning import Positioner
 
 if TYPE_CHECKING:
@@ -280,7 +280,7 @@ def run_capture(args: argparse.Namespace) -> int:
                 FusionStream(frames=len(plan.positions_mm), scale=fuse[0], method=fuse[1])
             )
         with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
-            positioner = Positioner(stage, StageModel.load(args.model))
+            positioner = Positioner(stage, load_stage_model(args.model, stage.identify().serial)[0])
             start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out))
             engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
 
@@ -356,7 +356,7 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     top = _manifest_top(args, plan)
     line = ProgressLine()
     with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
-        positioner = Positioner(stage, StageModel.load(args.model))
+        positioner = Positioner(stage, load_stage_model(args.model, stage.identify().serial)[0])
         start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out / "cam0"))
         engine = QuadRigEngine(positioner, camera, layout=layout, settle_s=args.settle_s)
 

@@ -4,12 +4,16 @@
 +steps (approaching from the other side adds ``backlash_mm``). `StageModel.save` and
 `StageModel.load` keep it in a JSON file (``elphel stage ... --model PATH``) so a later
 command moves in the calibrated frame; `elphel_host.stage.positioning` measures it.
+Without ``--model`` each stage has its own file, named by the serial its identification
+query answers (`default_model_path`), so calibrating one stage never changes another's.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,9 +32,12 @@ class StageModel:
 
     @classmethod
     def load(cls, path: Path) -> StageModel:
-        """A calibration saved by `save` (a default model if the file does not exist)."""
-        if not path.exists():
-            return cls()
+        """A calibration saved by `save`; a missing file is an `InputFormatError`."""
+        if not path.is_file():
+            raise InputFormatError(
+                f"stage calibration {path} does not exist: run `elphel stage calibrate "
+                "--model PATH` first, or leave out --model to use this stage's own file"
+            )
         try:
             data = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -80,3 +87,29 @@ class StageModel:
         if self.offset_mm is None:
             raise StageNotHomedError("no caliper reference yet")
         return self.offset_mm + steps * self.mm_per_step
+
+
+def config_dir() -> Path:
+    """Where elphel keeps its settings: ``$XDG_CONFIG_HOME/elphel`` (``~/.config/elphel``)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "elphel"
+
+
+def default_model_path(serial: str) -> Path:
+    """The calibration file of the stage whose identification query answers ``serial``."""
+    if not serial.strip():
+        raise InputFormatError("the stage reports an empty serial: pass --model PATH")
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", serial.strip())
+    return config_dir() / "stages" / f"{safe}.json"
+
+
+def load_stage_model(path: Path | None, serial: str) -> tuple[StageModel, Path]:
+    """The calibration to use and where it lives.
+
+    An explicit ``path`` must exist. Without one, the stage's own file
+    (`default_model_path`) is used when present, else the nominal model.
+    """
+    if path is not None:
+        return StageModel.load(path), path
+    own = default_model_path(serial)
+    return (StageModel.load(own) if own.is_file() else StageModel()), own
