@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -50,9 +51,12 @@ def test_cli_errors_are_one_line(sim, capsys, monkeypatch):
     monkeypatch.delenv("ELPHEL_STAGE_URL", raising=False)
     assert main(["stage", "status"]) == 1
     assert "ELPHEL_STAGE_URL" in capsys.readouterr().err
-    assert main(["stage", "move", "500", "--stage", sim.tcp_url, "--open-loop"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "soft limits" in err[0]
+    for loop in (["--open-loop"], []):
+        assert main(["stage", "move", "500", "--stage", sim.tcp_url, *loop]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and re.search(
+            r"500 mm is beyond the travel [\d.]+\.\.1[01]\d(\.\d+)? mm$", err[0]
+        )
 
 
 def test_each_stage_keeps_its_own_calibration(sim, capsys, tmp_path, monkeypatch):
@@ -91,3 +95,13 @@ def test_help_names_the_default_model_file(capsys):
         main(["stage", "calibrate", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "$XDG_CONFIG_HOME/elphel/stages/SERIAL.json" in out and "~/.config" in out
+
+
+def test_right_after_home_moves_speak_millimetres(sim, capsys):
+    at_home = run(capsys, "home", "--stage", sim.tcp_url)["caliper_mm"]
+    # Home is approached from above: the same reading cannot be reached from below.
+    assert main(["stage", "move", f"{at_home}", "--stage", sim.tcp_url]) == 1
+    err = capsys.readouterr().err
+    assert f"{at_home:g} mm is beyond the travel" in err and "step" not in err
+    moved = run(capsys, "move", f"{at_home + 0.3}", "--stage", sim.tcp_url)
+    assert moved["caliper_mm"] == pytest.approx(at_home + 0.3, abs=0.011)
