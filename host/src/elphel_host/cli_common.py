@@ -64,6 +64,16 @@ def add_camera_options(parser: Any) -> None:
     )
 
 
+def fusion_scale(text: str) -> int:
+    """An argparse ``type`` for a fusion's ``--scale``: a bad one is a usage error (exit 2)."""
+    from elphel_host.mfsr.scale import allowed_scales, check_scale
+
+    try:
+        return check_scale(int(text))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"scale={text!r}; allowed: {allowed_scales()}") from e
+
+
 def add_stage_option(parser: Any) -> None:
     """``--stage URL`` (a pyserial URL), defaulting to ELPHEL_STAGE_URL."""
     _add_url_option(parser, "--stage", STAGE_URL_ENV, "pyserial URL of the stage")

@@ -212,9 +212,9 @@ def bind_loopback(port: int, host: str = "127.0.0.1") -> socket.socket:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))
-    except OSError:
+    except OSError as e:
         sock.close()
-        raise
+        raise OSError(e.errno, f"cannot listen on {host}:{port}: {e.strerror}") from e
     sock.listen(128)
     sock.setblocking(False)
     return sock
@@ -315,7 +315,13 @@ def up(
         board, camera, firmware=firmware, port=camera_port, public_reads=public_reads
     )
     board.start_clock()
-    stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
+    try:
+        stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
+    except OSError:
+        camera.close()
+        for s in cameras:
+            s.sock.close()
+        raise
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
     announce = {
         "camera_url": camera_url,

@@ -20,13 +20,19 @@ from elphel_host.camera.client import (
 )
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.protocol import CameraInterface
+from elphel_host.camera.unsupported import NoEventsNoRegisters
 from elphel_host.cli_common import (
     add_camera_options,
     add_json_option,
     add_sensor_port_option,
     emit,
 )
-from elphel_host.errors import CameraAuthError, CameraClientError, CameraParameterError
+from elphel_host.errors import (
+    CameraAuthError,
+    CameraClientError,
+    CameraParameterError,
+    UnsupportedError,
+)
 
 
 def register(sub: Any) -> None:
@@ -379,6 +385,11 @@ def cmd_watch(args: argparse.Namespace) -> int:
                 raise CameraClientError(
                     f"port {args.sensor_port} does not exist; ports: " + ", ".join(map(str, ports))
                 )
+        if isinstance(client, NoEventsNoRegisters):
+            raise UnsupportedError(
+                "camera watch: a stock NC393 has no event stream; follow its frames with "
+                "`elphel camera get FRAME` or take them with `elphel camera capture`"
+            )
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):
                 entry = {"type": event.type, "id": event.id, **event.data}
