@@ -6,6 +6,7 @@ Each says what was wrong and what to give instead, quickly, in the CLI's terms.
 from __future__ import annotations
 
 import json
+import re
 import socket
 import time
 from pathlib import Path
@@ -79,3 +80,36 @@ def test_bad_scale_is_a_usage_error_everywhere(command, tmp_path, capsys) -> Non
         main([command, str(tmp_path), "--scale", "9", "--out", str(tmp_path / "o")])
     assert info.value.code == 2
     assert "scale='9'; allowed: an integer 1..8" in capsys.readouterr().err
+
+
+def test_capture_and_params_read_plainly(elphel_rig, tmp_path, capsys) -> None:
+    cam = ["--camera", elphel_rig.camera_url, "--token", elphel_rig.token]
+    code, out, err = run(capsys, "camera", "params", *cam)
+    assert code == 0, err
+    lines = out.splitlines()
+    header = lines[1]
+    assert header.split() == ["NAME", "VALUE", "UNIT", "RANGE", "MEANING"]
+    rows = {line.split()[0]: line for line in lines[2:]}
+    assert rows["WOI_WIDTH"].index("2..2592 (even)") == header.index("RANGE")
+    assert rows["WOI_WIDTH"].index("pixels") == header.index("UNIT")
+    assert "0 or 2..1944 (even)" in rows["PF_HEIGHT"]  # 0: photo-finish off
+    assert re.search(r"\s0\.\.3\s", rows["FPSFLAGS"])
+    tif, png = tmp_path / "f.tif", tmp_path / "f.png"
+    code, out, err = run(capsys, "camera", "capture", *cam, "--out", str(tif), "--png", str(png))
+    assert code == 0, err
+    assert png.is_file() and out.strip().endswith(f"-> {tif}; preview {png}")
+
+
+def test_sim_announcement_shows_no_none(capsys) -> None:
+    from elphel_sim.launcher import print_announcement
+
+    announce = {
+        "camera_url": "nc393://127.0.0.1:8080?imgsrv=2323",
+        "token": None,
+        "stage_url": "socket://127.0.0.1:2000",
+        "lens_blur_px": 0.0,
+        "lens_blur_edge_px": None,
+    }
+    print_announcement(announce, scenario="default", seed=0)
+    out = capsys.readouterr().out
+    assert "None" not in out and "lens_blur_px" in out and "lens_blur_edge_px" not in out

@@ -286,7 +286,9 @@ def print_announcement(announce: dict[str, Any], *, scenario: str, seed: int) ->
     """What `elphel-sim up` serves, for a person, with a first command to try."""
     print(f"simulated rig up (scenario {scenario}, seed {seed}); Ctrl-C stops it", flush=True)
     for key, value in announce.items():
-        print(f"  {key:11s} {value}", flush=True)
+        if value is None:
+            continue  # not served (no token, no pty) or not in effect (a uniform lens blur)
+        print(f"  {key:17s} {value}", flush=True)
     hint = f"elphel camera info --camera {announce['camera_url']}"
     if announce["token"] is not None:
         hint += f" --token {announce['token']}"
