@@ -7,17 +7,21 @@ and its own small rotation and focal length. ``R``, ``t_mm`` map camera 0's fram
 the camera's (DESIGN 4.9). The board (`PrintedBoard`) is posed in camera 0's frame
 (``X0 = R_board @ Xb + t_board``) and may be bent (``warp_mm``, mrcal's two-parameter
 deformation). `render_view` renders what each camera records (Bayer mosaic, shot and
-read noise) and `corner_truth` gives the true pixel of every corner.
+read noise), `corner_truth` gives the true pixel of every corner and `write_views` writes
+a views directory.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.calibrate.camera_model import CameraModel, rotation_matrix
+from elphel_host.tp import io as quad_format
 from elphel_sim.calib_target import PrintedBoard, board_radiance
 from elphel_sim.render import SensorModel, expose, mosaic
 
@@ -281,20 +285,26 @@ def _tilted(tilt_x: float, tilt_y: float, roll: float) -> FloatArray:
     return out
 
 
-def _seen_by_all(rig: CalibRig, board: PrintedBoard, pose: BoardPose, margin_px: float) -> bool:
+def whole_board_seen(
+    rig: CalibRig, board: PrintedBoard, pose: BoardPose, *, margin_px: float = 0.0
+) -> list[bool]:
+    """Per camera: whether it sees the whole paper, ``margin_px`` in from its image's edges."""
     outline = board.outline_mm() @ pose.R.T + pose.t_mm
-    if np.any(outline[:, 2] <= 0):
-        return False
     w, h = rig.size
+    out = []
     for cam in rig.cameras:
+        if np.any((outline @ cam.R.T + cam.t_mm)[:, 2] <= 0):
+            out.append(False)
+            continue
         p = cam.project(outline)
-        if (
-            p.min() < margin_px
-            or p[:, 0].max() > w - 1 - margin_px
-            or p[:, 1].max() > h - 1 - margin_px
-        ):
-            return False
-    return True
+        out.append(
+            bool(
+                p.min() >= margin_px
+                and p[:, 0].max() <= w - 1 - margin_px
+                and p[:, 1].max() <= h - 1 - margin_px
+            )
+        )
+    return out
 
 
 def board_poses(
@@ -306,12 +316,16 @@ def board_poses(
     max_tilt_deg: float = 35.0,
     fill: tuple[float, float] = (0.35, 0.6),
     warp_mm: tuple[float, float] = (0.0, 0.0),
+    min_cameras: int | None = None,
 ) -> list[BoardPose]:
-    """``count`` poses whose whole board every camera sees, spread over the image.
+    """``count`` poses whose whole board every camera sees, spread over the cameras' images.
 
     The board spans ``fill`` of the image width, is tilted about its x and y axes by up to
     ``max_tilt_deg`` (0: all fronto-parallel) and turned by up to 15 degrees in its plane.
+    It is aimed at a random point of a random camera's image; at least ``min_cameras``
+    cameras (None: all) see it whole, the one aimed at among them.
     """
+    need = len(rig.cameras) if min_cameras is None else min_cameras
     rng = np.random.default_rng(seed)
     lens = rig.cameras[0].lens
     w, h = rig.size
@@ -327,15 +341,49 @@ def board_poses(
         roll = np.radians(15.0) * rng.uniform(-1, 1) * (max_tilt_deg > 0)
         rot = _tilted(tilt[0], tilt[1], roll)
         z = lens.fx * width_mm / (rng.uniform(*fill) * w)
-        target = np.array([rng.uniform(0.1, 0.9) * w, rng.uniform(0.1, 0.9) * h])
-        ray = lens.rays(target[None])[0]
-        point = np.array([ray[0] * z, ray[1] * z, z])
+        index = int(rng.integers(len(rig.cameras)))
+        cam = rig.cameras[index]  # each camera's whole field covered
+        target = np.array([rng.uniform(0.05, 0.95) * w, rng.uniform(0.05, 0.95) * h])
+        ray = cam.lens.rays(target[None])[0]
+        point = cam.R.T @ (np.array([ray[0] * z, ray[1] * z, z]) - cam.t_mm)
         pose = BoardPose(rot, point - rot @ centre_b, warp_mm)
-        if _seen_by_all(rig, board, pose, margin):
+        seen = whole_board_seen(rig, board, pose, margin_px=margin)
+        if seen[index] and sum(seen) >= need:
             poses.append(pose)
     if len(poses) < count:
         raise ValueError(
-            f"found {len(poses)} of {count} board poses that every camera sees; "
+            f"found {len(poses)} of {count} board poses that {need} cameras see whole; "
             "allowed: a smaller board, a smaller baseline or a smaller fill"
         )
     return poses
+
+
+def write_views(
+    root: str | Path, rig: CalibRig, board: PrintedBoard, poses: list[BoardPose], *, seed: int
+) -> list[Path]:
+    """Render and write a views directory (DESIGN 4.9); return the views' paths.
+
+    One camera: ``viewNNN.tif`` with the Bayer pattern in its metadata. Four: a quad
+    directory ``viewNNN/`` per view (quad.json, cam0..3.tif).
+    """
+    out = Path(root)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k, pose in enumerate(poses):
+        images = render_view(rig, board, pose, seed=seed + k)
+        if len(images) == 1:
+            path = out / f"view{k:03d}.tif"
+            tifffile.imwrite(path, images[0], metadata={"bayer": rig.bayer})
+        elif len(images) == 4:
+            manifest = quad_format.QuadManifest(
+                cameras=quad_format.quad_cameras(QUAD_POSITIONS),
+                bayer=rig.bayer,
+                full_scale_dn=(1 << rig.sensor.bits) - 1,
+            )
+            path = quad_format.write_quad_dir(out / f"view{k:03d}", manifest, images)
+        else:
+            raise ValueError(
+                f"a rig of {len(images)} cameras; allowed: 1 or 4 for a views directory"
+            )
+        paths.append(path)
+    return paths

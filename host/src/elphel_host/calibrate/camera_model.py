@@ -36,11 +36,12 @@ def distort(x: FloatArray, y: FloatArray, coeffs: FloatArray) -> tuple[FloatArra
 
 
 def undistort(
-    xd: FloatArray, yd: FloatArray, coeffs: FloatArray, *, iterations: int = 40
+    xd: FloatArray, yd: FloatArray, coeffs: FloatArray, *, iterations: int = 40, strict: bool = True
 ) -> tuple[FloatArray, FloatArray]:
     """Normalised coordinates whose distortion is ``(xd, yd)`` (Newton's method).
 
-    Raises ValueError when the model does not invert there (more than 1e-9 left).
+    Where the model does not invert (more than 1e-9 left): ValueError when ``strict``,
+    NaN otherwise (a fitted model may fold far from its data, in the image's corners).
     """
     x, y = np.array(xd, dtype=np.float64), np.array(yd, dtype=np.float64)
     h = 1e-7
@@ -57,7 +58,11 @@ def undistort(
         x = x - (j22 * ex - j12 * ey) / det
         y = y - (-j21 * ex + j11 * ey) / det
     fx, fy = distort(x, y, coeffs)
-    worst = float(np.max(np.hypot(fx - xd, fy - yd), initial=0.0))
+    left = np.hypot(fx - xd, fy - yd)
+    if not strict:
+        bad = ~(left < 1e-9)
+        return np.where(bad, np.nan, x), np.where(bad, np.nan, y)
+    worst = float(np.max(left, initial=0.0))
     if not worst < 1e-9:
         raise ValueError(
             f"the lens model does not invert at some points ({worst:.2g} left); "
@@ -101,13 +106,29 @@ class CameraModel:
         xd, yd = distort(p[:, 0] / p[:, 2], p[:, 1] / p[:, 2], self.coefficients)
         return np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=1)
 
-    def rays(self, pixels: FloatArray) -> FloatArray:
-        """Normalised undistorted coordinates ``(N, 2)`` (``x = X/Z``) of pixels ``(N, 2)``."""
+    def rays(self, pixels: FloatArray, *, strict: bool = True) -> FloatArray:
+        """Normalised undistorted coordinates ``(N, 2)`` (``x = X/Z``) of pixels ``(N, 2)``.
+
+        ``strict``: see `undistort` (False: NaN where the model folds).
+        """
         q = np.asarray(pixels, dtype=np.float64)
         x, y = undistort(
-            (q[:, 0] - self.cx) / self.fx, (q[:, 1] - self.cy) / self.fy, self.coefficients
+            (q[:, 0] - self.cx) / self.fx,
+            (q[:, 1] - self.cy) / self.fy,
+            self.coefficients,
+            strict=strict,
         )
         return np.stack([x, y], axis=1)
+
+    @classmethod
+    def from_vector(cls, width: int, height: int, values: FloatArray) -> CameraModel:
+        """A model from ``(fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6)``."""
+        v = [float(x) for x in values]
+        if len(v) != 12:
+            raise ValueError(
+                f"{len(v)} intrinsic values; allowed: 12 (fx fy cx cy and 8 coefficients)"
+            )
+        return cls(width, height, v[0], v[1], v[2], v[3], tuple(v[4:]))
 
     def to_json(self) -> dict[str, object]:
         return {

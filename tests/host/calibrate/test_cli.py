@@ -1,0 +1,97 @@
+"""`elphel calibrate solve` on a simulated views directory: files, JSON and errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from elphel_host.calibrate import cli as calibrate_cli
+from elphel_sim.calib_rig import board_poses, make_rig, write_views
+
+from .conftest import BOARD
+
+
+def _run(argv: list[str]) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="elphel")
+    calibrate_cli.register(parser.add_subparsers(dest="area", required=True))
+    args = parser.parse_args(argv)
+    code: int = args.func(args)
+    return code
+
+
+@pytest.fixture(scope="module")
+def views(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    rig = make_rig(640, 480, cameras=1, seed=41)
+    root = tmp_path_factory.mktemp("views")
+    write_views(root, rig, BOARD, board_poses(rig, BOARD, 6, seed=42), seed=43)
+    cv2.imwrite(str(root / "view999.png"), np.full((480, 640), 90, np.uint8))  # no board here
+    return root
+
+
+def test_solve_writes_the_calibration_directory(
+    views: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "calib"
+    code = _run(
+        [
+            "calibrate",
+            "solve",
+            str(views),
+            "--pattern",
+            "checkerboard:9x6:25",
+            "--out",
+            str(out),
+            "--json",
+            "--no-cross-validation",
+        ]
+    )
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["calibration"] == str(out / "calibration.json")
+    assert result["rms_px"] < 0.03
+    assert result["missing"] == [{"view": "view999.png", "camera": 0}]
+    doc = json.loads((out / "calibration.json").read_text())
+    assert doc["version"] == 1 and doc["pattern"] == "checkerboard:9x6:25"
+    cam = doc["cameras"][0]
+    assert {"width", "height", "fx", "fy", "cx", "cy", "distortion", "R", "t_mm"} <= set(cam)
+    assert cam["distortion"]["model"] == "opencv" and len(cam["distortion"]["coefficients"]) == 8
+    fs = cv2.FileStorage(str(out / "cam0.yml"), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("image_width").real() == 640
+    assert np.allclose(fs.getNode("camera_matrix").mat()[0, 0], cam["fx"])
+    assert np.allclose(
+        fs.getNode("distortion_coefficients").mat().ravel(), cam["distortion"]["coefficients"]
+    )
+    fs.release()
+    for name in ("residuals.png", "coverage.png", "uncertainty.png"):
+        assert cv2.imread(str(out / name)) is not None
+
+
+def test_wrong_pattern_size_says_how_to_count(
+    views: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from elphel_host.calibrate.observations import CalibrationInputError
+
+    with pytest.raises(CalibrationInputError, match="inner corners"):
+        _run(
+            [
+                "calibrate",
+                "solve",
+                str(views),
+                "--pattern",
+                "checkerboard:7x4:25",
+                "--out",
+                str(tmp_path / "c"),
+            ]
+        )
+
+
+def test_bad_spec_is_a_usage_error(views: Path, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as e:
+        _run(["calibrate", "solve", str(views), "--pattern", "9x6", "--out", str(tmp_path / "c")])
+    assert e.value.code == 2
