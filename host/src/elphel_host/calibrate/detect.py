@@ -92,23 +92,46 @@ def _orient(grey: FloatArray, corners: FloatArray, board: Checkerboard) -> Float
     return grid.reshape(-1, 2).copy()
 
 
-def find_corners(grey: FloatArray, board: Checkerboard) -> FloatArray | None:
-    """Corners ``(N, 2)`` to about 0.1 px in the board's order, or None when not found."""
-    size = (board.cols, board.rows)
-    image = _eight_bit(grey)
-    found, corners = False, None
+#: Images wider than this are searched at half (or quarter) size first: the search costs
+#: as the pixels do, and the fit refines at full resolution from there.
+SEARCH_WIDTH_PX = 1000
+
+
+def _search(image: NDArray[np.uint8], size: tuple[int, int]) -> FloatArray | None:
+    """OpenCV's corners (about 0.1 px) in OpenCV's order, or None."""
     for flags in (0, cv2.CALIB_CB_EXHAUSTIVE):
         found, corners = cv2.findChessboardCornersSB(image, size, flags=flags)
         if found:
-            break
-    if not found:  # the classic detector still finds some steep views the SB one misses
-        found, corners = cv2.findChessboardCorners(image, size)
-        if found:
-            criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-            corners = cv2.cornerSubPix(image, corners, (4, 4), (-1, -1), criteria)
+            return np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    found, corners = cv2.findChessboardCorners(image, size)  # finds some steep views SB misses
     if not found:
         return None
-    ordered = _orient(grey, np.asarray(corners, dtype=np.float64).reshape(-1, 2), board)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    corners = cv2.cornerSubPix(image, corners, (4, 4), (-1, -1), criteria)
+    return np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+
+
+def find_corners(grey: FloatArray, board: Checkerboard) -> FloatArray | None:
+    """Corners ``(N, 2)`` to a few tenths of a pixel in the board's order, or None."""
+    size = (board.cols, board.rows)
+    image = _eight_bit(grey)
+    corners = None
+    factor = 1
+    while image.shape[1] / factor > SEARCH_WIDTH_PX:
+        factor *= 2
+    if factor > 1:
+        small = np.asarray(
+            cv2.resize(image, None, fx=1 / factor, fy=1 / factor, interpolation=cv2.INTER_AREA),
+            dtype=np.uint8,
+        )
+        found = _search(small, size)
+        if found is not None:  # a small pixel i covers full pixels factor*i .. factor*i+factor-1
+            corners = found * factor + (factor - 1) / 2
+    if corners is None:
+        corners = _search(image, size)
+    if corners is None:
+        return None
+    ordered = _orient(grey, corners, board)
     return ordered if _whole_board(grey, ordered, board) else None
 
 

@@ -144,11 +144,17 @@ def _solve_with_outliers(
 
 
 def _covariance(x: FloatArray, jac: FloatArray, problem: bundle.Problem) -> FloatArray:
-    """The parameters' covariance: (J^T J + prior)^-1 scaled by the whitened residuals' variance."""
+    """The parameters' covariance under re-drawn corner noise, scaled by the residuals.
+
+    The prior is not noise that a new set of views would re-draw, so the spread of the
+    regularised solution is the sandwich ``A^-1 J^T J A^-1`` with ``A = J^T J + prior``
+    (``(J^T J)^-1`` where the prior does not reach).
+    """
     res = bundle.residuals(x, problem)
     dof = max(len(res) - len(x), 1)
-    normal = jac.T @ jac + np.diag(bundle.prior_weights(problem))
-    out: FloatArray = np.linalg.pinv(normal) * (res @ res / dof)
+    jtj = jac.T @ jac
+    inverse = np.linalg.pinv(jtj + np.diag(bundle.prior_weights(problem)))
+    out: FloatArray = inverse @ jtj @ inverse * (res @ res / dof)
     return out
 
 
