@@ -387,3 +387,23 @@ def write_views(
             )
         paths.append(path)
     return paths
+
+
+def truth_json(rig: CalibRig, board: PrintedBoard, poses: list[BoardPose]) -> dict[str, object]:
+    """The truth of a views directory: per camera its lens, residual, blur, pose; the boards."""
+    return {
+        "pattern": board.pattern.spec,
+        "cameras": [
+            {
+                **cam.lens.to_json(),
+                "R": cam.R.tolist(),
+                "t_mm": cam.t_mm.tolist(),
+                "residual_terms": [list(t) for t in cam.residual.terms],
+                "blur_px": [cam.blur_centre_px, cam.blur_edge_px],
+            }
+            for cam in rig.cameras
+        ],
+        "boards": [
+            {"R": p.R.tolist(), "t_mm": p.t_mm.tolist(), "warp_mm": list(p.warp_mm)} for p in poses
+        ],
+    }
