@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from elphel_host.calibrate.export import write_exports
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.calibrate.pictures import write_pictures
 from elphel_host.calibrate.result import finite_json, write_calibration
@@ -37,7 +38,8 @@ def register(subparsers: Any) -> None:
         "of one camera, or one quad directory per view) and solve one bundle adjustment of "
         "every camera's intrinsics (OpenCV's rational model), the cameras' poses from camera 0, "
         "the board poses and the board's bend. Writes calibration.json, camN.yml (OpenCV "
-        "FileStorage) and residuals.png, coverage.png, uncertainty.png into CALIB_DIR.",
+        "FileStorage), residuals.png, coverage.png, uncertainty.png and exports/ (mrcal, "
+        "COLMAP, Kalibr) into CALIB_DIR.",
     )
     s.add_argument("views", metavar="VIEWS_DIR", type=Path)
     s.add_argument(
@@ -97,7 +99,9 @@ def run_solve(args: argparse.Namespace) -> int:
     line.update("solving")
     line.end()
     cal = calibrate(obs, cross_validate=not args.no_cross_validation)
-    path = write_calibration(cal, args.out)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    exports = write_exports(cal, args.out)
+    path = write_calibration(cal, args.out, extra={"exports": exports})
     pictures = write_pictures(cal, args.out)
     result = {
         "rms_px": cal.rms_px,
@@ -111,6 +115,7 @@ def run_solve(args: argparse.Namespace) -> int:
         "missing": [{"view": v, "camera": c} for v, c in cal.missing],
         "warnings": list(cal.warnings),
         "pictures": [str(p) for p in pictures],
+        "exports": exports,
     }
     emit(args, finite_json(result), _human(cal, path))
     return 0

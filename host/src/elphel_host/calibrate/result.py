@@ -82,13 +82,17 @@ def _write_yml(
             fs.release()
 
 
-def write_calibration(cal: Calibration, out_dir: str | Path) -> Path:
-    """Write calibration.json and camN.yml into ``out_dir``; return calibration.json's path."""
+def write_calibration(
+    cal: Calibration, out_dir: str | Path, *, extra: dict[str, Any] | None = None
+) -> Path:
+    """Write calibration.json (with ``extra`` fields) and camN.yml; return the json's path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for n, cam in enumerate(cal.cameras):
         _write_yml(out / f"cam{n}.yml", cam.lens, cam.R if n else None, cam.t_mm if n else None)
-    doc = json.dumps(finite_json(calibration_json(cal)), indent=1, allow_nan=False)
+    doc = json.dumps(
+        finite_json({**calibration_json(cal), **(extra or {})}), indent=1, allow_nan=False
+    )
     return write_atomic(out / CALIBRATION_FILE, (doc + "\n").encode())
 
 
