@@ -97,13 +97,21 @@ def _orient(grey: FloatArray, corners: FloatArray, board: Checkerboard) -> Float
 SEARCH_WIDTH_PX = 1000
 
 
-def _search(image: NDArray[np.uint8], size: tuple[int, int]) -> FloatArray | None:
-    """OpenCV's corners (about 0.1 px) in OpenCV's order, or None."""
-    for flags in (0, cv2.CALIB_CB_EXHAUSTIVE):
+def _search(
+    image: NDArray[np.uint8], size: tuple[int, int], *, thorough: bool
+) -> FloatArray | None:
+    """OpenCV's corners (about 0.1 px) in OpenCV's order, or None.
+
+    ``thorough`` adds the exhaustive SB search and the classic detector (which finds some
+    steep views SB misses, but takes seconds on a large image without a whole board).
+    """
+    for flags in (0, cv2.CALIB_CB_EXHAUSTIVE) if thorough else (0,):
         found, corners = cv2.findChessboardCornersSB(image, size, flags=flags)
         if found:
             return np.asarray(corners, dtype=np.float64).reshape(-1, 2)
-    found, corners = cv2.findChessboardCorners(image, size)  # finds some steep views SB misses
+    if not thorough:
+        return None
+    found, corners = cv2.findChessboardCorners(image, size)
     if not found:
         return None
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)
@@ -124,11 +132,11 @@ def find_corners(grey: FloatArray, board: Checkerboard) -> FloatArray | None:
             cv2.resize(image, None, fx=1 / factor, fy=1 / factor, interpolation=cv2.INTER_AREA),
             dtype=np.uint8,
         )
-        found = _search(small, size)
+        found = _search(small, size, thorough=True)
         if found is not None:  # a small pixel i covers full pixels factor*i .. factor*i+factor-1
             corners = found * factor + (factor - 1) / 2
-    if corners is None:
-        corners = _search(image, size)
+    if corners is None:  # squares too small for the reduced copy: the full image, quickly
+        corners = _search(image, size, thorough=factor == 1)
     if corners is None:
         return None
     ordered = _orient(grey, corners, board)
