@@ -12,6 +12,7 @@ for N > 0 ``R``, ``T`` in mm relative to camera 0).
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,7 @@ def calibration_json(cal: Calibration) -> dict[str, Any]:
         "cameras": cameras,
         "board_warp_mm": list(cal.warp_mm),
         "views": list(cal.views),
-        "outliers": [o.__dict__ for o in cal.outliers],
+        "outliers": [asdict(o) for o in cal.outliers],
         "missing": [{"view": v, "camera": c} for v, c in cal.missing],
         "warnings": list(cal.warnings),
         "cross_validation": cal.cross_validation,

@@ -11,7 +11,7 @@ halves of the views (mrcal's projection difference between their calibrations).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,7 +72,6 @@ class Calibration:
     missing: tuple[tuple[str, int], ...]
     warnings: tuple[str, ...]
     cross_validation: dict[str, object] | None = None
-    extra: dict[str, object] = field(default_factory=dict)
 
 
 def make_problem(obs: Observations) -> bundle.Problem:
@@ -243,9 +242,7 @@ def calibrate(
     )
     if not cross_validate:
         return result
-    return Calibration(
-        **{**result.__dict__, "cross_validation": cross_validation(used, grid_step_px=grid_step_px)}
-    )
+    return replace(result, cross_validation=cross_validation(used, grid_step_px=grid_step_px))
 
 
 def cross_validation(obs: Observations, *, grid_step_px: float = 32.0) -> dict[str, object]:
