@@ -10,7 +10,7 @@ SETUP := host/pyproject.toml target/camera/pyproject.toml simulator/pyproject.to
 $(STAMP): $(SETUP)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e 'target/camera[fast]' -e host -e simulator -r requirements-dev.txt
+	$(BIN)/python -m pip install -q -e 'target/camera[fast,v4l2]' -e host -e simulator -r requirements-dev.txt
 	touch $@
 
 demo: $(STAMP)

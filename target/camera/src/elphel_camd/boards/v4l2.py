@@ -207,7 +207,7 @@ class V4L2Board:
         periods (or ``timeout_s``).
         """
         stream = self._stream(port)
-        wanted = stream.last_frame + 1 if frame is None else frame
+        wanted = stream.ring.newest + 1 if frame is None else frame
         deadline = time.monotonic() + timeout_s
         while stream.ring.newest < wanted:
             self._check_connected(stream)

@@ -51,7 +51,7 @@ class FrameRing:
             raise ValueError(f"a frame ring needs 1 or more slots, got {slots}")
         self._slots = [_Slot(np.empty(0, np.uint8)) for _ in range(slots)]
         self._next = 0
-        self.newest = -1
+        self.newest = 0  # frame numbers start at 1
         self._cond = threading.Condition()
 
     def put(self, data: FrameData, *, frame: int, timestamp_ns: int, fmt: StreamFormat) -> None:

@@ -111,7 +111,8 @@ class SyntheticSource:
         self._streaming = False
         self._sequence = 0
         self._next_s = 0.0
-        self._busy_buffers: set[int] = set()
+        self._busy_buffers: set[int] = set()  # filled or held by the consumer
+        self._filled: list[Buffer] = []
         self._buffers = 0
         self._lock = threading.Lock()
         self.sim_gone = False
@@ -139,6 +140,7 @@ class SyntheticSource:
             raise DeviceBusyError(f"{self.path}: device busy: another program is streaming")
         self._buffers = max(buffers, 1)
         self._busy_buffers.clear()
+        self._filled.clear()
         self._sequence = 0
         self._next_s = time.monotonic() + self.period_s
         self._streaming = True
@@ -152,32 +154,27 @@ class SyntheticSource:
                 self._fail_next = False
                 raise OSError(5, "Input/output error")
             now = time.monotonic()
-            if self._streaming and not self.sim_silent and now >= self._next_s:
-                return self._deliver(now)
-            wake = min(deadline, self._next_s if self._streaming else deadline)
+            self._fill(now)
+            if self._filled:
+                return self._filled.pop(0)
             if now >= deadline:
                 return None
+            wake = min(deadline, self._next_s) if self._streaming else deadline
             time.sleep(max(min(wake - now, 0.05), 0.0005))
 
-    def _deliver(self, now: float) -> Buffer | None:
-        timestamp_ns = round(self._next_s * 1e9)  # when the frame was due, as a driver stamps it
-        self._next_s += self.period_s
-        if self._next_s < now:  # a consumer slower than the frame rate: frames are lost
-            missed = int((now - self._next_s) / self.period_s) + 1
-            self._sequence += missed
-            self._next_s += missed * self.period_s
-        if self._drop_next:
-            self._sequence += self._drop_next
-            self._drop_next = 0
-        free = [i for i in range(self._buffers) if i not in self._busy_buffers]
-        if not free:
-            self._sequence += 1  # no buffer queued: the driver drops the frame
-            return None
-        index = free[0]
-        self._busy_buffers.add(index)
-        buf = Buffer(index, self.data, self._sequence, timestamp_ns)
-        self._sequence += 1
-        return buf
+    def _fill(self, now: float) -> None:
+        """Every frame due by now goes into a queued buffer, or is lost if none is free."""
+        while self._streaming and not self.sim_silent and now >= self._next_s:
+            timestamp_ns = round(self._next_s * 1e9)  # when the frame was due, as drivers stamp
+            self._next_s += self.period_s
+            if self._drop_next:
+                self._sequence += self._drop_next
+                self._drop_next = 0
+            free = [i for i in range(self._buffers) if i not in self._busy_buffers]
+            if free:
+                self._busy_buffers.add(free[0])
+                self._filled.append(Buffer(free[0], self.data, self._sequence, timestamp_ns))
+            self._sequence += 1  # without a free buffer the frame is lost: a gap
 
     def requeue(self, buffer: Buffer) -> None:
         if self.sim_gone:
@@ -187,6 +184,7 @@ class SyntheticSource:
     def stop(self) -> None:
         self._streaming = False
         self._busy_buffers.clear()
+        self._filled.clear()
 
     def close(self) -> None:
         self.stop()
