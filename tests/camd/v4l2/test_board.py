@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from elphel_camd.boards.v4l2 import V4L2Board, V4L2Port
-from elphel_camd.errors import FrameNotAvailableError
+from elphel_camd.errors import ConfigError, FrameNotAvailableError
 from elphel_camd.params import EXPOSURE, GAINS, WINDOW
 from elphel_camd.v4l2.controls import CID_ANALOGUE_GAIN, CID_DIGITAL_GAIN, CID_EXPOSURE
 from elphel_camd.v4l2.errors import ControlRefusedError, DeviceBusyError, PortDisconnectedError
@@ -207,3 +207,23 @@ def test_two_nodes_stream_side_by_side(nodes: Nodes) -> None:
         assert set(results) == {0, 1}
     finally:
         board.close()
+
+
+def test_limits_come_from_the_drivers_controls(board: V4L2Board) -> None:
+    limits = board.sensors()[0].limits()
+    line_s = (WIDTH + 168) / 182.4e6
+    assert limits["EXPOS"] == (round(4 * line_s * 1e6), round(3522 * line_s * 1e6))
+    # analogue 256 / (256 - 232) = 10.67 times digital 4095 / 256 = 16.0
+    assert limits["GAING"] == (0x10000, round(256 / 24 * 4095 / 256 * 0x10000))
+    assert limits["WOI_WIDTH"] == (WIDTH, WIDTH)
+
+
+def test_a_size_that_is_not_width_x_height_is_refused() -> None:
+    with pytest.raises(ConfigError, match="size '640'; allowed: WIDTHxHEIGHT"):
+        V4L2Port("/dev/video0", size="640").size_tuple()
+    assert V4L2Port("/dev/video0", size="640x480").size_tuple() == (640, 480)
+
+
+def test_a_board_without_nodes_is_refused() -> None:
+    with pytest.raises(ConfigError, match="needs at least one node"):
+        V4L2Board([])

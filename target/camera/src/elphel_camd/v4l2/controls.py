@@ -137,6 +137,26 @@ class ControlMap:
         """Seconds of one line: (width + HBLANK) pixels at the pixel rate."""
         return (width + values[CID_HBLANK]) / values[CID_PIXEL_RATE]
 
+    def limits(self, *, width: int, timing: Mapping[int, int]) -> dict[str, tuple[int, int]]:
+        """The range of each offered parameter that the driver's control limits allow."""
+        out: dict[str, tuple[int, int]] = {}
+        if self.line_exposure:
+            info, line_s = self.controls[CID_EXPOSURE], self.line_time_s(width, timing)
+            low = max(1, round(info.minimum * line_s * 1e6))
+            out["EXPOS"] = (low, max(low, round(info.maximum * line_s * 1e6)))
+        elif self.absolute_exposure:
+            info = self.controls[CID_EXPOSURE_ABSOLUTE]
+            out["EXPOS"] = (max(1, info.minimum * 100), info.maximum * 100)
+        if self.gains:
+            low = high = 1.0
+            for cid, law in self.gains.items():
+                info = self.controls[cid]
+                low *= law.gain(info.minimum, info)
+                high *= law.gain(info.maximum, info)
+            span = (max(round(low * UNITY), UNITY), max(round(high * UNITY), UNITY))
+            out.update(dict.fromkeys(COLOUR_GAINS, span))
+        return out
+
     # -- parameters -> controls ------------------------------------------------------------
 
     def to_controls(

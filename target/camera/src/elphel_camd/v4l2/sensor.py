@@ -169,6 +169,18 @@ class V4L2Sensor(SensorDriver):
         s["FP1000S"] = round(1000 / period) if period > 0 else 0
         return s
 
+    def limits(self) -> dict[str, tuple[int, int]]:
+        """Each offered parameter's range under the driver's control limits, now."""
+        fmt = self._source().stream_format
+        found = self.map.limits(width=fmt.width, timing=self._timing())
+        found.update(
+            WOI_LEFT=(0, 0),
+            WOI_TOP=(0, 0),
+            WOI_WIDTH=(fmt.width, fmt.width),
+            WOI_HEIGHT=(fmt.height, fmt.height),
+        )
+        return found
+
     def frame_period_s(self, state: Mapping[str, int]) -> float:
         return self._period_s()
 
