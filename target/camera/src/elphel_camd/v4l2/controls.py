@@ -148,12 +148,12 @@ class ControlMap:
             info = self.controls[CID_EXPOSURE_ABSOLUTE]
             out["EXPOS"] = (max(1, info.minimum * 100), info.maximum * 100)
         if self.gains:
-            low = high = 1.0
+            least = most = 1.0
             for cid, law in self.gains.items():
                 info = self.controls[cid]
-                low *= law.gain(info.minimum, info)
-                high *= law.gain(info.maximum, info)
-            span = (max(round(low * UNITY), UNITY), max(round(high * UNITY), UNITY))
+                least *= law.gain(info.minimum, info)
+                most *= law.gain(info.maximum, info)
+            span = (max(round(least * UNITY), UNITY), max(round(most * UNITY), UNITY))
             out.update(dict.fromkeys(COLOUR_GAINS, span))
         return out
 
