@@ -12,10 +12,15 @@ import numpy as np
 import pytest
 
 from elphel_camd.boards.v4l2 import V4L2Board, V4L2Port
-from elphel_camd.errors import ConfigError, FrameNotAvailableError
+from elphel_camd.errors import (
+    ConfigError,
+    ControlRefusedError,
+    DeviceBusyError,
+    FrameNotAvailableError,
+    PortDisconnectedError,
+)
 from elphel_camd.params import EXPOSURE, GAINS, WINDOW
 from elphel_camd.v4l2.controls import CID_ANALOGUE_GAIN, CID_DIGITAL_GAIN, CID_EXPOSURE
-from elphel_camd.v4l2.errors import ControlRefusedError, DeviceBusyError, PortDisconnectedError
 from elphel_camd.v4l2.synthetic import SyntheticSource
 
 HEIGHT, WIDTH = 8, 16
@@ -84,7 +89,7 @@ def test_frame_syncs_follow_the_sequence_and_a_gap_is_counted_as_drops(
     while board.streams[0].last_frame < before + 10:
         time.sleep(0.01)
     assert board.port_status(0)["dropped"] >= 5
-    drops = [p for k, p in board.events if k == "dropped"]  # type: ignore[attr-defined]
+    drops = [p for k, p in board.events if p.get("error") == "frames_dropped"]  # type: ignore[attr-defined]
     assert any(p["frames"] == 5 for p in drops)
     gap = [b - a for a, b in itertools.pairwise(seen) if b - a > 1]
     assert 6 in gap  # five frames skipped between two syncs

@@ -9,20 +9,22 @@ own driver found on that bus, while its frames still come from the node.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from elphel_camd.boards.base import Frame, FrameSync
-from elphel_camd.errors import ConfigError, PortError
+from elphel_camd.errors import ConfigError, PortDisconnectedError, PortError
 from elphel_camd.i2c.bus import I2CBus, open_bus
 from elphel_camd.sensors.base import SensorDriver
-from elphel_camd.v4l2.errors import PortDisconnectedError
 from elphel_camd.v4l2.ring import FrameRing
 from elphel_camd.v4l2.sensor import V4L2Sensor
 from elphel_camd.v4l2.source import FrameSource
 from elphel_camd.v4l2.stream import PortStream
+
+log = logging.getLogger(__name__)
 
 EventSink = Callable[[str, dict[str, Any]], None]
 
@@ -81,7 +83,12 @@ class V4L2Board:
     video
         Capture nodes, one port each (``--video``).
     ports
-        Port settings (`V4L2Port` fields) instead of ``video``, from the config file.
+        Port settings (`V4L2Port` fields), from the config file; ``video`` ports follow.
+    bus_urls
+        With ``video``: the I2C bus of each node's sensor, in the same order (``--bus``),
+        for sensors the project's own drivers program.
+    sensor
+        With ``video``: the kernel driver of the sensors (``--sensor``), for gain laws.
     ring_frames
         Frames kept per port for ``?frame=N`` and bursts.
     buffers
@@ -100,12 +107,22 @@ class V4L2Board:
         video: Sequence[str] = (),
         *,
         ports: Sequence[Mapping[str, Any]] = (),
+        bus_urls: Sequence[str] = (),
+        sensor: str | None = None,
         ring_frames: int = 8,
         buffers: int = 4,
         timeout_periods: int = 5,
         open_source: SourceFactory = open_node,
     ) -> None:
-        specs = [V4L2Port(**p) for p in ports] + [V4L2Port(v) for v in video]
+        if bus_urls and len(bus_urls) != len(video):
+            raise ConfigError(
+                f"{len(bus_urls)} --bus for {len(video)} --video: give one bus per node "
+                "(its sensor's) or none"
+            )
+        buses: list[str | None] = [*bus_urls] if bus_urls else [None] * len(video)
+        specs = [V4L2Port(**p) for p in ports] + [
+            V4L2Port(v, bus=b, model=sensor) for v, b in zip(video, buses, strict=True)
+        ]
         if not specs:
             raise ConfigError("the v4l2 board needs at least one node (e.g. --video /dev/video0)")
         self.ports = dict(enumerate(specs))
@@ -171,7 +188,19 @@ class V4L2Board:
         if sensor is not None:
             sensor.record(frame)
         for callback in self._subscribers:
-            callback(port, frame, timestamp_ns)
+            try:
+                callback(port, frame, timestamp_ns)
+            except Exception:  # the stream must go on: log, and report as an event
+                log.exception("port %d: frame %d: a frame-sync subscriber failed", port, frame)
+                self._on_event(
+                    "error",
+                    {
+                        "port": port,
+                        "frame": frame,
+                        "error": "frame_sync",
+                        "detail": f"port {port}: handling frame {frame} failed (see the log)",
+                    },
+                )
 
     def _on_event(self, kind: str, payload: dict[str, Any]) -> None:
         for sink in self._event_sinks:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from elphel_camd.v4l2.errors import ControlRefusedError
+from elphel_camd.errors import ControlRefusedError
 from elphel_camd.v4l2.source import ControlInfo
 
 CID_EXPOSURE = 0x00980911

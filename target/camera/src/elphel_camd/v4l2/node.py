@@ -16,7 +16,7 @@ import select
 from collections.abc import Mapping
 from typing import Any
 
-from elphel_camd.v4l2.errors import (
+from elphel_camd.errors import (
     ControlRefusedError,
     DeviceBusyError,
     PortDisconnectedError,

@@ -14,9 +14,9 @@ from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
-from elphel_camd.errors import I2CError
+from elphel_camd.errors import ControlRefusedError, PortDisconnectedError
 from elphel_camd.i2c.bus import I2CBus
-from elphel_camd.params import EXPOSURE, GAINS, PARAMS, WINDOW, check_range
+from elphel_camd.params import EXPOSURE, FUNCTIONS, GAINS, PARAMS, WINDOW, check_range
 from elphel_camd.sensors.base import SensorDriver, State
 from elphel_camd.v4l2.controls import (
     CID_AUTOGAIN,
@@ -28,7 +28,6 @@ from elphel_camd.v4l2.controls import (
     UNITY,
     ControlMap,
 )
-from elphel_camd.v4l2.errors import ControlRefusedError, PortDisconnectedError
 from elphel_camd.v4l2.formats import flipped_bayer
 from elphel_camd.v4l2.source import FrameSource
 
@@ -54,11 +53,9 @@ class V4L2Sensor(SensorDriver):
     sensor_code = 0
     bayer: ClassVar[str | None] = None  # set per instance: the node's order
     bits = 16
-    ahead: ClassVar[Mapping[str, tuple[int, int]]] = {
-        WINDOW: (1, 1),
-        GAINS: (1, 1),
-        EXPOSURE: (1, 1),
-    }
+    # Every function is issued one frame ahead; only the window (flips), the gains and the
+    # exposure set controls.
+    ahead: ClassVar[Mapping[str, tuple[int, int]]] = dict.fromkeys(FUNCTIONS, (1, 1))
     writable: ClassVar[frozenset[str]] = frozenset()  # set per instance: the controls
 
     def __init__(
@@ -82,16 +79,10 @@ class V4L2Sensor(SensorDriver):
         return None
 
     def read_chip_id(self) -> int:
-        """The node answers a control query now (0; I2CError when it is gone)."""
-        try:
-            self._source().get_controls(self.map.read_ids()[:1])
-        except (PortDisconnectedError, OSError) as e:
-            raise I2CError(
-                f"{self._source().path}: no answer ({e})",
-                bus=self._source().path,
-                address=0,
-                register=None,
-            ) from e
+        """0: the kernel reads a kernel-owned sensor's chip id, not the daemon.
+
+        Whether the sensor answers shows in the port's stream state (`V4L2Board.port_status`).
+        """
         return 0
 
     def identity(self) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from elphel_camd.v4l2.errors import PortDisconnectedError, VideoNodeError
+from elphel_camd.errors import PortDisconnectedError, VideoNodeError
 from elphel_camd.v4l2.ring import FrameRing
 from elphel_camd.v4l2.source import Buffer, FrameSource
 
@@ -24,7 +24,8 @@ SEQUENCE_MODULO = 1 << 32  # v4l2_buffer.sequence is a __u32
 Opener = Callable[[], FrameSource]
 # Called as on_frame(port, frame, timestamp_ns) after the frame is in the ring.
 OnFrame = Callable[[int, int, int], None]
-# Called as on_event(kind, payload) for drops and changes of the port's state.
+# Called as on_event(kind, payload): "port" for a change of state, "error" for drops
+# (error "frames_dropped") and streaming errors (error "v4l2").
 OnEvent = Callable[[str, dict[str, Any]], None]
 
 
@@ -161,9 +162,13 @@ class PortStream:
             self.drops += step - 1
             first = self._last_frame + 1
             self._on_event(
-                "dropped",
+                "error",
                 {
                     "port": self.port,
+                    "frame": first + step - 1,
+                    "error": "frames_dropped",
+                    "detail": f"{self.source.path}: {step - 1} frame(s) lost before frame "
+                    f"{first + step - 1} ({self.drops} in all)",
                     "frames": step - 1,
                     "first": first,
                     "last": first + step - 2,

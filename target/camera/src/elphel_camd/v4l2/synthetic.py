@@ -15,6 +15,7 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_camd.errors import ControlRefusedError, DeviceBusyError, PortDisconnectedError
 from elphel_camd.v4l2.controls import (
     CID_ANALOGUE_GAIN,
     CID_DIGITAL_GAIN,
@@ -24,7 +25,6 @@ from elphel_camd.v4l2.controls import (
     CID_PIXEL_RATE,
     CID_VFLIP,
 )
-from elphel_camd.v4l2.errors import ControlRefusedError, DeviceBusyError, PortDisconnectedError
 from elphel_camd.v4l2.formats import (
     RAW_FORMATS,
     Packing,
