@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 from smbus2 import SMBus
@@ -26,8 +27,11 @@ from elphel_camd.i2c.bus import open_bus
 from elphel_camd.params import EXPOSURE, WINDOW
 from elphel_camd.sensors import MT9P006, detect
 from elphel_camd.sensors.mt9p006_registers import CHIP_ID, I2C_ADDRESS
+from elphel_camd.service import CameraService
 from elphel_camd.v4l2.formats import raw_format
 from elphel_camd.v4l2.node import VideoNode
+from elphel_host.camera.frames import read_tiff_pages
+from tests.camd.served import AUTH, serve
 
 NODE = "/dev/video0"
 SIZE = "640x480"
@@ -230,3 +234,69 @@ def test_the_mt9p006_is_driven_through_i2c_stub_with_smbus_words() -> None:
         word = raw.read_word_data(I2C_ADDRESS, shutter)
     assert ((word & 0xFF) << 8 | word >> 8) == 1234 & 0xFFFF
     assert driver.read("shutter_width_lower") == 1234
+
+
+def test_through_the_daemon_frames_match_the_bars_and_numbers_follow_the_sequence() -> None:
+    service = CameraService(board("BA10"))
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            metas = []
+            for _ in range(3):
+                r = c.post("/api/v1/ports/0/capture", timeout=60)
+                assert r.status_code == 200, r.text
+                images, (meta,) = read_tiff_pages(r.content)
+                metas.append(meta)
+            assert meta["bayer"] == "GRBG" and int(r.headers["X-Frame-Number"]) == meta["frame"]
+            np.testing.assert_array_equal(images[0], expected_bars(images[0].shape, "GRBG", 10))
+            frames = [m["frame"] for m in metas]
+            assert frames == sorted(frames) and len(set(frames)) == 3
+            status = c.get("/api/v1/health").json()["ports"][0]["stream"]
+            assert status["frames"] >= frames[-1] - frames[0] + 1 and status["dropped"] == 0
+    finally:
+        service.close()
+
+
+def test_through_the_daemon_a_disconnect_is_503_and_the_health_says_so() -> None:
+    service = CameraService(board("RG10"))
+    held = os.open(NODE, os.O_RDWR)
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            assert c.post("/api/v1/ports/0/capture", timeout=60).status_code == 200
+            ctl(disconnect=1)
+            deadline = time.monotonic() + 30
+            while c.get("/api/v1/health").status_code == 200 and time.monotonic() < deadline:
+                time.sleep(0.1)
+            health = c.get("/api/v1/health")
+            assert health.status_code == 503
+            assert health.json()["ports"][0]["error"] == "disconnected"
+            r = c.post("/api/v1/ports/0/capture", timeout=60)
+            assert r.status_code == 503 and r.json()["error"] == "disconnected"
+            os.close(held)
+            held = -1
+            while c.get("/api/v1/health").status_code != 200 and time.monotonic() < deadline + 30:
+                time.sleep(0.2)
+            assert c.post("/api/v1/ports/0/capture", timeout=60).status_code == 200
+    finally:
+        if held >= 0:
+            os.close(held)
+        service.close()
+
+
+def test_a_node_paired_with_an_i2c_bus_gets_its_sensor_from_the_projects_driver() -> None:
+    path = _stub_bus()
+    with SMBus(path) as raw:
+        raw.write_word_data(I2C_ADDRESS, 0x00, ((CHIP_ID & 0xFF) << 8) | (CHIP_ID >> 8))
+    service = CameraService(
+        V4L2Board(ports=[{"video": NODE, "format": "RG10", "size": SIZE, "bus": path}])
+    )
+    try:
+        assert isinstance(service.sensor(0), MT9P006)
+        target = service.set_params(0, {"VEXPOS": 321})
+        got, meta = service.capture(0, frame=target + 1)
+        assert meta["VEXPOS"] == 321 and meta["sensor"] == "MT9P006"
+        assert got.image.shape == (480, 640)
+        with SMBus(path) as raw:
+            word = raw.read_word_data(I2C_ADDRESS, 0x09)
+        assert ((word & 0xFF) << 8 | word >> 8) == 321
+    finally:
+        service.close()
