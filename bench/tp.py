@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from elphel_host.parallel import parallel_map, single_threaded_blas
-from elphel_host.tp import io, pipeline, processor
+from elphel_host.tp import io, processor, tile_pass
 from elphel_sim import quad as simquad
 
 ORTHO_PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3))  # top, bottom (horizontal); left, right (vertical)
@@ -137,7 +137,7 @@ def region_rms(est: np.ndarray, truth: simquad.TileTruth, names: list[str]) -> d
     return res
 
 
-def pass_flops(prep: pipeline.PreparedQuad, tiles: int) -> dict[str, float]:
+def pass_flops(prep: tile_pass.PreparedQuad, tiles: int) -> dict[str, float]:
     """Floating-point operations of the matrix products of one pass over ``tiles`` tiles."""
     tr = prep.transform
     per_camera = sum(2 * m.shape[0] * m.shape[1] for _, m in tr.blocks)
@@ -149,7 +149,7 @@ def pass_flops(prep: pipeline.PreparedQuad, tiles: int) -> dict[str, float]:
     }
 
 
-def matmul_peak(prep: pipeline.PreparedQuad, threads: int, seconds: float = 1.0) -> float:
+def matmul_peak(prep: tile_pass.PreparedQuad, threads: int, seconds: float = 1.0) -> float:
     """GFLOP/s of batched float32 products of the transform's shapes on ``threads`` threads."""
     rng = np.random.default_rng(0)
     mats = [m for _, m in prep.transform.blocks]
@@ -192,7 +192,7 @@ def timed_tp(
     quad: processor.QuadImages, config: processor.TpConfig
 ) -> tuple[float, dict[str, float]]:
     """Seconds of one DSI and its stage times (summed over threads)."""
-    with pipeline.stage_times() as st:
+    with tile_pass.stage_times() as st:
         t = time.perf_counter()
         processor.disparity_map(quad, config=config)
         return time.perf_counter() - t, dict(st)
@@ -245,7 +245,7 @@ def main() -> int:
         sgbm_times.append(t_sgbm)
     tp_s = min(times)
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
-    prep = pipeline.prepare(quad, config, reach)
+    prep = tile_pass.prepare(quad, config, reach)
     ty, tx = dsi["disparity"].shape
     flops = pass_flops(prep, ty * tx)
     passes = len(config.scan) + config.refine_passes
