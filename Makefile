@@ -23,8 +23,9 @@ lint: $(STAMP)
 # pytest exits 5 when it collected no tests; make treats that as a failure, as it should.
 # Four pytest-xdist workers on two cores: most of the suite's wall time is tests waiting on
 # real time (daemons starting, frame clocks, stage moves), and four workers halve it.
+# loadgroup keeps the tests of one xdist_group on one worker (the kernel tier boots once).
 test: $(STAMP) lint
-	$(BIN)/pytest -n 4
+	$(BIN)/pytest -n 4 --dist loadgroup
 
 bench: $(STAMP)
 	@for b in bench/*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done

@@ -132,6 +132,8 @@ def guest(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]
     return results
 
 
+# One boot for the whole tier: under `pytest -n` (make test) these tests share a worker.
+@pytest.mark.xdist_group("kernel-tier")
 @pytest.mark.parametrize("name", _guest_tests())
 def test_in_the_guest(guest: dict[str, tuple[str, str]], name: str) -> None:
     cases = {k: v for k, v in guest.items() if k == name or k.startswith(name + "[")}

@@ -17,6 +17,7 @@ from elphel_camd.service import CameraService
 from elphel_camd.v4l2.controls import CID_EXPOSURE
 from elphel_camd.v4l2.synthetic import SyntheticSource
 from elphel_host.camera.frames import read_tiff_pages
+from elphel_host.cli import main as host_main
 from tests.camd.served import AUTH, serve
 
 HEIGHT, WIDTH = 16, 32
@@ -178,3 +179,17 @@ def test_drops_are_events_and_counted_in_health(cam, nodes: Nodes) -> None:
         events.append(event.data)
     assert any(e["error"] == "frames_dropped" and e["frames"] == 3 for e in events)
     json.dumps(events)  # events are JSON as the stream sends them
+
+
+def test_the_hosts_camera_commands_work_on_the_v4l2_board(cam, tmp_path, capsys) -> None:
+    c, _ = cam
+    url, token = str(c.base_url).rstrip("/"), AUTH["Authorization"].split()[1]
+    common = ["--camera", url, "--token", token, "--json"]
+    assert host_main(["camera", "set", *common, "EXPOS=2000"]) == 0
+    out = tmp_path / "burst.tif"
+    assert host_main(["camera", "capture", *common, "--count", "3", "--out", str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert str(out) in json.dumps(summary)  # the command says where the frames went
+    _, pages = read_tiff_pages(out.read_bytes())
+    assert len(pages) == 3 and all(p["bayer"] == "RGGB" for p in pages)
+    assert pages[-1]["EXPOS"] == round(round(2000e-6 / LINE_S) * LINE_S * 1e6)
