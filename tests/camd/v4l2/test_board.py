@@ -232,3 +232,20 @@ def test_a_size_that_is_not_width_x_height_is_refused() -> None:
 def test_a_board_without_nodes_is_refused() -> None:
     with pytest.raises(ConfigError, match="needs at least one node"):
         V4L2Board([])
+
+
+def test_a_frame_that_cannot_be_taken_restarts_the_stream_instead_of_ending_it(
+    board: V4L2Board, nodes: Nodes
+) -> None:
+    first = board.capture(0).frame
+    node = nodes.made["/dev/video0"]
+    full = node.data
+    node.data = full[:10]  # a short buffer: fewer bytes than the format's lines
+    deadline = time.monotonic() + 5
+    while board.port_status(0)["restarts"] < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    node.data = full
+    assert board.port_status(0)["restarts"] >= 1
+    assert board.capture(0, timeout_s=5).frame > first
+    errors = [p["detail"] for k, p in board.events if k == "error"]  # type: ignore[attr-defined]
+    assert any("could not be taken" in d for d in errors)

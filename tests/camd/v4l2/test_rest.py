@@ -83,6 +83,8 @@ def test_preview_histogram_info_and_health_serve_the_port(cam) -> None:
     _capture(c)
     assert c.get("/api/v1/ports/0/preview").headers["content-type"] == "image/jpeg"
     assert c.get("/api/v1/ports/0/histogram").status_code == 200
+    mjpeg = c.get("/api/v1/ports/0/preview.mjpeg", params={"count": 2, "fps": 20}, timeout=20)
+    assert mjpeg.status_code == 200 and mjpeg.content.count(b"\xff\xd8") == 2
     info = c.get("/api/v1/info").json()
     port = info["ports"][0]
     assert info["board"] == "v4l2" and port["sensor"]["format"] == "pRAA"

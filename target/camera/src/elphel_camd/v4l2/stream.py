@@ -122,8 +122,13 @@ class PortStream:
             except OSError as e:
                 self._restart(f"{self.source.path}: streaming failed ({e}); restarting")
                 continue
-            if buf is not None:
+            if buf is None:
+                continue
+            try:
                 self._take(buf)
+            except Exception as e:  # a frame that cannot be taken must not end the stream
+                log.exception("port %d: frame of sequence %d not taken", self.port, buf.sequence)
+                self._restart(f"{self.source.path}: a frame could not be taken ({e}); restarting")
 
     def _take(self, buf: Buffer) -> None:
         frame = self._number(buf.sequence)
@@ -181,7 +186,8 @@ class PortStream:
         log.warning("port %d: %s", self.port, reason)
         self._on_event("error", {"port": self.port, "error": "v4l2", "detail": reason})
         self.restarts += 1
-        self.source.stop()
+        with contextlib.suppress(OSError):
+            self.source.stop()
         self._last_sequence = None
         try:
             self.source.start(self._buffers)
