@@ -202,6 +202,19 @@ def test_a_node_streamed_by_another_program_is_busy() -> None:
         b.close()
 
 
+def test_a_stream_the_driver_refuses_to_start_names_media_ctl_and_the_overlay() -> None:
+    ctl(inject_vidioc_streamon_error=1)  # the next STREAMON fails
+    with pytest.raises(
+        VideoNodeError, match=r"starting the stream failed.*media-ctl.*media-controller=0"
+    ):
+        board("RG10")
+    b = board("RG10")  # the node is usable again afterwards
+    try:
+        assert b.capture(0, timeout_s=30).frame >= 1
+    finally:
+        b.close()
+
+
 def test_no_such_node_names_the_nodes_present() -> None:
     with pytest.raises(
         VideoNodeError, match=r"/dev/video9: no such V4L2 node; nodes present: .*/dev/video0"

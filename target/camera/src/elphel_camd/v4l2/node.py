@@ -162,8 +162,23 @@ class VideoNode:
         try:
             v4l2.stream_on(self._fd, CAPTURE)
         except OSError as e:
-            self._unmap()
+            self.stop()
+            if e.errno in (errno.EINVAL, errno.EPIPE):
+                raise VideoNodeError(self._pipeline_hint(e)) from e
             raise self._busy_or(e, "starting the stream") from e
+
+    def _pipeline_hint(self, error: OSError) -> str:
+        """Why STREAMON fails on a media-controller camera, and the two ways out."""
+        fmt = self.stream_format
+        return (
+            f"{self.path}: starting the stream failed ({error.strerror}). With a media "
+            "controller the sensor subdevice's format must match the node's "
+            f"({fmt.width}x{fmt.height} {fmt.format.fourcc!r}): set it with media-ctl, e.g. "
+            "media-ctl -d /dev/media0 --set-v4l2 \"'<sensor subdev>':0[fmt:<bus code>/"
+            f'{fmt.width}x{fmt.height}]", or load the camera overlay with '
+            "media-controller=0 (e.g. dtoverlay=imx219,media-controller=0) so the video "
+            "node carries the format and the controls"
+        )
 
     def dequeue(self, timeout_s: float) -> Buffer | None:
         try:
