@@ -36,7 +36,7 @@ class Nodes:
     def __call__(self, port: V4L2Port) -> SyntheticSource:
         if port.video in self.gone:
             raise OSError(2, f"{port.video}: no such node")
-        source = SyntheticSource(_image(), fourcc="pRAA", fps=100.0, path=port.video, pad=8)
+        source = SyntheticSource(_image(), fourcc="pRAA", fps=50.0, path=port.video, pad=8)
         self.made[port.video] = source
         return source
 
@@ -48,7 +48,9 @@ def nodes() -> Nodes:
 
 @pytest.fixture
 def cam(nodes: Nodes) -> Iterator[tuple[httpx.Client, CameraService]]:
-    service = CameraService(V4L2Board(["/dev/video0"], open_source=nodes, ring_frames=32))
+    service = CameraService(
+        V4L2Board(["/dev/video0"], open_source=nodes, ring_frames=32, buffers=8)
+    )
     try:
         with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
             yield c, service
@@ -156,10 +158,14 @@ def test_no_frame_for_several_periods_is_504(cam, nodes: Nodes) -> None:
     _capture(c)
     _capture(c)
     nodes.made["/dev/video0"].sim_silent = True
-    start = time.monotonic()
-    r = c.post("/api/v1/ports/0/capture", timeout=20)
+    # Buffers the driver filled before it fell silent still come; then nothing does.
+    for _ in range(10):
+        start = time.monotonic()
+        r = c.post("/api/v1/ports/0/capture", timeout=20)
+        if r.status_code != 200:
+            break
     assert r.status_code == 504, r.text
-    assert "5 frame periods of 10.0 ms" in r.json()["detail"]
+    assert "5 frame periods of 20.0 ms" in r.json()["detail"]
     assert time.monotonic() - start < 5
 
 
@@ -172,14 +178,17 @@ def test_the_daemon_refuses_a_missing_node_at_start(capsys: pytest.CaptureFixtur
 def test_drops_are_events_and_counted_in_health(cam, nodes: Nodes) -> None:
     c, service = cam
     sub = service.events.subscribe(("error",))
-    first = _capture(c)[1]["frame"]
+    _capture(c)
     nodes.made["/dev/video0"].sim_drop(3)
-    _capture(c, frame=first + 10)
-    assert c.get("/api/v1/health").json()["ports"][0]["stream"]["dropped"] >= 3
+    deadline = time.monotonic() + 10
+    while c.get("/api/v1/health").json()["ports"][0]["stream"]["dropped"] < 3:
+        assert time.monotonic() < deadline, "the three lost frames were not counted"
+        time.sleep(0.02)
     events = []
     while (event := sub.pop()) is not None:
         events.append(event.data)
-    assert any(e["error"] == "frames_dropped" and e["frames"] == 3 for e in events)
+    # three lost here (more if a busy machine made the stream late at the same time)
+    assert any(e["error"] == "frames_dropped" and e["frames"] >= 3 for e in events)
     json.dumps(events)  # events are JSON as the stream sends them
 
 
