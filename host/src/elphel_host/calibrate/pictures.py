@@ -39,10 +39,21 @@ def _cells(
     return count, total / np.maximum(count, 1)[..., None]
 
 
-def _label(tile: U8, text: str, row: int = 0) -> None:
-    y = 18 + 18 * row
-    cv2.rectangle(tile, (0, y - 15), (tile.shape[1], y + 5), (0, 0, 0), -1)
-    cv2.putText(tile, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+def _headed(tile: U8, lines: list[str]) -> U8:
+    """``tile`` under a black header carrying ``lines`` (the picture is left uncovered)."""
+    header = np.zeros((8 + 18 * len(lines), tile.shape[1], 3), dtype=np.uint8)
+    for row, text in enumerate(lines):
+        cv2.putText(
+            header,
+            text,
+            (6, 18 + 18 * row),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            (255, 255, 255),
+            1,
+            cv2.LINE_AA,
+        )
+    return np.vstack([header, tile])
 
 
 def residual_tile(cal: Calibration, camera: int) -> U8:
@@ -70,9 +81,13 @@ def residual_tile(cal: Calibration, camera: int) -> U8:
             cv2.LINE_AA,
             tipLength=0.3,
         )
-    _label(tile, f"cam{camera}  rms {cam.rms_px:.4f} px")
-    _label(tile, f"arrow of one cell width = {0.9 * cell_px / gain:.4f} px", 1)
-    return tile
+    return _headed(
+        tile,
+        [
+            f"cam{camera}  rms {cam.rms_px:.4f} px",
+            f"arrow of one cell width = {0.9 * cell_px / gain:.4f} px",
+        ],
+    )
 
 
 def _heat(values: NDArray[np.float64], lo: float, hi: float, size: tuple[int, int]) -> U8:
@@ -90,9 +105,13 @@ def coverage_tile(cal: Calibration, camera: int) -> U8:
     size = (TILE_WIDTH, round(h * TILE_WIDTH / w))
     tile = _heat(count.astype(np.float64), 0, max(float(count.max()), 1.0), size)
     empty = float(np.mean(count == 0))
-    _label(tile, f"cam{camera}  {cam.corners} corners, max {count.max()} per cell")
-    _label(tile, f"cells with no corner: {100 * empty:.0f} %", 1)
-    return tile
+    return _headed(
+        tile,
+        [
+            f"cam{camera}  {cam.corners} corners, max {count.max()} per cell",
+            f"cells with no corner: {100 * empty:.0f} %",
+        ],
+    )
 
 
 def uncertainty_tile(cal: Calibration, camera: int, hi: float) -> U8:
@@ -100,9 +119,13 @@ def uncertainty_tile(cal: Calibration, camera: int, hi: float) -> U8:
     w, h = cam.lens.width, cam.lens.height
     size = (TILE_WIDTH, round(h * TILE_WIDTH / w))
     tile = _heat(cam.uncertainty_map, 0.0, hi, size)
-    _label(tile, f"cam{camera}  projection uncertainty, rms {cam.uncertainty_px:.4f} px")
-    _label(tile, f"colour: 0 (dark) .. {hi:.4f} px (yellow)", 1)
-    return tile
+    return _headed(
+        tile,
+        [
+            f"cam{camera}  projection uncertainty, rms {cam.uncertainty_px:.4f} px",
+            f"colour: 0 (dark) .. {hi:.4f} px (yellow)",
+        ],
+    )
 
 
 def _side_by_side(tiles: list[U8]) -> U8:
