@@ -7,9 +7,11 @@ import os
 import numpy as np
 import pytest
 import tifffile
+from PIL import Image
 
 from elphel_host.burst.io import write_burst
 from elphel_host.cli import main
+from elphel_host.mfsr.cli import crop_label
 
 
 def _burst(tmp_path, burst2):
@@ -66,7 +68,16 @@ def test_compare_with_reference(tmp_path, burst2, hr, capsys):
     r = json.loads(capsys.readouterr().out)
     m = r["methods"]
     assert m["robust"]["psnr_db"] > m["baseline"]["psnr_db"] > 0
-    assert (tmp_path / "cmp" / "crops.png").is_file()
+    with Image.open(tmp_path / "cmp" / "crops.png") as im:
+        crops = np.asarray(im.convert("RGB"))
+    assert crops.shape == (256 + 20, 3 * 256 + 2 * 4, 3)
+    for i in range(3):  # a label above each panel: text on a white strip
+        strip = crops[:20, i * 260 : i * 260 + 256]
+        assert (strip == 255).all(axis=2).mean() > 0.5 and (strip < 100).any(), i
+    assert crop_label("robust", m["robust"]).startswith("robust ") and " dB, SSIM " in (
+        crop_label("robust", m["robust"])
+    )
+    assert crop_label("bicubic", {}) == "bicubic"
 
 
 def test_bad_burst_dir_is_exit_1(tmp_path, capsys):
