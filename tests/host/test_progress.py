@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import time
 from pathlib import Path
 
 import pytest
@@ -92,6 +93,22 @@ def test_rates_read_like_numbers_with_their_unit() -> None:
     clock.t += 2.0
     line.update("stage: 1.2 of 4.8 mm", done=1.2, total=4.8, unit="mm")
     assert pipe.getvalue() == "stage: 1.2 of 4.8 mm (0.6 mm/s, 0:06 left)\n"
+
+
+def test_a_silent_step_ticks_on_a_terminal_and_says_itself_once_on_a_pipe() -> None:
+    tty = Tty()
+    line = ProgressLine(tty)
+    with line.ticking("mfsr: fusing b (robust x2)", every_s=0.01):
+        time.sleep(0.2)
+    line.end()
+    shown = tty.getvalue().split("\x1b[K")
+    assert shown[0] == "\rmfsr: fusing b (robust x2)"
+    assert re.fullmatch(r"\rmfsr: fusing b \(robust x2\) \(0 s\)", shown[1]), shown[1]
+    pipe = io.StringIO()
+    line = ProgressLine(pipe)
+    with line.ticking("mfsr compare: 1/3 bicubic x2", every_s=0.01):
+        time.sleep(0.05)
+    assert pipe.getvalue() == "mfsr compare: 1/3 bicubic x2\n"
 
 
 def test_hours_in_the_time_left() -> None:

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import io
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import TextIO
 
 BAR_WIDTH = 24
@@ -115,6 +117,32 @@ class ProgressLine:
         else:
             self.stream.write(text + "\n")
         self.stream.flush()
+
+    @contextmanager
+    def ticking(self, text: str, *, every_s: float = 1.0) -> Iterator[None]:
+        """Show ``text`` while the block runs: a step that reports nothing itself.
+
+        A terminal redraws it every ``every_s`` with the seconds elapsed; a pipe gets
+        ``text`` once. The line stays open for what comes next.
+        """
+        t0 = self._clock()
+        self.update(text)
+        if not self.tty:
+            yield
+            return
+        stop = threading.Event()
+
+        def tick() -> None:
+            while not stop.wait(every_s):
+                self.update(f"{text} ({self._clock() - t0:.0f} s)")
+
+        thread = threading.Thread(target=tick, name="progress-tick", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            thread.join()
 
     def end(self) -> None:
         """Finish the updating line (a no-op when not on a terminal)."""

@@ -24,7 +24,9 @@ def test_mfsr_json_is_one_object(tmp_path, burst2, capsys):
     b = _burst(tmp_path, burst2)
     out = tmp_path / "o" / "sr.tif"
     assert main(["mfsr", str(b), "--scale", "2", "--out", str(out), "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert captured.err == f"mfsr: fusing {b} (robust x2)\n"  # not silent while it works
     assert result["method"] == "robust" and result["used"] == 8
     assert len(result["registration"]) == 8 and result["excluded"] == []
     assert result["seconds"] > 0 and result["peak_memory_mb"] > 0
@@ -65,7 +67,11 @@ def test_compare_with_reference(tmp_path, burst2, hr, capsys):
         )
         == 0
     )
-    r = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    r = json.loads(captured.out)
+    assert captured.err.splitlines() == [
+        f"mfsr compare: {i}/3 {m} x2" for i, m in enumerate(("bicubic", "baseline", "robust"), 1)
+    ]
     m = r["methods"]
     assert m["robust"]["psnr_db"] > m["baseline"]["psnr_db"] > 0
     with Image.open(tmp_path / "cmp" / "crops.png") as im:

@@ -158,15 +158,20 @@ def run(args: argparse.Namespace) -> int:
         return run_compare(args)
     dirs = args.burst_dirs
     if len(dirs) == 1:
-        result = _fuse_one(
-            dirs[0],
-            args.scale,
-            args.method,
-            args.out,
-            args.float,
-            args.psf_choice,
-            not args.no_prior,
-        )
+        line = ProgressLine()
+        try:
+            with line.ticking(f"mfsr: fusing {dirs[0]} ({args.method} x{args.scale})"):
+                result = _fuse_one(
+                    dirs[0],
+                    args.scale,
+                    args.method,
+                    args.out,
+                    args.float,
+                    args.psf_choice,
+                    not args.no_prior,
+                )
+        finally:
+            line.end()
         human = (
             f"{result['out']}: {result['method']} x{args.scale}, {result['used']}/"
             f"{result['frames']} frames, {result['seconds']:.2f} s"
@@ -288,14 +293,16 @@ def run_compare(args: argparse.Namespace) -> int:
         ref = np.asarray(tifffile.imread(args.reference), dtype=np.float32)
     results: dict[str, Any] = {}
     crops: list[tuple[str, NDArray[np.float32]]] = []
-    for method in ("bicubic", "baseline", "robust"):
-        res: FusionResult = fuse_burst(
-            burst,
-            scale=args.scale,
-            method=method,
-            use_prior=not args.no_prior,
-            config=config,
-        )
+    line = ProgressLine()
+    for i, method in enumerate(("bicubic", "baseline", "robust"), start=1):
+        with line.ticking(f"mfsr compare: {i}/3 {method} x{args.scale}"):
+            res: FusionResult = fuse_burst(
+                burst,
+                scale=args.scale,
+                method=method,
+                use_prior=not args.no_prior,
+                config=config,
+            )
         entry = write_image(
             out / f"{method}.tif",
             res.image,
@@ -309,6 +316,7 @@ def run_compare(args: argparse.Namespace) -> int:
             entry.update(_scores(ref, res.image, args.scale, args.reference))
         results[method] = entry
         crops.append((crop_label(method, entry), _crop(res.image, 256)))
+    line.end()
     png = save_png(labelled_row(crops), out / "crops.png")
     summary = {
         "burst": args.burst_dirs[1],
