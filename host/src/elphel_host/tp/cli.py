@@ -379,6 +379,8 @@ def run_many(args: argparse.Namespace) -> int:
 
     def report(res: dict[str, Any], done: int, total: int) -> None:
         counts[res["status"]] += 1
+        if res["status"] == "skipped":  # already there (reported first): not in the rate
+            progress.restart(done)
         if res["status"] == "failed":
             failed_line(f"{res['quad']}: {res['error']}")
         progress.update(
