@@ -281,7 +281,9 @@ def run_capture(args: argparse.Namespace) -> int:
             )
         with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
             positioner = Positioner(stage, StageModel.load(args.model))
-            start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out))
+            so_far = load_progress(args.out)
+            start_mm = _start_and_stage(args, positioner, plan, top, so_far)
+            line.restart(len(so_far.frames) if so_far is not None else 0)  # resumed: count anew
             engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
 
             def progress(done: int, total: int, message: str) -> None:
@@ -297,7 +299,10 @@ def run_capture(args: argparse.Namespace) -> int:
                 progress=progress,
                 on_frame=None if stream is None else stream.frame_stored,
             )
-            result = runner.start().wait()
+            try:
+                result = runner.start().wait()
+            except KeyboardInterrupt:
+                raise interrupted(args.out, len(plan.positions_mm), "frames") from None
             line.end()
         summary = _capture_summary(result, len(plan.positions_mm), start_mm)
         human = [
@@ -357,15 +362,20 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     line = ProgressLine()
     with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
         positioner = Positioner(stage, StageModel.load(args.model))
-        start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out / "cam0"))
+        so_far = load_progress(args.out / "cam0")
+        start_mm = _start_and_stage(args, positioner, plan, top, so_far)
+        line.restart(len(so_far.frames) if so_far is not None else 0)  # resumed: count anew
         engine = QuadRigEngine(positioner, camera, layout=layout, settle_s=args.settle_s)
 
         def progress(done: int, total: int, message: str) -> None:
             line.update(f"quad burst: {done}/{total} {message}", done=done, total=total)
 
-        result = capture_quad_burst(
-            engine, plan.positions_mm, args.out, start_mm=start_mm, top=top, progress=progress
-        )
+        try:
+            result = capture_quad_burst(
+                engine, plan.positions_mm, args.out, start_mm=start_mm, top=top, progress=progress
+            )
+        except KeyboardInterrupt:
+            raise interrupted(args.out / "cam0", len(plan.positions_mm), "quad sets") from None
         line.end()
     summary = _capture_summary(result, len(plan.positions_mm), start_mm)
     summary["quad"] = True
@@ -375,6 +385,18 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     )
     emit(args, summary, human)
     return 0
+
+
+def interrupted(out: Path, total: int, what: str) -> KeyboardInterrupt:
+    """Ctrl-C during a capture: how much of it is kept in ``out``, and how to resume."""
+    try:
+        so_far = load_progress(out)
+    except InputFormatError:
+        so_far = None
+    kept = len(so_far.frames) if so_far is not None else 0
+    return KeyboardInterrupt(
+        f"{kept} of {total} {what} kept in {out}; the same command captures the rest"
+    )
 
 
 def _start_and_stage(
