@@ -72,6 +72,7 @@ class SimCameraBoard:
         self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
         self.quad = scenario.quad
+        self.daemon_per_port = scenario.daemon_per_port
         self._buses: dict[int, SimI2CBus] = {}
         self.chips: dict[int, SimSensor] = {}
         self.fpga: dict[int, PortFPGA] = {}

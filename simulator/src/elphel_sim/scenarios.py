@@ -38,11 +38,16 @@ class PortSpec:
 
 @dataclass
 class Scenario:
-    """A world and the board's ports; ``quad`` when ports 0..3 form a quad camera."""
+    """A world and the board's ports; ``quad`` when ports 0..3 form a quad camera.
+
+    ``daemon_per_port``: each camera is a board of its own with its own daemon (a rig of
+    Raspberry Pis), rather than a port of one multi-sensor board.
+    """
 
     world: World
     ports: list[PortSpec]
     quad: QuadScene | None = None
+    daemon_per_port: bool = False
 
 
 # A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
@@ -297,7 +302,7 @@ def pi_pair(seed: int) -> Scenario:
     world = World(Scene([wall]), Rig(axis=(1.0, 0.0, 0.0), mounts=mounts))
     intrinsics = imx219_intrinsics(PI_PAIR_FOCAL_LENGTH_MM)
     ports = [PortSpec("IMX219", name, intrinsics, PI_LIGHT) for name in mounts]
-    return Scenario(world, ports)
+    return Scenario(world, ports, daemon_per_port=True)
 
 
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
