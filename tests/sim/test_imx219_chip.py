@@ -5,8 +5,10 @@ The daemon's driver runs unchanged on the simulated chip (scenario ``pi-pair``).
 
 import numpy as np
 import pytest
+from fastapi.testclient import TestClient
 from smbus2 import i2c_msg
 
+from elphel_camd.api import create_app
 from elphel_camd.sensors import IMX219
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
@@ -113,3 +115,25 @@ def test_window_flips_gain_and_exposure_through_the_daemon():
     assert doubled.image.mean() / base.mean() == pytest.approx(2.0, rel=0.01)
     longer, meta = settle(cam, GAING=0x10000, EXPOS=6000)
     assert longer.image.mean() / base.mean() == pytest.approx(2.0, rel=0.01)
+
+
+def test_rest_schema_offers_what_the_imx219_can_set():
+    _, cam = camera()
+    client = TestClient(create_app(cam, token="t", public_reads=True))
+    schema = client.get("/api/v1/ports/1/params/schema").json()
+    assert schema["sensor"] == "IMX219" and schema["bayer"] == "RGGB"
+    assert schema["window"] == {"width": 3280, "height": 2464, "step": 2}
+    params = schema["params"]
+    assert params["GAINB"]["writable"] and params["EXPOS"]["writable"]
+    assert not params["TRIG_PERIOD"]["writable"] and not params["PF_HEIGHT"]["writable"]
+    assert (params["VEXPOS"]["minimum"], params["VEXPOS"]["maximum"]) == (4, 65531)
+    assert params["WOI_LEFT"]["maximum"] == 0  # the whole width is read
+    refused = client.patch(
+        "/api/v1/ports/1/params",
+        json={"GAINR": 0x20000, "GAINB": 0x30000},
+        headers={"Authorization": "Bearer t"},
+    )
+    assert refused.status_code == 409, refused.text  # allowed by the schema, not the sensor
+    answer = refused.json()
+    assert (answer["parameter"], answer["value"]) == ("GAINB", 0x30000)
+    assert "one gain for all colours" in answer["allowed"]

@@ -188,11 +188,12 @@ def _check_window(s: Mapping[str, int]) -> None:
 
 def _set_gains(s: dict[str, int], changed: frozenset[str]) -> None:
     """One gain for all colours: the changed colour gains must agree; all four take it."""
-    asked = {s[name] for name in GAIN_PARAMS if name in changed}
+    names = [name for name in GAIN_PARAMS if name in changed]
+    asked = {s[name] for name in names}
     if len(asked) > 1:
-        values = ", ".join(f"{name}={s[name]}" for name in GAIN_PARAMS if name in changed)
+        values = ", ".join(f"{name}={s[name]}" for name in names)
         raise ParameterRangeError(
-            "GAING", s["GAING"], f"one gain for all colours on the IMX219 (asked {values})"
+            names[-1], s[names[-1]], f"one gain for all colours on the IMX219 (asked {values})"
         )
     gain = asked.pop() if asked else s["GAING"]
     check_range("GAING", gain, GAIN_MIN, GAIN_MAX)
