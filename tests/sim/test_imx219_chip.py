@@ -9,11 +9,14 @@ from fastapi.testclient import TestClient
 from smbus2 import i2c_msg
 
 from elphel_camd.api import create_app
+from elphel_camd.errors import PortError
 from elphel_camd.sensors import IMX219
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.imx219 import SimIMX219, bin_bayer
+from elphel_sim.launcher import serve_daemons
+from elphel_sim.port_view import PortView
 from elphel_sim.scenarios import PI_PAIR_BASELINE_MM, Scenario, build
 from elphel_sim.world import Rig, World
 
@@ -137,3 +140,23 @@ def test_rest_schema_offers_what_the_imx219_can_set():
     answer = refused.json()
     assert (answer["parameter"], answer["value"]) == ("GAINB", 0x30000)
     assert "one gain for all colours" in answer["allowed"]
+
+
+def test_a_port_view_is_port_0_of_its_own_board():
+    board, _ = camera()
+    view = PortView(board, 1)
+    cam = CameraService(view)
+    assert list(view.buses()) == [0] and "trigger" not in view.capabilities
+    got, meta = settle(cam, port=0)
+    assert meta["port"] == 0 and board.sim_frame_truth(1, got.frame)["port"] == 1
+    with pytest.raises(PortError, match=r"port 1 does not exist; ports: \[0\]"):
+        view.capture(1)
+    with pytest.raises(PortError, match="port 2 has no simulated sensor"):
+        PortView(board, 2)
+
+
+def test_pi_pair_daemons_are_elphel_camd_only():
+    board, _ = camera()
+    board.daemon_per_port = True
+    with pytest.raises(ValueError, match="allowed: camd"):
+        serve_daemons(board, firmware="elphel", port=0, public_reads=False)

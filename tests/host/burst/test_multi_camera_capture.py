@@ -13,6 +13,7 @@ import tifffile
 
 from elphel_host.burst.io import read_burst
 from elphel_host.burst.multi_capture import MultiCameraEngine, capture_multi_burst
+from elphel_host.cli import main as cli_main
 from elphel_host.errors import InputFormatError
 from elphel_host.stage.positioning import MoveResult
 
@@ -86,3 +87,25 @@ def test_a_burst_of_another_plan_is_refused(tmp_path: Path) -> None:
     capture_multi_burst(FakeRig(), POSITIONS, tmp_path / "b", start_mm=0.0)
     with pytest.raises(InputFormatError, match="another plan"):
         capture_multi_burst(FakeRig(), POSITIONS, tmp_path / "b", start_mm=1.0)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--token", "a", "--token", "b", "--token", "c"], "3 --token for 2 --camera"),
+        (["--fuse"], "--fuse: with one --camera only"),
+        (["--quad"], "--quad: a quad camera is one --camera"),
+    ],
+)
+def test_several_cameras_usage_errors_name_the_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
+    plan = tmp_path / "plan.json"
+    plan.write_text('{"positions_mm": [0.0, 0.5]}')
+    argv = ["burst", "capture", "--camera", "http://127.0.0.1:1", "--camera", "http://127.0.0.1:2"]
+    argv += ["--stage", "socket://127.0.0.1:1", "--plan", str(plan), "--out", str(tmp_path / "o")]
+    with pytest.raises(SystemExit) as info:
+        cli_main([*argv, *extra])
+    assert info.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # refused before anything is touched
