@@ -4,10 +4,12 @@
   cell of a 16 x 12 grid as an arrow, magnified to the scale printed on the picture;
   arrows that line up into swirls or rings mean the lens model misses something, arrows
   pointing every which way are noise.
-- coverage.png: per camera, how many corners were seen in each cell (dark: none); the
-  lens model is only measured where the picture is bright.
-- uncertainty.png: per camera, the projection uncertainty over the image (px, colour
-  scale printed on the picture).
+- coverage.png: per camera, how many corners were seen in each cell (dark: none), with
+  its colour bar; the lens model is only measured where the picture is bright.
+- uncertainty.png: per camera, the projection uncertainty over the image, with its colour
+  bar in px (one scale for all cameras).
+
+The maps are `elphel_host.preview.map_picture`'s, as every map of the project is.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_host.calibrate.solve import Calibration
+from elphel_host.preview import BACKGROUND_RGB, map_picture, save_png
 
 TILE_WIDTH = 480
 CELLS = (16, 12)
@@ -57,6 +60,7 @@ def _headed(tile: U8, lines: list[str]) -> U8:
 
 
 def residual_tile(cal: Calibration, camera: int) -> U8:
+    """Mean residual arrows per cell over the corners used (RGB)."""
     cam = cal.cameras[camera]
     w, h = cam.lens.width, cam.lens.height
     s = TILE_WIDTH / w
@@ -76,7 +80,7 @@ def residual_tile(cal: Calibration, camera: int) -> U8:
             tile,
             tuple(np.round(c).astype(int)),
             tuple(np.round(tip).astype(int)),
-            (80, 220, 255),
+            (255, 220, 80),
             1,
             cv2.LINE_AA,
             tipLength=0.3,
@@ -90,53 +94,49 @@ def residual_tile(cal: Calibration, camera: int) -> U8:
     )
 
 
-def _heat(values: NDArray[np.float64], lo: float, hi: float, size: tuple[int, int]) -> U8:
-    norm = np.clip((values - lo) / max(hi - lo, 1e-12), 0, 1)
-    norm = np.where(np.isfinite(norm), norm, 0)
-    small = (norm * 255).astype(np.uint8)
-    big = cv2.resize(small, size, interpolation=cv2.INTER_NEAREST)
-    return np.asarray(cv2.applyColorMap(big, cv2.COLORMAP_VIRIDIS), dtype=np.uint8)
-
-
 def coverage_tile(cal: Calibration, camera: int) -> U8:
+    """Corners seen per cell of `CELLS`, with its colour bar (RGB)."""
     cam = cal.cameras[camera]
-    w, h = cam.lens.width, cam.lens.height
-    count, _ = _cells(cam.residuals, w, h)
-    size = (TILE_WIDTH, round(h * TILE_WIDTH / w))
-    tile = _heat(count.astype(np.float64), 0, max(float(count.max()), 1.0), size)
-    empty = float(np.mean(count == 0))
-    return _headed(
-        tile,
-        [
-            f"cam{camera}  {cam.corners} corners, max {count.max()} per cell",
-            f"cells with no corner: {100 * empty:.0f} %",
-        ],
+    count, _ = _cells(cam.residuals, cam.lens.width, cam.lens.height)
+    empty = 100 * float(np.mean(count == 0))
+    return map_picture(
+        count.astype(np.float64),
+        unit="corners",
+        title=f"cam{camera}: corners per cell, {cam.corners} in all, {empty:.0f} % of cells none",
+        lo=0.0,
+        hi=max(float(count.max()), 1.0),
+        cell=TILE_WIDTH // CELLS[0],
     )
 
 
 def uncertainty_tile(cal: Calibration, camera: int, hi: float) -> U8:
+    """The projection uncertainty map, one colour scale for all cameras (RGB)."""
     cam = cal.cameras[camera]
-    w, h = cam.lens.width, cam.lens.height
-    size = (TILE_WIDTH, round(h * TILE_WIDTH / w))
-    tile = _heat(cam.uncertainty_map, 0.0, hi, size)
-    return _headed(
-        tile,
-        [
-            f"cam{camera}  projection uncertainty, rms {cam.uncertainty_px:.4f} px",
-            f"colour: 0 (dark) .. {hi:.4f} px (yellow)",
-        ],
+    cols = cam.uncertainty_map.shape[1]
+    return map_picture(
+        cam.uncertainty_map,
+        unit="px",
+        title=f"cam{camera}: projection uncertainty, RMS {cam.uncertainty_px:.4f} px",
+        lo=0.0,
+        hi=hi,
+        no_value="the lens model folds here (no projection)",
+        cell=max(1, TILE_WIDTH // max(cols, 1)),
     )
 
 
 def _side_by_side(tiles: list[U8]) -> U8:
-    h = max(t.shape[0] for t in tiles)
-    padded = [np.pad(t, ((0, h - t.shape[0]), (0, 4), (0, 0))) for t in tiles]
-    if len(padded) <= 2:
-        return np.hstack(padded)
-    rows = [
-        np.hstack(padded[i : i + 2] + [np.zeros_like(padded[0])] * (2 - len(padded[i : i + 2])))
-        for i in range(0, len(padded), 2)
-    ]
+    """Tiles two to a row on the pictures' background, each padded to the largest."""
+    h = max(t.shape[0] for t in tiles) + 6
+    w = max(t.shape[1] for t in tiles) + 6
+    padded = []
+    for t in tiles:
+        cell = np.empty((h, w, 3), dtype=np.uint8)
+        cell[:] = BACKGROUND_RGB
+        cell[: t.shape[0], : t.shape[1]] = t
+        padded.append(cell)
+    if len(padded) % 2 and len(padded) > 1:
+        padded.append(np.full_like(padded[0], BACKGROUND_RGB))
+    rows = [np.hstack(padded[i : i + 2]) for i in range(0, len(padded), 2)]
     return np.vstack(rows)
 
 
@@ -144,19 +144,10 @@ def write_pictures(cal: Calibration, out_dir: str | Path) -> list[Path]:
     """Write residuals.png, coverage.png and uncertainty.png; return their paths."""
     out = Path(out_dir)
     n = len(cal.cameras)
-    maps = [c.uncertainty_map for c in cal.cameras]
-    hi = max(float(np.nanpercentile(m, 95)) for m in maps)
+    hi = max(float(np.nanpercentile(c.uncertainty_map, 95)) for c in cal.cameras)
     pictures = {
         "residuals.png": [residual_tile(cal, c) for c in range(n)],
         "coverage.png": [coverage_tile(cal, c) for c in range(n)],
-        "uncertainty.png": [uncertainty_tile(cal, c, hi) for c in range(n)],
+        "uncertainty.png": [uncertainty_tile(cal, c, max(hi, 1e-6)) for c in range(n)],
     }
-    paths = []
-    for name, tiles in pictures.items():
-        path = out / name
-        ok, data = cv2.imencode(".png", _side_by_side(tiles))
-        if not ok:
-            raise OSError(f"{path}: PNG encoding failed")
-        path.write_bytes(data.tobytes())
-        paths.append(path)
-    return paths
+    return [save_png(_side_by_side(tiles), out / name) for name, tiles in pictures.items()]
