@@ -49,8 +49,8 @@ BAD_BEFORE_RESYNC = 3
 # a packet takes 66 us): a Lepton in sync sends a segment, valid or not, far sooner.
 LOST_AFTER_PACKETS = 600
 MAX_BUFFER_BYTES = 1 << 20
-# A stream that never showed a good packet is not VoSPI after this many bytes searched
-# (a file) or this many resynchronisations for want of a packet alignment (a device).
+# A stream that never showed a good packet is not VoSPI after this many bytes other than
+# discard packets, or this many resynchronisations for want of a packet alignment.
 NOT_VOSPI_BYTES = 64 * 1024
 NOT_VOSPI_RESYNCS = 5
 
@@ -210,9 +210,9 @@ class VoSPIReader:
                     return frame
                 if self._since > LOST_AFTER_PACKETS:
                     self.resync("no segment")
-                    return None
-                if self._bad >= BAD_BEFORE_RESYNC:
+                elif self._bad >= BAD_BEFORE_RESYNC:
                     self.resync("bad packets")
+                if self._drop:
                     return None
             return None
         finally:
@@ -292,14 +292,18 @@ class VoSPIReader:
 
     def _check_vospi(self) -> None:
         """Raise `NotVoSPIError` when a stream never showed a good packet for long."""
-        if self.counts.good_packets:
+        c = self.counts
+        if c.good_packets:
             return
-        searched = self.counts.bytes_skipped >= NOT_VOSPI_BYTES
-        if searched or self.counts.reasons.get("no packet alignment", 0) >= NOT_VOSPI_RESYNCS:
+        searched = c.bytes_skipped + (c.packets - c.discard) * PACKET_BYTES
+        if (
+            searched >= NOT_VOSPI_BYTES
+            or c.reasons.get("no packet alignment", 0) >= NOT_VOSPI_RESYNCS
+        ):
             raise NotVoSPIError(
                 f"{self.source.path}: not a VoSPI stream: no packet with a good CRC in "
-                f"{self.counts.bytes_skipped} bytes: check that it is the Lepton's SPI device "
-                "(or a recording of one) and that the SPI mode is 3 (CPOL=1, CPHA=1)"
+                f"{searched} bytes: check that it is the Lepton's SPI device (or a recording "
+                "of one) and that the SPI mode is 3 (CPOL=1, CPHA=1)"
             )
 
     def _agrees(self, buf: bytearray, pos: int) -> bool:
@@ -318,6 +322,7 @@ class VoSPIReader:
 
     def resync(self, reason: str) -> None:
         """Drop what was being assembled, deselect the device, hunt for the alignment."""
+        self._check_vospi()
         self.counts.resyncs += 1
         self.counts.reasons[reason] = self.counts.reasons.get(reason, 0) + 1
         self.assembler.reset()
