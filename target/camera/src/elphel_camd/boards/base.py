@@ -8,8 +8,8 @@ A board supplies, per sensor port, an I2C bus and, where it has them, frame sync
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from typing import Protocol
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +27,7 @@ class Frame:
     frame: int
     timestamp_ns: int
     strip_period_ns: int = 0  # photo-finish: time from one strip to the next (0 otherwise)
+    metadata: Mapping[str, Any] = field(default_factory=dict)  # what the board adds (telemetry)
 
 
 class Board(Protocol):
