@@ -37,9 +37,7 @@ class Served:
 
 
 @contextlib.contextmanager
-def serve(
-    service: CameraService, *, public_reads: bool = True, **config: Any
-) -> Iterator[Served]:
+def serve(service: CameraService, *, public_reads: bool = True, **config: Any) -> Iterator[Served]:
     """Serve ``service``; reads are open by default (these tests are about streams and
     connections; tests/camd/test_security.py is about the token)."""
     app = create_app(

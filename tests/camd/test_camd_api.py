@@ -298,7 +298,7 @@ def test_concurrent_patches_never_interleave(client, camera):
 
 
 def test_security_token_read_protection_cors_and_size_limit(camera):
-    with TestClient(create_app(camera, token=TOKEN, read_protected=True)) as c:
+    with TestClient(create_app(camera, token=TOKEN)) as c:
         assert c.get("/api/v1/ports/0/params").status_code == 401
         assert c.get("/api/v1/events").status_code == 401
         assert c.get("/api/v1/ports/0/params", headers=AUTH).status_code == 200
@@ -348,3 +348,14 @@ def test_a_slow_subscriber_loses_old_events_and_never_blocks(camera, board):
     assert [e.data["frame"] for e in got if e] == [e.data["frame"] for e in got if e][:3]
     assert sub.get_blocking(0.01) is None
     camera.events.unsubscribe(sub)
+
+
+@pytest.mark.parametrize("query", ["frame=%2B2&ahead=2", "frame=9&ahead=2", "frame=9&ahead=0"])
+def test_frame_and_ahead_together_are_refused_and_change_nothing(client, camera, query):
+    before = camera.params(0, frame=camera.sequencer(0).this_frame + 14)
+    r = client.patch(f"/api/v1/ports/0/params?{query}", json={"GAINB": 0x18000}, headers=AUTH)
+    assert r.status_code == 409
+    assert r.json()["error"] == "unsupported" and "not both" in r.json()["detail"]
+    assert camera.params(0, frame=camera.sequencer(0).this_frame + 14) == before
+    with pytest.raises(ValueError, match="not both"):
+        camera.set_params(0, {"GAINB": 0x18000}, frame=9, ahead=2)

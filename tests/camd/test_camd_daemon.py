@@ -31,11 +31,11 @@ LAYER_CONFIG = REPO / "yocto/meta-elphel/recipes-camera/elphel-camd/files/config
 
 def test_settings_come_from_cli_then_environment_then_file(tmp_path, monkeypatch):
     cfg = tmp_path / "config.json"
-    cfg.write_text(json.dumps({"host": "0.0.0.0", "port": 9000, "read_protected": True}))
+    cfg.write_text(json.dumps({"host": "0.0.0.0", "port": 9000, "public_reads": True}))
     monkeypatch.setenv("ELPHEL_CAMD_PORT", "9100")
     monkeypatch.setenv("ELPHEL_CAMD_TOKEN", "from-env")
     s = load_settings(cfg)
-    assert (s.host, s.port, s.read_protected) == ("0.0.0.0", 9100, True)
+    assert (s.host, s.port, s.public_reads) == ("0.0.0.0", 9100, True)
     assert s.token is not None and s.token.get_secret_value() == "from-env"
     args = build_parser().parse_args(["--board", "sim", "--config", str(cfg), "--port", "9200"])
     assert settings_from_args(args).port == 9200

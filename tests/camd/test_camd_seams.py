@@ -1,12 +1,11 @@
 """The daemon's rooms: boards, service, store, frame metadata and the API's wiring.
 
-Pins the seams the refactor made: what each module exports, the deprecated old import
-paths, the routes (paths, methods, operation ids, statuses) and the service reached
-through a dependency rather than a closure.
+Pins the seams the refactor made: what each module exports, the routes (paths, methods,
+operation ids, statuses) and the service reached through a dependency rather than a
+closure.
 """
 
 import re
-import warnings
 
 import numpy as np
 import pytest
@@ -68,7 +67,7 @@ def test_the_routes_and_their_order_are_those_of_the_contract(service):
 
 
 def test_the_service_and_options_reach_the_routes_through_app_state(service):
-    app = create_app(service, token="secret", read_protected=True, keepalive_s=3.0)
+    app = create_app(service, token="secret", keepalive_s=3.0)
     assert app.state.service is service
     options = app.state.options
     assert isinstance(options, ApiOptions)
@@ -147,41 +146,3 @@ def test_frame_metadata_of_a_photo_finish_composite():
     timed = Frame(image=got.image, frame=1, timestamp_ns=0, strip_period_ns=5)
     meta = frame_metadata(timed, port=0, sensor="MT9P006", bayer=None, params=params)
     assert meta["pf_strip_period_ns"] == 5
-
-
-@pytest.mark.parametrize(
-    ("module", "old", "new_module", "new"),
-    [
-        ("elphel_camd.board", "Camera", "elphel_camd.service", "CameraService"),
-        ("elphel_camd.board", "Frame", "elphel_camd.boards", "Frame"),
-        ("elphel_camd.board", "board_factories", "elphel_camd.boards", "board_factories"),
-        (
-            "elphel_camd.board",
-            "bayer_after_flips",
-            "elphel_camd.frame_metadata",
-            "bayer_after_flips",
-        ),
-        ("elphel_camd.config", "ParamStore", "elphel_camd.store", "ParamStore"),
-        ("elphel_camd.config", "write_atomic", "elphel_camd.store", "write_atomic"),
-        ("elphel_camd.config", "load_or_create_token", "elphel_camd.store", "load_or_create_token"),
-    ],
-)
-def test_old_import_paths_still_work_and_warn(module, old, new_module, new):
-    import importlib
-
-    old_module = importlib.import_module(module)
-    with pytest.warns(DeprecationWarning, match=f"{module}.{old} is deprecated; use {new_module}"):
-        found = getattr(old_module, old)
-    assert found is getattr(importlib.import_module(new_module), new)
-
-
-def test_names_that_never_existed_are_still_attribute_errors():
-    import elphel_camd.board
-    import elphel_camd.config
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        with pytest.raises(AttributeError, match="Nothing"):
-            elphel_camd.board.Nothing  # noqa: B018
-        with pytest.raises(AttributeError, match="Nothing"):
-            elphel_camd.config.Nothing  # noqa: B018

@@ -234,7 +234,7 @@ def test_the_page_is_served_with_a_policy_that_allows_only_this_origin(client):
     assert client.get("/web/nothing.js").status_code == 404
 
 
-def test_previews_of_a_read_protected_daemon_need_the_token():
+def test_previews_need_the_token_unless_reads_are_public():
     board = SimCameraBoard(build("default", seed=1), seed=1)
     cam = CameraService(board)
     cam.set_params(0, SMALL)

@@ -17,7 +17,7 @@ import socket
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from elphel_camd import __version__
 from elphel_camd.boards import board_factories
@@ -25,6 +25,9 @@ from elphel_camd.config import ConfigError, DaemonSettings, load_settings
 from elphel_camd.events import EventHub
 from elphel_camd.service import CameraService
 from elphel_camd.store import ParamStore, load_or_create_token, new_token, write_atomic
+
+if TYPE_CHECKING:
+    from elphel_camd.api.deps import TokenSource
 
 log = logging.getLogger("elphel_camd")
 
@@ -42,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--config",
         type=Path,
         help="JSON settings file (default /etc/elphel-camd/config.json if it exists), e.g. "
-        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "read_protected": true}',
+        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "public_reads": true}',
     )
     p.add_argument("--bus", action="append", default=[], help="I2C bus URL per port (i2c board)")
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
@@ -59,12 +62,6 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         default=None,
         help="answer reads without the token (by default every request but /health needs it)",
-    )
-    p.add_argument(
-        "--read-protected",
-        action="store_true",
-        default=None,
-        help="the default (reads need the token); kept for old scripts",
     )
     p.add_argument(
         "--allow-host",
@@ -92,7 +89,6 @@ _SETTING_OPTIONS = (
     "token",
     "token_file",
     "state_dir",
-    "read_protected",
     "public_reads",
     "allowed_hosts",
     "cors_origins",
@@ -186,14 +182,7 @@ def build_service(settings: DaemonSettings) -> CameraService:
         raise
 
 
-build_camera = build_service  # the old name
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    from elphel_camd.api import create_app
-    from elphel_camd.api.deps import TokenSource
-    from elphel_camd.serving import GracefulServer, http_stack, server_config
-
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["token"]:
         return token_main(argv[1:])
@@ -205,29 +194,45 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = settings_from_args(args)
         if (settings.tls_cert is None) != (settings.tls_key is None):
             raise ConfigError("give both --tls-cert and --tls-key (or neither)")
-        if settings.token is not None and settings.token.get_secret_value():
-            token = TokenSource(settings.token.get_secret_value())
-        else:
-            load_or_create_token(settings.token_path)
-            token = TokenSource(path=settings.token_path)
-            log.info("bearer token from %s (re-read when it changes)", settings.token_path)
+        token = token_source(settings)
         service = build_service(settings)
     except (ConfigError, OSError, ValueError) as e:
         print(f"elphel-camd: {e}", file=sys.stderr)
         return 1
-    # IPPROTO_TCP explicitly: asyncio sets TCP_NODELAY only on sockets that name it, and
-    # without it every answer waits ~40 ms for the client's delayed ACK.
-    family = socket.AF_INET6 if ":" in settings.host else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     try:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind((settings.host, settings.port))
-        sock.listen(128)
-        host, port = sock.getsockname()[:2]
+        serve(settings, service, token)
+    except OSError as e:
+        print(
+            f"elphel-camd: cannot listen on {settings.host}:{settings.port}: {e}", file=sys.stderr
+        )
+        return 1
+    finally:
+        service.close()
+    return 0
+
+
+def token_source(settings: DaemonSettings) -> TokenSource:
+    """The daemon's token: the configured one, else the token file (created if missing)."""
+    from elphel_camd.api.deps import TokenSource
+
+    if settings.token is not None and settings.token.get_secret_value():
+        return TokenSource(settings.token.get_secret_value())
+    load_or_create_token(settings.token_path)
+    log.info("bearer token from %s (re-read when it changes)", settings.token_path)
+    return TokenSource(path=settings.token_path)
+
+
+def serve(settings: DaemonSettings, service: CameraService, token: TokenSource) -> None:
+    """Serve the API of ``service`` as the settings say until the daemon is stopped."""
+    from elphel_camd.api import create_app
+    from elphel_camd.serving import GracefulServer, http_stack, server_config
+
+    sock = listening_socket(settings.host, settings.port)
+    try:
         app = create_app(
             service,
             token=token,
-            public_reads=settings.reads_public,
+            public_reads=settings.public_reads,
             max_body_bytes=settings.max_body_bytes,
             allowed_hosts=[settings.host, *settings.allowed_hosts],
             cors_origins=settings.cors_origins,
@@ -244,30 +249,38 @@ def main(argv: Sequence[str] | None = None) -> int:
             max_head_bytes=settings.max_header_bytes,
             **tls,
         )
-        scheme = "https" if tls else "http"
+        host, port = sock.getsockname()[:2]
         log.info(
             "listening on %s://%s:%d (reads %s; HTTP: %s)",
-            scheme,
+            "https" if tls else "http",
             host,
             port,
-            "public" if settings.reads_public else "need the token",
+            "public" if settings.public_reads else "need the token",
             http_stack(config),
         )
         # What exists now (modules, the board, the app) lives as long as the daemon: kept
         # out of the cyclic garbage collector's sight, a full collection (which stops
-        # every request) looks only at what came since: under bench/load.py 5-9 ms
-        # instead of 79 ms.
+        # every request) looks only at what came since.
         gc.freeze()
         GracefulServer(config, on_shutdown=[service.events.close]).run(sockets=[sock])
-    except OSError as e:
-        print(
-            f"elphel-camd: cannot listen on {settings.host}:{settings.port}: {e}", file=sys.stderr
-        )
-        return 1
     finally:
         sock.close()
-        service.close()
-    return 0
+
+
+def listening_socket(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port`` and listening (OSError if it cannot be)."""
+    # IPPROTO_TCP explicitly: asyncio sets TCP_NODELAY only on sockets that name it, and
+    # without it every answer waits ~40 ms for the client's delayed ACK.
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(128)
+    except OSError:
+        sock.close()
+        raise
+    return sock
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
-from elphel_camd.deprecation import moved
 from elphel_camd.errors import ConfigError
 
 __all__ = ["DEFAULT_CONFIG", "ConfigError", "DaemonSettings", "load_settings", "read_config_file"]
@@ -70,9 +69,6 @@ class DaemonSettings(BaseSettings):
     public_reads: bool = Field(
         False, description="answer reads without the token (writes still need it)"
     )
-    read_protected: bool | None = Field(
-        None, description="former setting: false is public_reads=true, true the default"
-    )
     allowed_hosts: list[str] = Field(
         default_factory=list,
         description="host names the Host header may carry besides IP addresses and "
@@ -100,11 +96,6 @@ class DaemonSettings(BaseSettings):
     event_queue: int = Field(256, ge=1, description="events buffered per SSE client")
     log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
     access_log: bool = Field(True, description="log every request")
-
-    @property
-    def reads_public(self) -> bool:
-        """Whether reads are answered without the token (``read_protected`` is the old name)."""
-        return self.public_reads or self.read_protected is False
 
     @property
     def token_path(self) -> Path:
@@ -172,21 +163,3 @@ def load_settings(config: Path | None = None, **overrides: Any) -> DaemonSetting
         where = f"config {config} or " if config is not None else ""
         raise ConfigError(f"invalid settings ({where}ELPHEL_CAMD_* environment): {e}") from e
     return loaded
-
-
-# Persistence moved to elphel_camd.store; the old names still import, with a warning.
-__getattr__ = moved(
-    __name__,
-    {
-        name: f"elphel_camd.store:{name}"
-        for name in (
-            "PARAMS_VERSION",
-            "ParamStore",
-            "fsync_path",
-            "last_journal_line",
-            "load_or_create_token",
-            "remove_stale_temporaries",
-            "write_atomic",
-        )
-    },
-)

@@ -21,6 +21,7 @@ from elphel_camd.errors import (
     FrameTooEarlyError,
     FrameTooLateError,
     I2CError,
+    UnsupportedError,
 )
 from elphel_camd.params import FUNCTIONS, check_names, functions_of
 from elphel_camd.sensors.base import SensorDriver, State
@@ -117,7 +118,8 @@ class PortSequencer:
             Absolute target frame.
         ahead
             Target relative to the current frame (``frame=+k``).
-            With neither, the earliest frame the changes can reach.
+            With neither, the earliest frame the changes can reach; both are refused
+            (UnsupportedError).
         """
         with self.lock:
             target, merged = self._plan(changes, frame, ahead)
@@ -127,10 +129,10 @@ class PortSequencer:
     def _plan(
         self, changes: Mapping[str, int], frame: int | None, ahead: int | None
     ) -> tuple[int, dict[int, dict[str, int]]]:
+        if frame is not None and ahead is not None:
+            raise UnsupportedError("give frame or ahead, not both")
         check_names(changes)
         self.driver.check_writable(changes)
-        if frame is not None and ahead is not None:
-            raise ValueError("give frame or ahead, not both")
         now = self.this_frame
         latency = max(
             self.latency(changes, self.state_at(now)),

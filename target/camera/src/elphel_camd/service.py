@@ -53,8 +53,6 @@ _NEEDS = {
 class CameraService:
     """The daemon's view of a board: sensors, their sequencers, capture with metadata.
 
-    Formerly ``elphel_camd.board.Camera``.
-
     Parameters
     ----------
     board
@@ -218,6 +216,20 @@ class CameraService:
         state.update(self.sensor(port).actual_gains(state))
         return {k: v for k, v in state.items() if k in PARAMS}
 
+    def param_locks(self, port: int, changes: Mapping[str, int]) -> list[threading.RLock]:
+        """The port locks `set_params` holds for these changes, in the order it takes them.
+
+        A caller that takes them first (and reads the answer under them) sees no other
+        write in between. Raises as `sensor` for a port without one.
+        """
+        return [self.sequencers[p].lock for p in self._ports_held(port, changes)]
+
+    def _ports_held(self, port: int, changes: Mapping[str, int]) -> list[int]:
+        """One port per change; a change of the common trigger holds every port, in order."""
+        self.sequencer(port)
+        common = any(name in changes for name in COMMON_TRIGGER_PARAMS)
+        return sorted(self.sequencers) if common else [port]
+
     def set_params(
         self,
         port: int,
@@ -229,9 +241,25 @@ class CameraService:
         """Apply changes all-or-nothing; return the frame at which they are in effect.
 
         Common trigger settings (TRIG_PERIOD) are accepted only on the TRIG_MASTER port and
-        copied to the other ports, as Elphel's drivers do.
+        copied to the other ports, as Elphel's drivers do. ``frame`` (absolute) and
+        ``ahead`` (relative) pick the target frame as in `PortSequencer.request`.
         """
-        seq = self.sequencer(port)
+        ports = self._ports_held(port, changes)
+        self._refuse_unavailable(changes, frame, ahead)
+        common = {k: v for k, v in changes.items() if k in COMMON_TRIGGER_PARAMS}
+        with contextlib.ExitStack() as held:
+            for p in ports:
+                held.enter_context(self.sequencers[p].lock)
+            if common:
+                self._check_common(port, changes, common)
+            target = self._schedule(port, ports, changes, common, frame, ahead)
+        self.events.publish("params", {"port": port, "frame": target, "changes": dict(changes)})
+        return target
+
+    def _refuse_unavailable(
+        self, changes: Mapping[str, int], frame: int | None, ahead: int | None
+    ) -> None:
+        """Refuse what this board cannot do: missing hardware, frames without frame syncs."""
         for name, value in changes.items():
             need = _NEEDS.get(name)
             if need and value and need not in self.board.capabilities:
@@ -245,49 +273,63 @@ class CameraService:
         if master_port is not None and master_port not in self.sequencers:
             have = ", ".join(map(str, sorted(self.sequencers)))
             raise ParameterRangeError("TRIG_MASTER", master_port, f"a port with a sensor: {have}")
-        common = {k: v for k, v in changes.items() if k in COMMON_TRIGGER_PARAMS}
-        # One lock per port; a change of the common trigger holds every port (in order).
-        ports = sorted(self.sequencers) if common else [port]
-        with contextlib.ExitStack() as held:
+
+    def _check_common(
+        self, port: int, changes: Mapping[str, int], common: Mapping[str, int]
+    ) -> None:
+        """Refuse common trigger settings off the master port, or that another port refuses."""
+        seq = self.sequencers[port]
+        master = changes.get("TRIG_MASTER", seq.state_at(seq.this_frame)["TRIG_MASTER"])
+        if master != port:
+            raise ParameterRangeError(
+                "TRIG_PERIOD", common["TRIG_PERIOD"], f"set on the master port {master}"
+            )
+        for other, other_seq in self.sequencers.items():  # check first: all ports or none
+            if other != port:
+                other_seq.check(common)
+
+    def _schedule(
+        self,
+        port: int,
+        ports: list[int],
+        changes: Mapping[str, int],
+        common: Mapping[str, int],
+        frame: int | None,
+        ahead: int | None,
+    ) -> int:
+        """Schedule and save the changes under the held locks; all or nothing.
+
+        A change that cannot be saved (disk full, read-only state directory) or written
+        (no frame syncs: programmed at once) is taken back and refused.
+        """
+        seq = self.sequencers[port]
+        before = {p: self.sequencers[p].schedule() for p in ports}
+        try:
+            target = seq.request(changes, frame=frame, ahead=ahead)
             for p in ports:
-                held.enter_context(self.sequencers[p].lock)
-            if common:
-                master = changes.get("TRIG_MASTER", seq.state_at(seq.this_frame)["TRIG_MASTER"])
-                if master != port:
-                    raise ParameterRangeError(
-                        "TRIG_PERIOD", common["TRIG_PERIOD"], f"set on the master port {master}"
-                    )
-                others = [s for p, s in self.sequencers.items() if p != port]
-                for other in others:  # check first: all ports or none
-                    other.check(common)
-            # All or nothing, saving included: a change that cannot be saved (disk full,
-            # read-only state directory) is taken back and refused.
-            before = {p: self.sequencers[p].schedule() for p in ports}
-            try:
-                target = seq.request(changes, frame=frame, ahead=ahead)
-                if common:
-                    for other in others:
-                        other.request(common)
-                if not self.scheduled:
-                    seq.flush()
-                for p in ports:
-                    self._versions[p] += 1
-                    self._save(p, self._versions[p], self._persistent(p))
-            except (StateWriteError, I2CError) as e:
-                # All or nothing: take the change back; a board programmed at once (no
-                # frame syncs) gets the previous state written again.
-                for p in ports:
-                    self.sequencers[p].restore_schedule(before[p])
-                if not self.scheduled:
-                    try:
-                        seq.flush()
-                    except I2CError as again:
-                        log.error("port %d: previous state not written back: %s", port, again)
-                if isinstance(e, I2CError):
-                    raise PortI2CError(port, e) from e
-                raise
-        self.events.publish("params", {"port": port, "frame": target, "changes": dict(changes)})
+                if p != port:
+                    self.sequencers[p].request(common)
+            if not self.scheduled:
+                seq.flush()
+            for p in ports:
+                self._versions[p] += 1
+                self._save(p, self._versions[p], self._persistent(p))
+        except (StateWriteError, I2CError) as e:
+            self._take_back(port, before)
+            if isinstance(e, I2CError):
+                raise PortI2CError(port, e) from e
+            raise
         return target
+
+    def _take_back(self, port: int, before: Mapping[int, Any]) -> None:
+        """Restore the schedules of ``before``; a board without frame syncs is rewritten."""
+        for p, schedule in before.items():
+            self.sequencers[p].restore_schedule(schedule)
+        if not self.scheduled:
+            try:
+                self.sequencers[port].flush()
+            except I2CError as again:
+                log.error("port %d: previous state not written back: %s", port, again)
 
     # -- frames ----------------------------------------------------------------------------
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import html
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI
@@ -45,7 +44,6 @@ def create_app(
     *,
     token: str | TokenSource,
     public_reads: bool = False,
-    read_protected: bool | None = None,
     max_body_bytes: int = 65536,
     keepalive_s: float = 15.0,
     allowed_hosts: Sequence[str] | None = None,
@@ -63,8 +61,6 @@ def create_app(
         changes) that requests must carry.
     public_reads
         Answer reads without the token (the health check never needs it).
-    read_protected
-        The former option: False means ``public_reads=True``.
     max_body_bytes
         Largest request body; larger ones get 413.
     keepalive_s
@@ -79,8 +75,6 @@ def create_app(
         (`elphel_camd.api.fast_path`; the same answers). False only to compare.
     """
     source = token if isinstance(token, TokenSource) else TokenSource(token)
-    if read_protected is not None:
-        public_reads = not read_protected
     app = FastAPI(
         title="elphel-camd",
         version=__version__,
@@ -99,23 +93,38 @@ def create_app(
         app.add_middleware(ParamsFastPath)  # added first: the innermost, under every limit
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
     if cors_origins:
-        app.add_middleware(
-            CORSMiddleware,
-            allow_origins=list(cors_origins),
-            allow_methods=["GET", "PATCH", "PUT", "POST"],
-            allow_headers=["Authorization", "Content-Type", "Last-Event-ID"],
-            expose_headers=["X-Frame-Number", "X-Frame-Count"],
-        )
+        add_cors(app, cors_origins)
     if allowed_hosts is not None:
         app.add_middleware(HostAllowList, allowed=allowed_hosts)
     add_error_handlers(app)
+    include_routes(app)
+    serve_contract(app, public_reads=public_reads)
+    return app
+
+
+def add_cors(app: FastAPI, origins: Sequence[str]) -> None:
+    """Let browser pages of ``origins`` call the API (and read the frame headers)."""
+    app.add_middleware(
+        CORSMiddleware,
+        allow_origins=list(origins),
+        allow_methods=["GET", "PATCH", "PUT", "POST"],
+        allow_headers=["Authorization", "Content-Type", "Last-Event-ID"],
+        expose_headers=["X-Frame-Number", "X-Frame-Count"],
+    )
+
+
+def include_routes(app: FastAPI) -> None:
+    """The API's routers under `API`, then the browser page: its API, / and /web/."""
     for router in ROUTERS:
         app.include_router(router, prefix=API)
-    # The browser page: its API (previews, the parameter description), / and /web/.
     app.include_router(param_schema.router, prefix=API)
     app.include_router(preview_routes.router, prefix=API)
     app.include_router(page.router)
     app.mount("/web", page.static_files(), name="web")
+
+
+def serve_contract(app: FastAPI, *, public_reads: bool) -> None:
+    """Make ``app.openapi()`` the `contract` schema, and ``/docs`` the page that lists it."""
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
@@ -133,8 +142,6 @@ def create_app(
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:
         return HTMLResponse(docs_page(openapi()))
-
-    return app
 
 
 def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
@@ -194,8 +201,3 @@ def docs_page(schema: dict[str, Any]) -> str:
         "the bearer token).</p><table><tr><th>method</th><th>path</th><th>what</th>"
         f"<th>answers</th></tr>{''.join(rows)}</table></body></html>"
     )
-
-
-def token_source(token: str | None, path: Path) -> TokenSource:
-    """The daemon's token: fixed if given, else the token file (re-read when replaced)."""
-    return TokenSource(token) if token else TokenSource(path=path)

@@ -138,10 +138,6 @@ class ApiOptions:
     keepalive_s: float = 15.0
     failed: FailedAuth = field(default_factory=FailedAuth)
 
-    @property
-    def read_protected(self) -> bool:
-        return not self.public_reads
-
 
 async def get_service(request: Request) -> CameraService:
     """The camera service the app was built for."""
@@ -166,18 +162,28 @@ def _peer(request: Request) -> str:
     return request.client.host if request.client is not None else "unknown"
 
 
+def token_accepted(options: ApiOptions, given: str, peer: str) -> bool:
+    """Whether ``given`` is the daemon's token; a right one clears ``peer``'s failures.
+
+    Every token check goes through here: the routes' `require_token` and the parameter
+    fast path (`elphel_camd.api.fast_path`).
+    """
+    # compare_digest on bytes of any length: no early exit that would tell how close it was.
+    if given and secrets.compare_digest(given.encode(), options.token.current().encode()):
+        options.failed.succeed(peer)
+        return True
+    return False
+
+
 async def require_token(
     request: Request,
     options: Options,
     credentials: HTTPAuthorizationCredentials | None = _BEARER,
 ) -> None:
     """401 unless the request carries the daemon's bearer token (slowed per failing peer)."""
-    token = options.token.current()
     given = credentials.credentials if credentials is not None else ""
     peer = _peer(request)
-    # compare_digest on bytes of any length: no early exit that would tell how close it was.
-    if given and secrets.compare_digest(given.encode(), token.encode()):
-        options.failed.succeed(peer)
+    if token_accepted(options, given, peer):
         return
     if given:
         # A guess: slowed down, more for each failure of the same peer.

@@ -25,37 +25,23 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from elphel_camd import errors as camd
 from elphel_camd.api.models import Problem, schema_allowed
-from elphel_camd.errors import (
-    CaptureUnavailableError,
-    FrameNotAvailableError,
-    FrameScheduleError,
-    FrameTooEarlyError,
-    FrameTooLateError,
-    I2CError,
-    ParameterRangeError,
-    PortError,
-    PortI2CError,
-    RegisterNotFoundError,
-    SensorNotFoundError,
-    StateWriteError,
-    UnsupportedError,
-)
 from elphel_camd.params import PARAMS
 
 # Exception type -> HTTP status and the body's "error" code; the first match wins.
 ERROR_STATUS: tuple[tuple[type[Exception], int, str], ...] = (
-    (PortError, 404, "no_such_port"),
-    (SensorNotFoundError, 404, "no_sensor"),
-    (RegisterNotFoundError, 404, "no_such_register"),
-    (FrameNotAvailableError, 404, "frame_not_available"),
-    (ParameterRangeError, 409, "parameter_range"),
-    (FrameTooLateError, 409, "frame_too_late"),
-    (FrameTooEarlyError, 409, "frame_too_early"),
-    (UnsupportedError, 409, "unsupported"),
-    (CaptureUnavailableError, 501, "no_image_path"),
-    (StateWriteError, 503, "state_not_writable"),
-    (I2CError, 503, "i2c"),
+    (camd.PortError, 404, "no_such_port"),
+    (camd.SensorNotFoundError, 404, "no_sensor"),
+    (camd.RegisterNotFoundError, 404, "no_such_register"),
+    (camd.FrameNotAvailableError, 404, "frame_not_available"),
+    (camd.ParameterRangeError, 409, "parameter_range"),
+    (camd.FrameTooLateError, 409, "frame_too_late"),
+    (camd.FrameTooEarlyError, 409, "frame_too_early"),
+    (camd.UnsupportedError, 409, "unsupported"),
+    (camd.CaptureUnavailableError, 501, "no_image_path"),
+    (camd.StateWriteError, 503, "state_not_writable"),
+    (camd.I2CError, 503, "i2c"),
     (TimeoutError, 504, "timeout"),
 )
 
@@ -105,15 +91,15 @@ def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
 def error_body(exc: Exception, code: str) -> dict[str, Any]:
     """The problem body of a daemon error."""
     body: dict[str, Any] = {"detail": str(exc), "error": code}
-    if isinstance(exc, ParameterRangeError):
+    if isinstance(exc, camd.ParameterRangeError):
         body.update(
             parameter=exc.name, value=json_safe(jsonable_encoder(exc.value)), allowed=exc.allowed
         )
-    elif isinstance(exc, I2CError):
+    elif isinstance(exc, camd.I2CError):
         body.update(bus=exc.bus, address=exc.address, register=exc.register)
-        if isinstance(exc, PortI2CError):
+        if isinstance(exc, camd.PortI2CError):
             body["port"] = exc.port
-    elif isinstance(exc, FrameScheduleError):
+    elif isinstance(exc, camd.FrameScheduleError):
         body.update(
             frame=exc.frame, this_frame=exc.this_frame, earliest=exc.earliest, latest=exc.latest
         )

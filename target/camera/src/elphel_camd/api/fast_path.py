@@ -2,16 +2,16 @@
 
 ``GET`` and ``PATCH /api/v1/ports/{port}/params`` are most of what scripts send. For each
 request FastAPI resolves the route's dependencies, reads the query and headers into
-parameters and wraps the call in its exception and exit-stack layers; under bench/load.py
-that framework work took more of the daemon's CPU than the parameter work itself, and
-requests queued behind it. `ParamsFastPath` answers the plain form of the two (no query
-string; the bearer token right, or reads public; for PATCH a JSON body that `ParamsPatch`
-accepts) by calling the functions the routes call (`read_params`, `write_params`), and
-the app's own exception handlers for their errors. Anything else goes on to the routes,
-which answer as they always did, the body handed on as it was read: a query (``frame``,
-``ahead``), a missing or wrong token (the routes log it and slow the peer down), a port
-the board does not have, a body the model refuses (the routes' 422). The routes stay what
-the OpenAPI schema describes; this changes no answer, only what computes it.
+parameters and wraps the call in its exception and exit-stack layers, work that costs
+more than reading or scheduling a few parameters. `ParamsFastPath` answers the plain
+form of the two (no query string; the bearer token right by `deps.token_accepted`, or
+reads public; for PATCH a JSON body that `ParamsPatch` accepts) by calling the functions
+the routes call (`read_params`, `write_params`), and the app's own exception handlers for
+their errors. Anything else goes on to the routes, which answer as they always do, the
+body handed on as it was read: a query (``frame``, ``ahead``), a missing or wrong token
+(the routes log it and slow the peer down), a port the board does not have, a body the
+model refuses (the routes' 422). The routes stay what the OpenAPI schema describes; this
+changes no answer, only what computes it.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from __future__ import annotations
 import inspect
 import json
 import re
-import secrets
 from collections.abc import Coroutine
 from typing import Any
 
@@ -27,7 +26,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from elphel_camd.api.deps import ApiOptions
+from elphel_camd.api.deps import ApiOptions, token_accepted
 from elphel_camd.api.models import ParamsPatch
 from elphel_camd.api.routes.params import read_params, write_params
 from elphel_camd.service import CameraService
@@ -55,12 +54,10 @@ class ParamsFastPath:
         port = int(match[1])
         headers = dict(scope["headers"])
         needs_token = method == "PATCH" or not options.public_reads
-        if port not in service.sequencers or (needs_token and not _has_token(headers, options)):
+        allowed = not needs_token or _has_token(scope, headers, options)
+        if port not in service.sequencers or not allowed:
             await self.app(scope, receive, send)
             return
-        if needs_token:
-            client = scope.get("client")
-            options.failed.succeed(client[0] if client else "unknown")
         work: Coroutine[Any, Any, object]
         if method == "GET":
             work = read_params(service, port, None)
@@ -83,12 +80,16 @@ class ParamsFastPath:
         await answer(scope, receive, send)
 
 
-def _has_token(headers: dict[bytes, bytes], options: ApiOptions) -> bool:
-    """The request carries ``Authorization: Bearer <the daemon's token>``."""
+def _has_token(scope: Scope, headers: dict[bytes, bytes], options: ApiOptions) -> bool:
+    """The request carries ``Authorization: Bearer <the daemon's token>`` (`token_accepted`).
+
+    A missing or wrong token is left to the routes, which log it and slow the peer down.
+    """
     scheme, _, given = headers.get(b"authorization", b"").decode("latin-1").partition(" ")
     if scheme.lower() != "bearer" or not given:
         return False
-    return secrets.compare_digest(given.encode(), options.token.current().encode())
+    client = scope.get("client")
+    return token_accepted(options, given, client[0] if client else "unknown")
 
 
 def _patch_values(headers: dict[bytes, bytes], body: bytes) -> dict[str, int] | None:

@@ -1,17 +1,14 @@
 """Short work under a port's locks, on the event loop when the locks are free.
 
-A plain FastAPI route (``def``) runs in a worker thread. For the parameter routes that
-costs more than the work: they hold a port's lock for tens of microseconds, and handing
-each request to a thread and back under load (bench/load.py, 50 clients) took the time
-in the app from 0.7 ms to 4.5 ms at the median, and to 40-90 ms at the 99th percentile.
-`run_locked` does the work on the event loop instead, when it can take every lock at
-once without blocking. A lock held elsewhere (a frame sync programming the sensor holds
-its port's lock for a fraction of a millisecond, on a slow I2C bus for a few) is tried
-again every `RETRY_S` while the event loop serves other requests; only a lock still held
-after `LOOP_WAIT_S`, or work that waits for a device or a disk (``on_loop=False``), goes
-to a worker thread, so the event loop never blocks on either. Under bench/load.py the
-frame syncs held a port's lock when 2 % of the requests came, and the thread hand-off
-took those 11 ms at the median: the 99th percentile of every parameter request.
+A plain FastAPI route (``def``) runs in a worker thread. The parameter routes hold a
+port's lock for tens of microseconds, less than the hand-off of a request to a thread
+and back, which also queues behind other requests under load. `run_locked` does the work
+on the event loop instead, when it can take every lock at once without blocking. A lock
+held elsewhere (a frame sync programming the sensor holds its port's lock for a fraction
+of a millisecond, on a slow I2C bus for a few) is tried again every `RETRY_S` while the
+event loop serves other requests; only a lock still held after `LOOP_WAIT_S`, or work
+that waits for a device or a disk (``on_loop=False``), goes to a worker thread, so the
+event loop never blocks on either.
 """
 
 from __future__ import annotations

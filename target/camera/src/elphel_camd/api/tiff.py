@@ -87,25 +87,28 @@ def stream(
     yield header()
     offset = 8
     for index, (image, metadata) in enumerate(frames):
-        head, pixels, end = page(image, metadata, offset=offset, last=index == count - 1)
-        yield head
-        yield pixels
-        pad = end - offset - len(head) - pixels.nbytes
-        if pad:
-            yield b"\x00" * pad
-        offset = end
+        chunks, offset = page_chunks(image, metadata, offset=offset, last=index == count - 1)
+        yield from chunks
         if index == count - 1:
             return
 
 
-def single(image: np.ndarray, metadata: dict[str, Any]) -> tuple[list[bytes | memoryview], int]:
-    """The chunks of a one-page TIFF and its total length (for Content-Length)."""
-    head, pixels, end = page(image, metadata, offset=8, last=True)
-    pad = end - 8 - len(head) - pixels.nbytes
-    chunks: list[bytes | memoryview] = [header(), head, pixels]
+def page_chunks(
+    image: np.ndarray, metadata: dict[str, Any], *, offset: int, last: bool
+) -> tuple[list[bytes | memoryview], int]:
+    """The chunks of one page written at ``offset``, padding included, and where it ends."""
+    head, pixels, end = page(image, metadata, offset=offset, last=last)
+    chunks: list[bytes | memoryview] = [head, pixels]
+    pad = end - offset - len(head) - pixels.nbytes
     if pad:
         chunks.append(b"\x00" * pad)
     return chunks, end
+
+
+def single(image: np.ndarray, metadata: dict[str, Any]) -> tuple[list[bytes | memoryview], int]:
+    """The chunks of a one-page TIFF and its total length (for Content-Length)."""
+    chunks, end = page_chunks(image, metadata, offset=8, last=True)
+    return [header(), *chunks], end
 
 
 def encode(image: np.ndarray, metadata: dict[str, Any]) -> bytes:

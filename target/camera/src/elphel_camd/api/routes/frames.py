@@ -83,52 +83,19 @@ async def capture(
     headers = {"X-Frame-Number": str(got.frame), "X-Frame-Count": str(count)}
     if count == 1:
         frames.close()
-        # Known length: no chunked encoding, and the pixels go out without a copy.
-        chunks, length = tiff.single(got.image, _with_shape(got, metadata))
-
-        async def one_page() -> AsyncIterator[bytes | memoryview]:
-            for chunk in chunks:
-                yield chunk
-
-        return StreamingResponse(
-            one_page(),
-            media_type="image/tiff",
-            headers={**headers, "Content-Length": str(length)},
-        )
+        return _one_page(got, metadata, headers)
 
     async def body() -> AsyncIterator[bytes | memoryview]:
         yield tiff.header()
-        offset, page = 8, (got, metadata)
+        offset, page = 8, first
         try:
             for index in range(count):
-                image = page[0].image
-                head, pixels, end = tiff.page(
-                    image, page[1], offset=offset, last=index == count - 1
-                )
-                yield head
-                yield pixels
-                pad = end - offset - len(head) - pixels.nbytes
-                if pad:
-                    yield b"\x00" * pad
-                offset = end
-                if index < count - 1:
-                    try:
-                        following = await _next(service, frames)
-                    except Exception as e:
-                        log.error(
-                            "port %d: burst broken off after %d of %d frames: %s",
-                            port,
-                            index + 1,
-                            count,
-                            e,
-                        )
-                        raise BurstBrokenError(
-                            f"port {port}: burst broken off after {index + 1} of {count} "
-                            f"frames: {e}"
-                        ) from e
-                    if following is None:
-                        raise BurstBrokenError(f"port {port}: burst ended after {index + 1}")
-                    page = following
+                last = index == count - 1
+                chunks, offset = tiff.page_chunks(page[0].image, page[1], offset=offset, last=last)
+                for chunk in chunks:
+                    yield chunk
+                if not last:
+                    page = await _following(service, frames, port, index + 1, count)
         finally:
             # A frame still being waited for in its thread: the generator closes when
             # that wait ends and it is collected (the frames it held are released then).
@@ -136,6 +103,19 @@ async def capture(
                 frames.close()
 
     return StreamingResponse(body(), media_type="image/tiff", headers=headers)
+
+
+def _one_page(got: Frame, metadata: dict[str, Any], headers: dict[str, str]) -> StreamingResponse:
+    """One frame's TIFF, of known length: no chunked encoding, the pixels sent uncopied."""
+    chunks, length = tiff.single(got.image, _with_shape(got, metadata))
+
+    async def one_page() -> AsyncIterator[bytes | memoryview]:
+        for chunk in chunks:
+            yield chunk
+
+    return StreamingResponse(
+        one_page(), media_type="image/tiff", headers={**headers, "Content-Length": str(length)}
+    )
 
 
 Page = tuple[Frame, dict[str, Any]]
@@ -152,3 +132,19 @@ async def _next(service: CameraService, frames: Generator[Page, None, None]) -> 
 
 def _with_shape(got: Frame, metadata: dict[str, Any]) -> dict[str, Any]:
     return {"shape": list(got.image.shape), **metadata}
+
+
+async def _following(
+    service: CameraService, frames: Generator[Page, None, None], port: int, sent: int, count: int
+) -> Page:
+    """The burst's next frame after ``sent`` pages went out; BurstBrokenError if none comes."""
+    try:
+        following = await _next(service, frames)
+    except Exception as e:
+        log.error("port %d: burst broken off after %d of %d frames: %s", port, sent, count, e)
+        raise BurstBrokenError(
+            f"port {port}: burst broken off after {sent} of {count} frames: {e}"
+        ) from e
+    if following is None:
+        raise BurstBrokenError(f"port {port}: burst ended after {sent}")
+    return following

@@ -18,8 +18,7 @@ from elphel_camd.api.deps import READS, WRITES, FrameQuery, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.api.locked import run_locked
 from elphel_camd.api.models import Params, ParamsPatch, PatchResult
-from elphel_camd.errors import FrameNotAvailableError, ParameterRangeError, UnsupportedError
-from elphel_camd.params import COMMON_TRIGGER_PARAMS
+from elphel_camd.errors import FrameNotAvailableError, ParameterRangeError
 from elphel_camd.sequencer import MAX_AHEAD
 from elphel_camd.service import CameraService
 
@@ -27,9 +26,10 @@ router = APIRouter()
 
 
 def parse_frame(frame: str | None, ahead: int | None) -> tuple[int | None, int | None]:
-    """``frame=N`` (absolute) or ``frame=+k`` / ``ahead=k`` (relative) from a query."""
-    if frame is not None and ahead is not None:
-        raise UnsupportedError("give frame or ahead, not both")
+    """``frame=N`` (absolute) or ``frame=+k`` / ``ahead=k`` (relative) from a query.
+
+    Both given are handed on as both (the sequencer refuses the pair).
+    """
     if frame is None:
         return None, ahead
     text = frame.strip()
@@ -37,9 +37,9 @@ def parse_frame(frame: str | None, ahead: int | None) -> tuple[int | None, int |
         value = int(text)
     except ValueError:
         raise ParameterRangeError("frame", frame, "N (absolute) or +k (relative)") from None
-    if text.startswith("+"):
+    if text.startswith("+") and ahead is None:
         return None, value
-    return value, None
+    return value, ahead
 
 
 @router.get(
@@ -101,10 +101,7 @@ async def write_params(
     relative: int | None,
 ) -> dict[str, object]:
     """What ``PATCH params`` does and answers (also called by `elphel_camd.api.fast_path`)."""
-    service.sequencer(port)  # 404 first
-    # The ports set_params locks, in its order, held until the answer is read.
-    common = any(name in values for name in COMMON_TRIGGER_PARAMS)
-    ports = sorted(service.sequencers) if common else [port]
+    locks = service.param_locks(port, values)  # 404 first; held until the answer is read
 
     def write() -> dict[str, object]:
         target = service.set_params(port, values, frame=absolute, ahead=relative)
@@ -114,5 +111,4 @@ async def write_params(
     # Without frame syncs the change is written to the sensor at once, and a save synced
     # to the disk each time waits for it: both in a worker thread.
     on_loop = service.scheduled and not service.saves_wait_for_disk
-    locks = [service.sequencers[p].lock for p in ports]
     return await run_locked(locks, write, on_loop=on_loop)

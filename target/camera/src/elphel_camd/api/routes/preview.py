@@ -15,7 +15,7 @@ import logging
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -298,7 +298,7 @@ async def get_preview_stream(
             },
         )
 
-    def newest() -> Any:
+    def newest() -> Awaitable[Rendered]:
         """The next frame's preview, made off the event loop."""
         return run_in_threadpool(
             render,
@@ -317,40 +317,52 @@ async def get_preview_stream(
     except BaseException:
         _slots.give()
         raise
-    period_s = 1.0 / fps
-
-    async def parts() -> AsyncIterator[bytes]:
-        try:
-            got, sent = first, 0
-            while True:
-                started = time.monotonic()
-                head = "".join(f"{k}: {v}\r\n" for k, v in got.headers.items())
-                yield (
-                    (
-                        f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
-                        f"Content-Length: {len(got.jpeg)}\r\n{head}\r\n"
-                    ).encode()
-                    + got.jpeg
-                    + b"\r\n"
-                )
-                sent += 1
-                if count is not None and sent >= count:
-                    break
-                wait = period_s - (time.monotonic() - started)
-                if wait > 0:
-                    await asyncio.sleep(wait)
-                try:
-                    got = await newest()
-                except (CameraError, TimeoutError, ValueError) as e:
-                    log.error("port %d: preview stream ended: %s", port, e)
-                    break
-        finally:
-            _slots.give()
-
     return StreamingResponse(
-        parts(),
+        _parts(first, newest, port=port, period_s=1.0 / fps, count=count),
         media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}",
         headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
+    )
+
+
+async def _parts(
+    first: Rendered,
+    newest: Callable[[], Awaitable[Rendered]],
+    *,
+    port: int,
+    period_s: float,
+    count: int | None,
+) -> AsyncIterator[bytes]:
+    """The stream's parts, one every ``period_s`` at most; gives back its slot at the end."""
+    try:
+        got, sent = first, 0
+        while True:
+            started = time.monotonic()
+            yield _part(got)
+            sent += 1
+            if count is not None and sent >= count:
+                break
+            wait = period_s - (time.monotonic() - started)
+            if wait > 0:
+                await asyncio.sleep(wait)
+            try:
+                got = await newest()
+            except (CameraError, TimeoutError, ValueError) as e:
+                log.error("port %d: preview stream ended: %s", port, e)
+                break
+    finally:
+        _slots.give()
+
+
+def _part(got: Rendered) -> bytes:
+    """One multipart part: the JPEG with its length and headers."""
+    head = "".join(f"{k}: {v}\r\n" for k, v in got.headers.items())
+    return (
+        (
+            f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
+            f"Content-Length: {len(got.jpeg)}\r\n{head}\r\n"
+        ).encode()
+        + got.jpeg
+        + b"\r\n"
     )
 
 
