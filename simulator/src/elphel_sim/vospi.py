@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -360,6 +361,9 @@ class SimSpidev:
     sim_forced_mode
         An SPI mode the controller keeps whatever is asked (None: it takes the one asked).
         Data clocked in a mode other than 3 arrive one bit late.
+    time_scale
+        Virtual seconds per wall-clock second: transfers and deselects wait so that the
+        Lepton's time does not run ahead (None: as fast as the host reads, for tests).
     """
 
     def __init__(
@@ -368,10 +372,13 @@ class SimSpidev:
         *,
         path: str = "/dev/spidev0.0",
         sim_forced_mode: int | None = None,
+        time_scale: float | None = None,
     ) -> None:
         self.stream = stream
         self.path = path
         self.sim_forced_mode = sim_forced_mode
+        self.time_scale = time_scale
+        self._origin = (time.monotonic(), stream.t)
         self._mode = 0
         self.closed = False
         self.transfers = 0
@@ -392,6 +399,7 @@ class SimSpidev:
     def read(self, size: int) -> bytes:
         self.transfers += 1
         data = self.stream.read(size)
+        self._keep_pace()
         if self._mode & 0x3 == 3:
             return data
         value = int.from_bytes(data, "big") >> 1  # sampled on the wrong edge: a bit late
@@ -400,6 +408,15 @@ class SimSpidev:
     def idle(self, seconds: float) -> None:
         self.idles.append(seconds)
         self.stream.idle(seconds)
+        self._keep_pace()
+
+    def _keep_pace(self) -> None:
+        if self.time_scale is None:
+            return
+        wall, virtual = self._origin
+        ahead_s = wall + (self.stream.t - virtual) / self.time_scale - time.monotonic()
+        if ahead_s > 0:
+            time.sleep(ahead_s)
 
     def now_ns(self) -> int:
         return round(self.stream.t * 1e9)

@@ -73,6 +73,10 @@ class CameraService:
         self.sensors: dict[int, SensorDriver | None] = {
             port: detect(bus, bus_name=f"port {port}") for port, bus in board.buses().items()
         }
+        # Ports whose sensor the board knows without an I2C bus (a Lepton without its CCI).
+        drivers = getattr(board, "drivers", None)
+        if drivers is not None:
+            self.sensors.update(drivers())
         self.sequencers: dict[int, PortSequencer] = {}
         for port, driver in self.sensors.items():
             if driver is not None:
@@ -383,9 +387,13 @@ class CameraService:
     # -- health ----------------------------------------------------------------------------
 
     def health(self) -> dict[str, Any]:
-        """Each port's sensor answering its chip id now; the first I2C error, if any."""
+        """Each port's sensor answering its chip id now, its frame stream; the first error.
+
+        The frame stream is reported where the board has one (``port_health``).
+        """
         ports: list[dict[str, Any]] = []
-        first: I2CError | None = None
+        first: tuple[str, str] | None = None
+        stream = getattr(self.board, "port_health", None)
         for port, driver in sorted(self.sensors.items()):
             entry: dict[str, Any] = {"port": port, "sensor": None, "ok": True}
             if driver is not None:
@@ -396,15 +404,20 @@ class CameraService:
                         driver.read_chip_id()
                 except I2CError as e:
                     entry.update(ok=False, error="i2c", detail=str(e))
-                    first = first or e
                 entry["frame"] = seq.this_frame
+            if stream is not None:
+                entry["stream"] = state = stream(port)
+                if entry["ok"] and state["state"] != "streaming":
+                    entry.update(ok=False, error="stream", detail=_stream_detail(state))
+            if not entry["ok"]:
+                first = first or (entry["error"], entry["detail"])
             ports.append(entry)
         return {
             "status": "ok" if first is None else "degraded",
             "board": self.board.name,
             "uptime_s": round((time.time_ns() - self.started_ns) / 1e9, 3),
             "ports": ports,
-            **({} if first is None else {"error": "i2c", "detail": str(first)}),
+            **({} if first is None else {"error": first[0], "detail": first[1]}),
         }
 
     def close(self) -> None:
@@ -414,3 +427,12 @@ class CameraService:
         self.capture_pool.close()
         if self.store is not None:
             self.store.close()
+
+
+def _stream_detail(state: Mapping[str, Any]) -> str:
+    """One line on a frame stream that is not streaming."""
+    if "detail" in state:
+        return str(state["detail"])
+    age = state.get("last_frame_age_s")
+    since = "no frame yet" if age is None else f"last frame {age} s ago"
+    return f"{state.get('path', 'the stream')}: {state['state']} ({since})"

@@ -22,7 +22,7 @@ from elphel_camd.i2c.bus import I2CBus, open_bus
 from elphel_camd.sensors.base import SensorDriver
 from elphel_camd.sensors.lepton35 import Lepton35, LeptonParameters
 from elphel_camd.vospi import telemetry as tm
-from elphel_camd.vospi.frame_source import LeptonFrameSource
+from elphel_camd.vospi.frame_source import LEPTON_UNIQUE_FPS, LeptonFrameSource
 from elphel_camd.vospi.reader import VoSPIFrame
 from elphel_camd.vospi.sources import MAX_CLOCK_HZ, ByteSource
 
@@ -90,6 +90,10 @@ class LeptonBoard:
         A byte source to read instead of opening ``vospi`` (a simulated Lepton).
     bus
         An open I2C bus instead of ``bus_urls`` (a simulated CCI).
+    replay_fps
+        Frames a second at which a recording (a regular file) is replayed; 0: at once.
+    capture_timeout_s
+        How long a capture waits for a frame before it fails (504).
     """
 
     name = "lepton"
@@ -104,6 +108,8 @@ class LeptonBoard:
         telemetry_location: str = "footer",
         byte_source: ByteSource | None = None,
         bus: I2CBus | None = None,
+        replay_fps: float = LEPTON_UNIQUE_FPS,
+        capture_timeout_s: float = 2.0,
     ) -> None:
         if len(bus_urls or []) > 1:
             raise ValueError(f"the lepton board takes one I2C bus (its CCI); got {bus_urls}")
@@ -118,7 +124,9 @@ class LeptonBoard:
             telemetry_location=TELEMETRY_LOCATIONS[telemetry_location],
             source=byte_source,
             on_frame=self._on_frame,
+            replay_fps=replay_fps,
         )
+        self.capture_timeout_s = capture_timeout_s
         self.frames.open()
 
     def _unit_from_cci(self) -> str | None:
@@ -160,6 +168,7 @@ class LeptonBoard:
         """The next whole frame, or frame ``frame`` (recent, or soon to come)."""
         if port != PORT:
             raise PortError(f"port {port} does not exist; ports: [{PORT}]")
+        timeout_s = min(timeout_s, self.capture_timeout_s)
         if frame is None:
             return self._frame(self.frames.read_frame(timeout_s=timeout_s))
         got = self.frames.recent(frame)

@@ -18,13 +18,14 @@ from typing import Any, BinaryIO
 from elphel_camd.vospi import telemetry as tm
 from elphel_camd.vospi.errors import NotVoSPIError, VoSPIError, VoSPITimeoutError
 from elphel_camd.vospi.reader import VoSPIFrame, VoSPIReader
-from elphel_camd.vospi.sources import MAX_CLOCK_HZ, ByteSource, open_source
+from elphel_camd.vospi.sources import MAX_CLOCK_HZ, ByteSource, FileSource, open_source
 
 log = logging.getLogger(__name__)
 
 RING_FRAMES = 64
 READ_TIMEOUT_S = 0.5  # how long the thread waits for bytes before looking at its state
 PROBE_TIMEOUT_S = 2.0
+LEPTON_UNIQUE_FPS = 106 / 12  # four valid segments in every twelve, 106 segments a second
 
 FrameListener = Callable[[VoSPIFrame], None]
 
@@ -46,6 +47,9 @@ class LeptonFrameSource:
         A byte source to use instead of opening ``path`` (a simulated Lepton).
     on_frame
         Called with each new frame, in the reading thread.
+    replay_fps
+        A regular file (a recording) is replayed at this many frames a second, as the
+        Lepton sent them (0: as fast as it is read). Devices and FIFOs keep their own pace.
     """
 
     def __init__(
@@ -57,8 +61,10 @@ class LeptonFrameSource:
         record: BinaryIO | None = None,
         source: ByteSource | None = None,
         on_frame: FrameListener | None = None,
+        replay_fps: float = LEPTON_UNIQUE_FPS,
     ) -> None:
         self.path = path
+        self.replay_fps = replay_fps
         self.clock_hz = clock_hz
         self.telemetry_location = telemetry_location
         self.record = record
@@ -115,7 +121,12 @@ class LeptonFrameSource:
     def _run(self) -> None:
         reader = self._reader
         assert reader is not None
+        period_s = self._replay_period_s()
+        due = time.monotonic()
         while not self._stop.is_set():
+            if period_s:
+                self._stop.wait(max(0.0, due - time.monotonic()))
+                due = max(due, time.monotonic() - period_s) + period_s
             try:
                 frame = reader.read_frame(timeout_s=READ_TIMEOUT_S)
             except VoSPITimeoutError:
@@ -133,6 +144,13 @@ class LeptonFrameSource:
                 self._cond.notify_all()
             if self.on_frame is not None:
                 self.on_frame(frame)
+
+    def _replay_period_s(self) -> float:
+        """Seconds between the frames of a replayed recording (0: not paced)."""
+        source = self._source
+        if self.replay_fps <= 0 or not isinstance(source, FileSource) or source.fifo:
+            return 0.0
+        return 1 / self.replay_fps
 
     def _not_vospi(self, reader: VoSPIReader) -> NotVoSPIError:
         return NotVoSPIError(

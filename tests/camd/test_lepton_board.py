@@ -1,0 +1,123 @@
+"""The lepton board in the daemon: VoSPI frames with telemetry, the CCI, a stopped device."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+import tifffile
+from fastapi.testclient import TestClient
+
+from elphel_camd import cli
+from elphel_camd.api import create_app
+from elphel_camd.boards.lepton import LeptonBoard
+from elphel_camd.service import CameraService
+from elphel_camd.vospi import SpidevSource
+from elphel_camd.vospi.record import record_stream
+from elphel_sim.chips.bus import SimI2CBus
+from elphel_sim.chips.lepton35 import SimLepton35
+from elphel_sim.vospi import SimSpidev, SimVoSPIStream, digest
+
+TOKEN = "t"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """Twenty frames of the simulated Lepton (telemetry on), recorded, and its truth."""
+    stream = SimVoSPIStream(seed=3)
+    path = tmp_path_factory.mktemp("lepton") / "lepton.vospi"
+    source = SpidevSource(SimSpidev(stream), bufsiz=4096)
+    summary = record_stream("sim", path, frames=20, source=source)
+    assert summary["frames"] == 20 and summary["bytes"] == path.stat().st_size
+    return path, stream
+
+
+def client_of(board):
+    return TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True))
+
+
+def capture(client, **params):
+    r = client.post("/api/v1/ports/0/capture", headers=AUTH, params=params)
+    assert r.status_code == 200, r.text
+    with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
+        return tif.pages[0].asarray(), json.loads(tif.pages[0].description), r
+
+
+def test_a_recording_replays_with_telemetry_in_each_frames_metadata(recording):
+    path, stream = recording
+    board = LeptonBoard(str(path), replay_fps=40)
+    with client_of(board) as c:
+        info = c.get("/api/v1/info").json()
+        assert info["board"] == "lepton"
+        assert info["ports"][0]["sensor"]["model"] == "LEPTON35"
+        assert info["ports"][0]["sensor"]["cci"] is False
+        image, meta, r = capture(c)
+        assert image.shape == (120, 160) and image.dtype == np.uint16
+        n = meta["frame"]
+        assert r.headers["X-Frame-Number"] == str(n) == str(meta["telemetry"]["frame_counter"])
+        assert digest(image) == stream.truth[n].digest
+        assert meta["pixel_unit"] == "centikelvin"
+        assert meta["telemetry"]["fpa_temperature_centi_k"] == 30515
+        assert meta["telemetry"]["ffc_state"] == "done"
+        assert c.get("/api/v1/health").json()["ports"][0]["stream"]["state"] == "streaming"
+        capture(c)  # a later frame; the first one is then fetched by its number
+        again, meta_again, _ = capture(c, frame=n)
+        assert meta_again["frame"] == n and np.array_equal(again, image)
+
+
+def test_without_the_cci_settings_are_refused_naming_the_bus_option(recording):
+    with client_of(LeptonBoard(str(recording[0]), replay_fps=40)) as c:
+        r = c.patch("/api/v1/ports/0/params", headers=AUTH, json={"WOI_HEIGHT": 122})
+        assert r.status_code == 409
+        assert "--bus /dev/i2c-N" in r.json()["detail"]
+
+
+def test_with_the_cci_the_pixel_unit_comes_from_the_camera(recording):
+    bus = SimI2CBus("lepton CCI")
+    chip = SimLepton35()
+    bus.attach(chip.address, chip)
+    chip.attributes["RAD_TLINEAR_RESOLUTION"] = 0  # 0.1 K a count
+    stream = SimVoSPIStream(lambda n: np.zeros((120, 160), np.uint16) + n)
+    board = LeptonBoard("sim", byte_source=SpidevSource(SimSpidev(stream), bufsiz=4096), bus=bus)
+    assert board.pixel_unit == "decikelvin"
+    service = CameraService(board)
+    try:
+        assert service.sensor(0).model == "LEPTON35" and service.sensor(0).writable
+        frame, meta = service.capture(0)
+        assert meta["pixel_unit"] == "decikelvin" and "telemetry" not in meta
+        assert np.all(frame.image == frame.image[0, 0])
+    finally:
+        service.close()
+
+
+def test_a_lepton_that_stops_sending_is_504_and_the_port_says_so():
+    stream = SimVoSPIStream()
+    stream.sim_stall(0.3, 1e9)
+    spidev = SimSpidev(stream, time_scale=1.0)
+    board = LeptonBoard("/dev/spidev0.0", byte_source=SpidevSource(spidev, bufsiz=4096))
+    board.capture_timeout_s = 0.5
+    with client_of(board) as c:
+        capture(c)
+        while stream.t < 1.5:
+            c.get("/api/v1/info")
+        r = c.post("/api/v1/ports/0/capture", headers=AUTH)
+        assert r.status_code == 504
+        assert "/dev/spidev0.0: no frame from the Lepton" in r.json()["detail"]
+        health = c.get("/api/v1/health").json()
+        assert health["status"] == "degraded" and health["error"] == "stream"
+        assert health["ports"][0]["stream"]["state"] == "stalled"
+        assert health["ports"][0]["stream"]["resyncs"] >= 1
+
+
+def test_the_daemon_names_a_missing_vospi_device(capsys):
+    assert cli.main(["--board", "lepton", "--vospi", "/dev/spidev7.7", "--port", "0"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("elphel-camd: board lepton: /dev/spidev7.7: cannot open")
+    assert "\n" not in err
+
+
+def test_vospi_record_names_a_missing_device(capsys, tmp_path):
+    out = tmp_path / "x.vospi"
+    assert cli.main(["vospi-record", "/dev/spidev7.7", "--out", str(out), "--frames", "3"]) == 1
+    assert "/dev/spidev7.7: cannot open the Lepton's" in capsys.readouterr().err
