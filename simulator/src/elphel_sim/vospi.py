@@ -19,9 +19,11 @@ Faults (``sim_*``), each recorded in the truth with its time window:
 * ``sim_lose_sync(at_s)``: garbage from ``at_s`` until the host deselects the device for
   more than 185 ms.
 
-The truth (`SimVoSPIStream.truth`) lists every unique frame sent: its frame counter,
-when its first and last packet went out, a digest of its pixels and whether a fault
-touched it.
+The truth (`SimVoSPIStream.truth`) lists every unique frame the Lepton made: its frame
+counter, when its first and last packet went out, a digest of its pixels, whether a fault
+touched it and whether the Lepton produced all its segments (not while stalled or out of
+sync; a segment the host did not clock out because it was deselected still counts as
+produced).
 """
 
 from __future__ import annotations
@@ -125,10 +127,12 @@ class FrameTruth:
 
     number: int
     digest: str
+    due_s: float  # when its segment 1 was due; segment 4 is due 3 segment periods later
     first_s: float = math.inf
     last_s: float = -math.inf
     segments_sent: int = 0
     touched: bool = False
+    produced: bool = True  # False: the Lepton was stalled or out of sync for a segment
 
 
 @dataclass
@@ -193,6 +197,7 @@ class SimVoSPIStream:
         self._garbage = False
         self._pending = _Pending()
         self._stall: tuple[float, float] | None = None
+        self._off: list[tuple[float, float]] = []  # when the Lepton sent no segments
         self._frame_k = -1  # the unique frame whose segments are cached
         self._segments: list[bytes] = []
 
@@ -225,6 +230,7 @@ class SimVoSPIStream:
         for stall in [x for x in p.stalls if x[0] <= t]:
             p.stalls.remove(stall)
             self._stall = (t, t + stall[1])
+            self._off.append(self._stall)
             self.faults.append(FaultTruth("stall", t, t + stall[1]))
         for at in [x for x in p.syncs if x <= t]:
             p.syncs.remove(at)
@@ -259,6 +265,7 @@ class SimVoSPIStream:
             for f in self.faults:
                 if f.kind == "lost_sync" and math.isnan(f.end_s):
                     f.end_s = self.t
+                    self._off.append((f.start_s, f.end_s))
 
     def _advance(self, data: bytes) -> bytes:
         """Time passes for the bytes sent; bytes being lost are taken out."""
@@ -313,21 +320,39 @@ class SimVoSPIStream:
         due = math.floor(self.t * SEGMENT_RATE_HZ + 1e-9)
         if due < self._next_k:
             return
+        for k in range(self._next_k, due):  # due while the host was not clocking
+            self._skipped(k)
         self._next_k = due + 1
         if self._stall is not None:
             if self.t < self._stall[1]:
+                self._skipped(due)
                 return
             self._stall = None
         self._sending, self._sending_k, self._offset = self._segment(due), due, 0
 
-    def _segment(self, k: int) -> bytes:
+    def _skipped(self, k: int) -> None:
+        """Segment ``k`` was not sent: the Lepton was off (stall, lost sync) or the host idle."""
         frame_k, position = divmod(k, SEGMENTS_PER_CYCLE)
+        if position >= vp.SEGMENTS_PER_FRAME:
+            return
+        truth = self._frame_truth(frame_k)
+        t = k / SEGMENT_RATE_HZ
+        if any(start <= t <= end for start, end in self._off):
+            truth.produced = False
+
+    def _frame_truth(self, frame_k: int) -> FrameTruth:
+        """The truth of unique frame ``frame_k + 1``, its segments made ready to send."""
         if frame_k != self._frame_k:
             rows = self.frame_source(frame_k + 1)
             self._segments = segments_of(rows)
-            image = rows[: tm.HEIGHT]
-            self.truth[frame_k + 1] = FrameTruth(frame_k + 1, digest(image))
+            due_s = frame_k * SEGMENTS_PER_CYCLE / SEGMENT_RATE_HZ
+            self.truth[frame_k + 1] = FrameTruth(frame_k + 1, digest(rows[: tm.HEIGHT]), due_s)
             self._frame_k = frame_k
+        return self.truth[frame_k + 1]
+
+    def _segment(self, k: int) -> bytes:
+        frame_k, position = divmod(k, SEGMENTS_PER_CYCLE)
+        self._frame_truth(frame_k)
         data = self._segments[position % vp.SEGMENTS_PER_FRAME]
         if position >= vp.SEGMENTS_PER_FRAME:
             data = invalid_segment(data)

@@ -34,7 +34,8 @@ class Outcome(Enum):
     NONE = 0  # taken, nothing completed
     SEGMENT = 1  # completed a segment (valid or invalid)
     FRAME = 2  # completed a frame: take it with `FrameAssembler.take`
-    BROKEN = 3  # out of order: what was being assembled is dropped
+    DROPPED = 3  # completed a segment out of order: the frame in progress is dropped
+    BROKEN = 4  # a packet out of order: what was being assembled is dropped
 
 
 @dataclass
@@ -130,21 +131,27 @@ class FrameAssembler:
         self._expect = -1 if wait else 0
         return Outcome.BROKEN
 
+    def _dropped(self) -> Outcome:
+        """A whole segment out of order: drop the frame in progress (sync is fine)."""
+        self.counts.out_of_order += 1
+        if self._segments:
+            self.counts.frames_dropped += 1
+        self._frame, self._segments = [], 0
+        return Outcome.DROPPED
+
     def _segment_done(self) -> Outcome:
         number, payloads = self._number, self._segment
         self._segment, self._number = [], 0
         if number == 0:
             self.counts.segments_invalid += 1
-            if self._segments:
-                return self._broken(wait=False)
-            return Outcome.SEGMENT
+            return self._dropped() if self._segments else Outcome.SEGMENT
         self.counts.segments_valid += 1
         if number == 1:
             if self._segments:
                 self.counts.frames_dropped += 1
             self._frame, self._segments = [], 0
         elif number != self._segments + 1 or number > SEGMENTS_PER_FRAME:
-            return self._broken(wait=False)
+            return self._dropped()
         self._frame.extend(payloads)
         self._segments += 1
         if self._segments < SEGMENTS_PER_FRAME:
