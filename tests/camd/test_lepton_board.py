@@ -2,7 +2,11 @@
 
 import io
 import json
+import re
+import subprocess
+import sys
 
+import httpx
 import numpy as np
 import pytest
 import tifffile
@@ -121,3 +125,38 @@ def test_vospi_record_names_a_missing_device(capsys, tmp_path):
     out = tmp_path / "x.vospi"
     assert cli.main(["vospi-record", "/dev/spidev7.7", "--out", str(out), "--frames", "3"]) == 1
     assert "/dev/spidev7.7: cannot open the Lepton's" in capsys.readouterr().err
+
+
+def test_the_daemon_serves_a_recording_given_with_vospi(recording, tmp_path):
+    """elphel-camd --board lepton --vospi FILE, as a process, answered over HTTP."""
+    path, stream = recording
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"replay_fps": 20}))
+    args = ["--board", "lepton", "--vospi", str(path), "--port", "0", "--token", TOKEN]
+    args += ["--state-dir", str(tmp_path), "--config", str(config)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "elphel_camd.cli", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        url = None
+        for line in proc.stderr:
+            found = re.search(r"listening on (http://[\d.]+:\d+)", line)
+            if found:
+                url = found.group(1)
+                break
+        assert url is not None, "the daemon did not start"
+        with httpx.Client(base_url=url, headers=AUTH, timeout=10) as http:
+            r = http.post("/api/v1/ports/0/capture")
+            assert r.status_code == 200, r.text
+            with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
+                image = tif.pages[0].asarray()
+                meta = json.loads(tif.pages[0].description)
+        assert digest(image) == stream.truth[meta["frame"]].digest
+        assert meta["telemetry"]["frame_counter"] == meta["frame"]
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+        proc.stderr.close()
