@@ -9,11 +9,11 @@ Two sets, x2, 16 frames, random 2-D offsets, noise sigma 0.01, no method told th
 - `field_varying`: the six photographs through a blur that grows with the squared
   distance from the centre, 0.4 HR px there to 1.2 HR px at the corners (the simulator's
   ``--lens-blur C:E`` model: the image blurred at five sigmas spanning the range,
-  interpolated per pixel). The default (one PSF estimated for the frame) against a PSF
-  estimated per region (``--psf-regions 3x3``; fewer on the coins and the text) and
-  against the lens's own PSFs given per region (a calibration: each cell gets the Gaussian
-  of the model's sigma at its centre, as a 4-D PSF file would give it). PSNR over the frame
-  and over its outer field (where the blur is 1.0 HR px or more).
+  interpolated per pixel). The default (one PSF estimated for the frame) against the
+  lens's own PSFs given per region (a calibration: 3x3 regions, fewer on the coins and
+  the text, each cell the Gaussian of the model's sigma at its centre, as a 4-D PSF file
+  would give it). PSNR over the frame and over its outer field (where the blur is 1.0 HR
+  px or more).
 """
 
 from __future__ import annotations
@@ -25,13 +25,15 @@ import cv2
 import numpy as np
 
 from elphel_host.mfsr.fuse import fuse_frames
+from elphel_host.mfsr.gaussian_psf import GaussianPsf
 from elphel_host.mfsr.metrics import psnr, ssim
+from elphel_host.mfsr.psf_spec import GivenGrid, NoBlur
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 
 SIGMA = 0.01
 BLURS = (0.5, 0.7, 1.0)
-NO_PSF = RobustConfig(estimate_psf=False)
+NO_PSF = RobustConfig(psf=NoBlur())
 #: The field-varying lens: sigma (HR px) on the axis and at the corners, and its levels.
 FIELD_BLUR = (0.4, 1.2)
 FIELD_LEVELS = 5
@@ -80,8 +82,11 @@ def blurred(makers: dict[str, Maker], seed: int) -> dict[str, Any]:
             res["robust_no_psf"] = fuse_frames(frames, scale=2, method="robust", config=NO_PSF)
             # a calibrated lens: the true blur given, its prior's tau cross-validated or not
             for m, cfg in (
-                ("robust_given", RobustConfig(blur_sigma=blur)),
-                ("robust_given_fixed_tau", RobustConfig(blur_sigma=blur, estimate_psf=False)),
+                ("robust_given", RobustConfig(psf=GaussianPsf.round(blur))),
+                (
+                    "robust_given_fixed_tau",
+                    RobustConfig(psf=GaussianPsf.round(blur), choose_tau=False),
+                ),
             ):
                 res[m] = fuse_frames(frames, scale=2, method="robust", config=cfg)
             r: dict[str, Any] = {
@@ -195,7 +200,7 @@ def field_psf_grid(shape: tuple[int, int], radius: int = 5) -> np.ndarray:
 
 
 def field_varying(names: tuple[str, ...], seed: int) -> dict[str, Any]:
-    """The photographs through the field-varying lens: one PSF, per region estimated or given."""
+    """The photographs through the field-varying lens: one PSF estimated, or given per region."""
     per: dict[str, Any] = {}
     for n_img, name in enumerate(names):
         hr = crop_to(load(name), 2)
@@ -206,8 +211,7 @@ def field_varying(names: tuple[str, ...], seed: int) -> dict[str, Any]:
         )
         configs = {
             "robust": RobustConfig(),
-            "robust_regions_estimated": RobustConfig(psf_regions=regions),
-            "robust_regions_given": RobustConfig(psf_grid=field_psf_grid(hr.shape)),
+            "robust_regions_given": RobustConfig(psf=GivenGrid(field_psf_grid(hr.shape))),
         }
         res = {m: fuse_frames(frames, scale=2, method=m) for m in ("bicubic", "baseline")}
         for m, cfg in configs.items():
@@ -222,10 +226,6 @@ def field_varying(names: tuple[str, ...], seed: int) -> dict[str, Any]:
                 "psnr_db": round(psnr(hr, v.image, data_range=1.0, border=8), 3),
                 "outer_psnr_db": round(float(-10 * np.log10(np.mean(err * err))), 3),
             }
-        cells = res["robust_regions_estimated"].info["psf"]["cells"]
-        row["regions_apparent_sigma_hr_px"] = [
-            [c.get("apparent_sigma_hr_px") for c in r] for r in cells
-        ]
         row["one_psf_apparent_sigma_hr_px"] = res["robust"].info["psf"]["apparent_sigma_hr_px"]
         per[name] = row
     return per
@@ -236,10 +236,10 @@ def summarise_field_varying(per: dict[str, Any]) -> dict[str, Any]:
         return [v[a][key] - v[b][key] for v in per.values()]
 
     out: dict[str, Any] = {"lens_sigma_hr_px": {"centre": FIELD_BLUR[0], "corner": FIELD_BLUR[1]}}
-    for m in ("robust", "robust_regions_estimated", "robust_regions_given"):
+    for m in ("robust", "robust_regions_given"):
         out[f"{m}_gain_over_bicubic_db_mean"] = mean_db(gains(m, "bicubic"))
         out[f"{m}_gain_over_baseline_db_min"] = round(float(np.min(gains(m, "baseline"))), 3)
-    for m in ("robust_regions_estimated", "robust_regions_given"):
+    for m in ("robust_regions_given",):
         out[f"{m}_minus_robust_db_mean"] = mean_db(gains(m, "robust"))
         out[f"{m}_minus_robust_db_min"] = round(float(np.min(gains(m, "robust"))), 3)
         out[f"{m}_minus_robust_outer_db_mean"] = mean_db(gains(m, "robust", "outer_psnr_db"))

@@ -40,6 +40,7 @@ from fastapi import FastAPI, Response
 from pydantic import BaseModel
 
 from elphel_host.camera.events import SSEParser as _SSEParser
+from elphel_sim.demo.rig import stop_child
 
 TOKEN = "bench-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -86,12 +87,7 @@ def daemon(state: Path, **settings: Any) -> Iterator[str]:
     try:
         yield wait_for_line(proc, log, "listening on ")
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_child(proc)
 
 
 @contextmanager

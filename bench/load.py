@@ -45,7 +45,6 @@ import json
 import os
 import random
 import resource
-import signal
 import socket
 import subprocess
 import sys
@@ -61,6 +60,7 @@ from typing import Any
 from _http import Answer, Connection, TransportError  # bench/_http.py
 
 from elphel_host.camera.events import SSEParser
+from elphel_sim.demo.rig import stop_child
 
 TOKEN = "load-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -106,12 +106,7 @@ def daemon(state: Path, event_queue: int = 256) -> Iterator[tuple[str, int]]:
             raise RuntimeError(f"the daemon must listen on loopback, not {url}")
         yield url, proc.pid
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_child(proc)
 
 
 def http_stack(log: Path) -> str:

@@ -13,8 +13,8 @@ the estimate and its error are reported), robust_no_psf the pixel aperture alone
 (``--psf none``, the robust method before the blur estimate), both with bicubic and
 baseline in the same run; the blur-free bursts report robust_no_psf as well.
 Field-varying blur: the photographs through a lens blurring 0.4 HR px on the axis to 1.2
-at the corners; one PSF estimated (the default) against one per region, estimated
-(``--psf-regions 3x3``) or given (the lens's own, as a 4-D PSF file); see _mfsr_optics.py.
+at the corners; one PSF estimated (the default) against one per region given (the lens's
+own, as a 4-D PSF file); see _mfsr_optics.py.
 The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
 (peak memory = that process's max RSS, including the frames it loads), each method twice
 in turns, the faster run reported.

@@ -26,7 +26,7 @@ import skimage.data
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.synth import make_burst, random_shifts
-from elphel_sim.demo_report import burst_crops, comparison_picture
+from elphel_sim.demo.report import burst_crops, comparison_picture
 
 # bench/mfsr.py: IMAGES order, seed, noise
 BENCH_IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")

@@ -5,8 +5,6 @@
 # preset is described in the board's JSON config instead of new code. Results are
 # integer micrometres, rounded half away from zero; negative zero decodes to 0.
 
-INCH_UM_NUM = 25400  # 1 in = 25400 um
-
 
 class CaliperDecodeError(ValueError):
     pass

@@ -17,6 +17,10 @@ ALARM = "ALARM"
 ALARM_LIMIT = 1       # a limit switch closed during a move
 ALARM_HOME_FAIL = 2   # homing found no switch within the travel
 
+# commands handled by StageApp._setting and StageApp._caliper
+SETTINGS = ("POS", "LIM?", "LIM", "SPEED?", "SPEED")
+CALIPER = ("CAL?", "CALZERO", "CALPWR")
+
 
 class StageApp:
     def __init__(self, cfg, hw):
@@ -229,6 +233,14 @@ class StageApp:
             self.origin = self.pos
             self.target = self.pos
             return proto.ok(kw)
+        if kw in SETTINGS:
+            return self._setting(kw, args)
+        if kw in CALIPER:
+            return self._caliper(kw, args)
+        raise proto.ProtocolError(1, "command %s has no handler" % kw, kw)
+
+    def _setting(self, kw, args):
+        """POS, LIM?, LIM, SPEED? and SPEED: the position, soft limits and speed."""
         if kw == "POS":
             self._need_idle(kw)
             self.pos = args[0] + self.origin
@@ -250,14 +262,18 @@ class StageApp:
             return proto.ok(kw, "%d %d" % (args[0], args[1]))
         if kw == "SPEED?":
             return proto.ok(kw, "%d %d" % (self.max_hz, self.accel))
-        if kw == "SPEED":
-            cap = self.cfg["max_hz_cap"]
-            if not self.cfg["start_hz"] <= args[0] <= cap or not 1 <= args[1] <= 1000000:
-                raise proto.ProtocolError(2, "speed %d Hz accel %d Hz/s; allowed %d..%d Hz, 1..1000000 Hz/s"
-                                          % (args[0], args[1], self.cfg["start_hz"], cap), kw)
-            self._need_idle(kw)
-            self.max_hz, self.accel = args[0], args[1]
-            return proto.ok(kw, "%d %d" % (args[0], args[1]))
+        # SPEED: the last of SETTINGS
+        cap = self.cfg["max_hz_cap"]
+        if not self.cfg["start_hz"] <= args[0] <= cap or not 1 <= args[1] <= 1000000:
+            raise proto.ProtocolError(2, "speed %d Hz accel %d Hz/s; allowed %d..%d Hz, 1..1000000 Hz/s"
+                                      % (args[0], args[1], self.cfg["start_hz"], cap), kw)
+        self._need_idle(kw)
+        self.max_hz, self.accel = args[0], args[1]
+        return proto.ok(kw, "%d %d" % (args[0], args[1]))
+
+    def _caliper(self, kw, args):
+        """CAL?, CALZERO and CALPWR: read, zero and power the caliper."""
+        hw = self.hw
         if kw == "CAL?":
             self._need_idle(kw)
             try:
@@ -272,10 +288,9 @@ class StageApp:
             except CaliperError as e:
                 raise proto.ProtocolError(e.code, e.text, kw)
             return proto.ok(kw)
-        if kw == "CALPWR":
-            hw.caliper.set_power(args[0])
-            return proto.ok(kw, str(args[0]))
-        raise proto.ProtocolError(1, "command %s has no handler" % kw, kw)
+        # CALPWR: the last of CALIPER
+        hw.caliper.set_power(args[0])
+        return proto.ok(kw, str(args[0]))
 
     def handle_line(self, line):
         """One request line in, one reply line out (sealed if the request was)."""
@@ -287,6 +302,14 @@ class StageApp:
             reply = proto.err(e.keyword, e.code, e.text)
             sealed = sealed or e.sealed
         return proto.seal(reply) if sealed else reply
+
+    def answers(self, framer, data):
+        """The reply to each request line that ``data`` completes in ``framer``."""
+        for item in framer.feed(data):
+            if isinstance(item, proto.ProtocolError):
+                yield proto.err("?", item.code, item.text)
+            elif item:
+                yield self.handle_line(item)
 
     def idle_caliper(self):
         """Background caliper reading while the motor is idle, every poll_ms."""

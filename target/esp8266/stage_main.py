@@ -91,6 +91,108 @@ def start_wifi(cfg):
     return sta
 
 
+def open_server(cfg):
+    """The TCP server socket (non-blocking, one client at a time) after starting WiFi."""
+    start_wifi(cfg)
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    server.bind(socket.getaddrinfo("0.0.0.0", cfg["tcp"]["port"])[0][-1])
+    server.listen(1)
+    server.setblocking(False)
+    return server
+
+
+class Links:
+    """The UART and at most one TCP client: polled, framed, answered, pushed to."""
+
+    def __init__(self, cfg, app, hw):
+        self.app = app
+        self.hw = hw
+        self.uart = machine.UART(cfg["uart"]["id"], cfg["uart"]["baud"])
+        if cfg["uart"]["detach_repl"]:
+            os.dupterm(None, 1)
+        self.poller = select.poll()
+        self.poller.register(self.uart, select.POLLIN)
+        self.uart_ch = Channel("uart", self.uart_write, app)
+        self.channels = [self.uart_ch]
+        self.server = None
+        self.client = None
+        self.client_ch = None
+        if cfg["tcp"]["enable"]:
+            self.server = open_server(cfg)
+            self.poller.register(self.server, select.POLLIN)
+
+    def uart_write(self, line):
+        self.uart.write(line + "\n")
+
+    def push(self, line):
+        for ch in self.channels:
+            ch.write(line)
+
+    def drop_client(self):
+        if self.client is not None:
+            self.poller.unregister(self.client)
+            self.client.close()
+            self.channels.remove(self.client_ch)
+        self.client = None
+        self.client_ch = None
+
+    def client_write(self, line):
+        data = (line + "\n").encode()
+        sent = 0
+        tries = 0
+        while sent < len(data) and self.client is not None:
+            try:
+                n = self.client.send(data[sent:])
+            except OSError:
+                n = 0
+                tries += 1
+                if tries > 50:
+                    self.drop_client()
+                    return
+                time.sleep_ms(2)
+            sent += n or 0
+
+    def handle_bytes(self, ch, data):
+        for reply in self.app.answers(ch.framer, data):
+            ch.write(reply)
+
+    def accept(self):
+        try:
+            sock, _addr = self.server.accept()
+        except OSError:
+            return
+        self.drop_client()   # a new connection replaces a stale one
+        self.client = sock
+        sock.setblocking(False)
+        self.poller.register(sock, select.POLLIN)
+        self.client_ch = Channel("tcp", self.client_write, self.app)
+        self.channels.append(self.client_ch)
+        self.client_write(banner(self.hw))
+
+    def receive(self):
+        try:
+            data = self.client.recv(128)
+        except OSError:
+            return
+        if not data:
+            self.drop_client()
+            return
+        self.handle_bytes(self.client_ch, data)
+
+    def poll(self, timeout_ms):
+        """Wait up to timeout_ms for bytes or a connection, and handle what came."""
+        for obj, _ in self.poller.poll(timeout_ms):
+            if obj is self.uart:
+                data = self.uart.read(64)
+                if data:
+                    self.handle_bytes(self.uart_ch, data)
+            elif obj is self.server:
+                self.accept()
+            elif self.client is not None and obj is self.client:
+                self.receive()
+
+
 def run(config_path=stage_config.CONFIG_FILE):
     cfg = stage_config.load(config_path)
     wdt = machine.WDT() if cfg["watchdog"] else None
@@ -101,72 +203,9 @@ def run(config_path=stage_config.CONFIG_FILE):
 
     hw = Hardware(cfg, feed)
     app = StageApp(cfg, hw)
-    uart = machine.UART(cfg["uart"]["id"], cfg["uart"]["baud"])
-    if cfg["uart"]["detach_repl"]:
-        os.dupterm(None, 1)
-    poller = select.poll()
-    poller.register(uart, select.POLLIN)
-    channels = []
-
-    def uart_write(line):
-        uart.write(line + "\n")
-
-    uart_ch = Channel("uart", uart_write, app)
-    channels.append(uart_ch)
-    server = None
-    client = None
-    client_ch = None
-    if cfg["tcp"]["enable"]:
-        start_wifi(cfg)
-        server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        server.bind(socket.getaddrinfo("0.0.0.0", cfg["tcp"]["port"])[0][-1])
-        server.listen(1)
-        server.setblocking(False)
-        poller.register(server, select.POLLIN)
-
-    def push(line):
-        for ch in channels:
-            ch.write(line)
-
-    app.push = push
-    uart_write(banner(hw))
-
-    def drop_client():
-        nonlocal client, client_ch
-        if client is not None:
-            poller.unregister(client)
-            client.close()
-            channels.remove(client_ch)
-        client = None
-        client_ch = None
-
-    def client_write(line):
-        data = (line + "\n").encode()
-        sent = 0
-        tries = 0
-        while sent < len(data) and client is not None:
-            try:
-                n = client.send(data[sent:])
-            except OSError:
-                n = 0
-                tries += 1
-                if tries > 50:
-                    drop_client()
-                    return
-                time.sleep_ms(2)
-            sent += n or 0
-
-    def handle_bytes(ch, data):
-        for item in ch.framer.feed(data):
-            if isinstance(item, proto.ProtocolError):
-                reply = proto.err("?", item.code, item.text)
-            elif not item:
-                continue
-            else:
-                reply = app.handle_line(item)
-            ch.write(reply)
-
+    links = Links(cfg, app, hw)
+    app.push = links.push
+    links.uart_write(banner(hw))
     while True:
         feed()
         wait_us = app.service()
@@ -175,29 +214,4 @@ def run(config_path=stage_config.CONFIG_FILE):
             timeout_ms = 20
         else:
             timeout_ms = 0 if wait_us < 2000 else 1
-        for obj, _ in poller.poll(timeout_ms):
-            if obj is uart:
-                data = uart.read(64)
-                if data:
-                    handle_bytes(uart_ch, data)
-            elif obj is server:
-                try:
-                    sock, _addr = server.accept()
-                except OSError:
-                    continue
-                drop_client()   # a new connection replaces a stale one
-                client = sock
-                client.setblocking(False)
-                poller.register(client, select.POLLIN)
-                client_ch = Channel("tcp", client_write, app)
-                channels.append(client_ch)
-                client_write(banner(hw))
-            elif client is not None and obj is client:
-                try:
-                    data = client.recv(128)
-                except OSError:
-                    continue
-                if not data:
-                    drop_client()
-                    continue
-                handle_bytes(client_ch, data)
+        links.poll(timeout_ms)

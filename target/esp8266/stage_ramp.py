@@ -1,9 +1,9 @@
 # Step timing with a constant-acceleration ramp: pure integer logic.
 #
 # The interval before step i (0-based) of an n-step move depends only on how far that
-# step is from the nearer end of the move, so the planner keeps no state and a stop
-# can be planned from any step. Speed after k steps from rest-speed v0 with
-# acceleration a is sqrt(v0^2 + 2 a k) (steps/s), capped at v_max.
+# step is from the nearer end of the move, so the planner keeps no state. Speed after k
+# steps from rest-speed v0 with acceleration a is sqrt(v0^2 + 2 a k) (steps/s), capped at
+# v_max.
 
 
 def isqrt(n):
@@ -47,14 +47,3 @@ class RampPlan:
 
     def interval_us(self, i):
         return 1000000 // self.rate_hz(i)
-
-    def total_us(self):
-        t = 0
-        for i in range(self.n_steps):
-            t += self.interval_us(i)
-        return t
-
-    def stop_steps(self, i):
-        """Steps needed to decelerate to the start rate from step i (for planned stops)."""
-        v = self.rate_hz(i)
-        return (v * v - self.start_hz * self.start_hz) // (2 * self.accel)

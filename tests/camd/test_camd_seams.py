@@ -16,7 +16,7 @@ from elphel_camd.api.deps import ApiOptions
 from elphel_camd.boards import ENTRY_POINT_GROUP, Frame, I2CBoard, board_factories
 from elphel_camd.frame_metadata import bayer_after_flips, frame_metadata
 from elphel_camd.service import CameraService
-from elphel_sim.board import SimBoard
+from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import build
 
 # method, path, route function, statuses: as the API had them before the routers were split,
@@ -48,7 +48,7 @@ ROUTES = [
 
 @pytest.fixture(scope="module")
 def service():
-    svc = CameraService(SimBoard(build("default", seed=2), seed=2, noise=False))
+    svc = CameraService(SimCameraBoard(build("default", seed=2), seed=2, noise=False))
     yield svc
     svc.close()
 
@@ -84,8 +84,8 @@ def test_the_service_and_options_reach_the_routes_through_app_state(service):
 
 
 def test_two_apps_keep_their_own_service_and_token():
-    first = CameraService(SimBoard(build("default", seed=1), seed=1, noise=False))
-    second = CameraService(SimBoard(build("default", seed=1), seed=1, noise=False))
+    first = CameraService(SimCameraBoard(build("default", seed=1), seed=1, noise=False))
+    second = CameraService(SimCameraBoard(build("default", seed=1), seed=1, noise=False))
     try:
         a = TestClient(create_app(first, token="a"))
         b = TestClient(create_app(second, token="b"))

@@ -107,13 +107,7 @@ class Session:
         self.out = bytearray()
 
     def send(self, data: bytes) -> bytes:
-        for item in self.framer.feed(data):
-            if isinstance(item, proto.ProtocolError):
-                reply = proto.err("?", item.code, item.text)
-            elif not item:
-                continue
-            else:
-                reply = self.app.handle_line(item)
+        for reply in self.app.answers(self.framer, data):
             self.out.extend(reply.encode() + b"\n")
         got, self.out = bytes(self.out), bytearray()
         return got

@@ -107,7 +107,7 @@ def test_cli_watch_prints_frames_and_changes(rig):
     watcher = subprocess.Popen(
         [
             *(sys.executable, "-m", "elphel_host.cli", "camera", "watch"),
-            *("--types", "params", "--count", "1", "--url", rig["ELPHEL_CAMERA_URL"]),
+            *("--types", "params", "--count", "1", "--camera", rig["ELPHEL_CAMERA_URL"]),
             *("--token", rig["ELPHEL_CAMERA_TOKEN"]),  # reads need it too
         ],
         stdout=subprocess.PIPE,

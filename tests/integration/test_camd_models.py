@@ -39,14 +39,14 @@ def test_every_sensor_model_end_to_end(mixed_rig, tmp_path):
             # capture command starts.
             window = ["WOI_WIDTH=128", "WOI_HEIGHT=96", "WOI_LEFT=512", "WOI_TOP=384"]
             r = run_cli(
-                *("camera", "set", "--port", str(port), *window, "EXPOS=150000", "--json"),
+                *("camera", "set", "--sensor-port", str(port), *window, "EXPOS=150000", "--json"),
                 env=mixed_rig,
             )
             assert r.returncode == 0, r.stderr
             start = ["--frame", str(json.loads(r.stdout)["frame"])]
         out = tmp_path / f"port{port}.tif"
         r = run_cli(
-            *("camera", "capture", "--port", str(port), "--count", "2", *start),
+            *("camera", "capture", "--sensor-port", str(port), "--count", "2", *start),
             *("--out", str(out)),
             "--json",
             env=mixed_rig,

@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import pytest
 
-from elphel_sim.demo_depth import first_set
+from elphel_sim.demo.depth import first_set
 
 from .rig import run_cli, running_rig
 

@@ -15,7 +15,7 @@ import tifffile
 
 from elphel_host.burst.io import read_burst
 from elphel_host.camera import connect
-from elphel_host.tp.io import read_dsi
+from elphel_host.tp.dsi import read_dsi
 
 from .rig import run_cli, running_rig
 

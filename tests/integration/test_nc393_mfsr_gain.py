@@ -18,8 +18,8 @@ import numpy as np
 import tifffile
 
 from elphel_host.camera import connect
-from elphel_sim.demo_report import reference_image
-from elphel_sim.demo_rig import read_frame_metadata
+from elphel_sim.demo.report import reference_image
+from elphel_sim.demo.rig import read_frame_metadata
 
 from .rig import run_cli, start_rig, stop_rig
 

@@ -20,7 +20,7 @@ import uvicorn
 from elphel_camd.api import create_app
 from elphel_camd.service import CameraService
 from elphel_host.camera import CameraClient
-from elphel_host.tp.io import read_dsi
+from elphel_host.tp.dsi import read_dsi
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.launcher import bind_loopback
 from elphel_sim.scenarios import build

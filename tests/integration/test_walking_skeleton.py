@@ -17,7 +17,7 @@ def test_announcement_names_the_services(sim_rig):
 
 def test_camera_info_json_reports_sensor_read_over_i2c(sim_rig):
     r = run_cli(
-        "camera", "info", "--url", sim_rig["camera_url"], "--token", sim_rig["token"], "--json"
+        "camera", "info", "--camera", sim_rig["camera_url"], "--token", sim_rig["token"], "--json"
     )
     assert r.returncode == 0, r.stderr
     info = json.loads(r.stdout)  # exactly one JSON object
@@ -42,7 +42,7 @@ def test_camera_capture_writes_16bit_tiff_and_preview(sim_rig, tmp_path):
 
 def test_capture_without_token_fails_with_one_line_error(sim_rig, tmp_path):
     r = run_cli(
-        "camera", "capture", "--url", sim_rig["camera_url"], "--out", str(tmp_path / "x.tif")
+        "camera", "capture", "--camera", sim_rig["camera_url"], "--out", str(tmp_path / "x.tif")
     )
     assert r.returncode == 1
     assert r.stdout == ""
@@ -51,7 +51,7 @@ def test_capture_without_token_fails_with_one_line_error(sim_rig, tmp_path):
 
 
 def test_unreachable_camera_is_a_clear_error():
-    r = run_cli("camera", "info", "--url", "http://127.0.0.1:9")
+    r = run_cli("camera", "info", "--camera", "http://127.0.0.1:9")
     assert r.returncode == 1
     assert "cannot reach the camera" in r.stderr
 

@@ -16,8 +16,11 @@ from pathlib import Path
 import pytest
 
 from elphel_host.progress import ProgressLine
-from elphel_sim import demo, demo_burst, demo_depth, demo_rig
-from elphel_sim.demo_rig import DemoError, DemoProgress, elphel, step
+from elphel_sim.demo import burst as demo_burst
+from elphel_sim.demo import depth as demo_depth
+from elphel_sim.demo import rig as demo_rig
+from elphel_sim.demo import run as demo
+from elphel_sim.demo.rig import DemoError, DemoProgress, elphel, step
 from tests.host.jp4.test_convert import record
 
 ANSI = re.compile(r"\x1b\[[0-9;]*m")

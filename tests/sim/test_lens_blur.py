@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from elphel_camd.service import CameraService
+from elphel_host.mfsr.gaussian_psf import GaussianPsf
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.cli import build_parser
 from elphel_sim.render import Intrinsics, LensBlur, blurred_strips, render_strips
@@ -13,6 +14,10 @@ from elphel_sim.world import Plane, Pose, Scene, Texture, World
 INTRINSICS = Intrinsics(focal_length_mm=4.5, pixel_pitch_um=2.2, width=640, height=480)
 TIMES = np.zeros(1)
 WINDOW = {"WOI_WIDTH": 96, "WOI_HEIGHT": 64, "WOI_LEFT": 1200, "WOI_TOP": 900, "EXPOS": 20000}
+
+
+def _psf(sigma_px: float) -> GaussianPsf:
+    return GaussianPsf.round(sigma_px)
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +33,7 @@ def strips(world: World, window, sigma: float, edge: float | None = None) -> np.
         Pose.at((0.0, 0.0, 0.0)),
         window=window,
         times_s=TIMES,
-        blur=LensBlur(sigma, edge),
+        blur=LensBlur(_psf(sigma), None if edge is None else _psf(edge)),
     )
 
 
@@ -60,7 +65,7 @@ def test_the_blur_has_the_gaussian_transfer(world):
 
 @pytest.mark.parametrize("forming", ["thread", "process"])
 def test_the_board_forms_blurred_frames(forming):
-    sharp, soft = (build("default", seed=2, lens_blur=LensBlur(b)) for b in (0.0, 1.5))
+    sharp, soft = (build("default", seed=2, lens_blur=LensBlur(_psf(b))) for b in (0.0, 1.5))
     assert [p.lens_blur.centre_px for p in soft.ports] == [1.5]
     assert sharp.ports[0].lens_blur == LensBlur()
     images = []
@@ -98,10 +103,10 @@ def test_a_blur_that_grows_towards_the_corners(world):
 
 def test_cli_checks_the_blur():
     parse = build_parser().parse_args
-    assert parse(["up", "--lens-blur", "0.35"]).lens_blur == LensBlur(0.35)
-    assert parse(["up", "--lens-blur", "0.3:0.9"]).lens_blur == LensBlur(0.3, 0.9)
+    assert parse(["up", "--lens-blur", "0.35"]).lens_blur == LensBlur(_psf(0.35))
+    assert parse(["up", "--lens-blur", "0.3:0.9"]).lens_blur == LensBlur(_psf(0.3), _psf(0.9))
     for bad in ("-1", "6", "nan", "x", "0.3:9", "1:2:3"):
         with pytest.raises(SystemExit):
             parse(["up", "--lens-blur", bad])
     with pytest.raises(ValueError, match="lens blur"):
-        build("default", seed=0, lens_blur=LensBlur(9.0))
+        build("default", seed=0, lens_blur=LensBlur(_psf(9.0)))

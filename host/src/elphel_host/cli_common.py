@@ -2,8 +2,7 @@
 
 The option helpers give one spelling per idea across subcommands: ``--camera`` for a
 camera URL, ``--stage`` for a stage URL, ``--sensor-port`` for a sensor port of the
-camera. Older spellings (``--url``, ``--port``) stay accepted as aliases so scripts keep
-working; they set the same value.
+camera (``--port`` is only ever a TCP port).
 """
 
 from __future__ import annotations
@@ -40,30 +39,21 @@ def add_json_option(parser: Any) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _alias_note(aliases: tuple[str, ...]) -> str:
-    return f"; {', '.join(aliases)} is the older spelling" if aliases else ""
-
-
-def _add_url_option(parser: Any, flag: str, aliases: tuple[str, ...], env: str, what: str) -> None:
+def _add_url_option(parser: Any, flag: str, env: str, what: str) -> None:
     parser.add_argument(
         flag,
-        *aliases,
         dest=flag.removeprefix("--"),
         default=os.environ.get(env),
         metavar="URL",
-        help=f"{what} (env {env}{_alias_note(aliases)})",
+        help=f"{what} (env {env})",
     )
 
 
-def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
-    """``--camera URL`` and ``--token T``, defaulting to ELPHEL_CAMERA_URL / _TOKEN.
-
-    ``aliases`` are older spellings of ``--camera`` kept for scripts (``--url``).
-    """
+def add_camera_options(parser: Any) -> None:
+    """``--camera URL`` and ``--token T``, defaulting to ELPHEL_CAMERA_URL / _TOKEN."""
     _add_url_option(
         parser,
         "--camera",
-        aliases,
         CAMERA_URL_ENV,
         "camera URL: http://HOST:PORT (elphel-camd) or nc393://HOST[:PORT][?imgsrv=BASE] "
         "(a stock NC393)",
@@ -75,9 +65,9 @@ def add_camera_options(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
     )
 
 
-def add_stage_option(parser: Any, *, aliases: tuple[str, ...] = ()) -> None:
+def add_stage_option(parser: Any) -> None:
     """``--stage URL`` (a pyserial URL), defaulting to ELPHEL_STAGE_URL."""
-    _add_url_option(parser, "--stage", aliases, STAGE_URL_ENV, "pyserial URL of the stage")
+    _add_url_option(parser, "--stage", STAGE_URL_ENV, "pyserial URL of the stage")
 
 
 def add_stage_model_option(parser: Any, *, help: str = "stage calibration file") -> None:
@@ -86,14 +76,12 @@ def add_stage_model_option(parser: Any, *, help: str = "stage calibration file")
 
 
 def add_sensor_port_option(parser: Any, *, default: int | None = 0, help: str = "") -> None:
-    """``--sensor-port N`` (``--port N`` is the older spelling), a port of the camera."""
+    """``--sensor-port N``, a sensor port of the camera."""
     parser.add_argument(
         "--sensor-port",
-        "--port",
         dest="sensor_port",
         type=int,
         default=default,
         metavar="N",
-        help=(help or f"sensor port of the camera (default {default})")
-        + "; --port is the older spelling",
+        help=help or f"sensor port of the camera (default {default})",
     )

@@ -381,10 +381,6 @@ class SimCameraBoard:
             self._clock = None
 
 
-# Deprecated alias: the camera board's old name (it collided with the ESP8266's board).
-SimBoard = SimCameraBoard
-
-
 def make_sim_board(
     *, scenario: str = "default", seed: int = 0, noise: bool = True
 ) -> SimCameraBoard:

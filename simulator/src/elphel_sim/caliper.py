@@ -45,48 +45,63 @@ def encode_frame(
         frame = _sm_field(count, mag_bits, 20, neg and (count != 0 or negative_zero))
         return frame | ((1 << 23) if inch else 0), 24
     if fmt == "sylvac48":
-        counts = round(value_mm / INCH_MM * 20480)
-        word2 = -counts  # the second word carries the negated display value
-        mask = (1 << 24) - 1
-        if sign_mode == "ones":
-            w2 = (~(-word2)) & mask if word2 < 0 else word2
-            if negative_zero:
-                w2 = mask
-        elif sign_mode == "sm":
-            w2 = _sm_field(word2, 23, 23, word2 < 0 or negative_zero)
-        else:
-            w2 = word2 & mask
-        w1 = (counts + 123456) & mask  # absolute since power-on: unrelated offset
-        return w1 | (w2 << 24), 48
+        return _sylvac48_frame(value_mm, sign_mode=sign_mode, negative_zero=negative_zero), 48
     if fmt == "bcd7":
-        if inch:
-            halves = round(abs(value_mm) / INCH_MM * 2000)
-            digits, half = divmod(halves, 2)
-        else:
-            digits, half = round(abs(value_mm) * 100), 0
-        frame = 0
-        for i in range(6):
-            frame |= ((digits // 10**i) % 10) << (4 * i)
-        frame |= (1 << 24) if neg else 0
-        frame |= (1 << 25) if half else 0
-        frame |= 0 if inch else (1 << 27)
-        return frame, 28
+        return _bcd7_frame(value_mm, inch=inch, negative=neg), 28
     if fmt == "igaging21":
         counts = round(value_mm / INCH_MM * 2560)
         return counts & ((1 << 21) - 1), 21
     if fmt == "digimatic":
-        if inch:
-            digits, point, unit = round(abs(value_mm) / INCH_MM * 100000), 5, 1
-        else:
-            digits, point, unit = round(abs(value_mm) * 1000), 3, 0
-        nibbles = [0xF] * 4 + [8 if neg else 0]
-        nibbles += [(digits // 10**i) % 10 for i in range(5, -1, -1)]
-        nibbles += [point, unit]
-        frame = 0
-        for i, n in enumerate(nibbles):
-            frame |= n << (4 * i)
-        return frame, 52
+        return _digimatic_frame(value_mm, inch=inch, negative=neg), 52
     raise ValueError(f"caliper format {fmt!r} unknown")
+
+
+def _sylvac48_frame(value_mm: float, *, sign_mode: str, negative_zero: bool) -> int:
+    """Two 24-bit words: counts since power-on, then the negated display value."""
+    counts = round(value_mm / INCH_MM * 20480)
+    word2 = -counts  # the second word carries the negated display value
+    mask = (1 << 24) - 1
+    if sign_mode == "ones":
+        w2 = (~(-word2)) & mask if word2 < 0 else word2
+        if negative_zero:
+            w2 = mask
+    elif sign_mode == "sm":
+        w2 = _sm_field(word2, 23, 23, word2 < 0 or negative_zero)
+    else:
+        w2 = word2 & mask
+    w1 = (counts + 123456) & mask  # absolute since power-on: unrelated offset
+    return w1 | (w2 << 24)
+
+
+def _bcd7_frame(value_mm: float, *, inch: bool, negative: bool) -> int:
+    """Six BCD digits LSD first, then the sign, half-digit and unit flags."""
+    if inch:
+        halves = round(abs(value_mm) / INCH_MM * 2000)
+        digits, half = divmod(halves, 2)
+    else:
+        digits, half = round(abs(value_mm) * 100), 0
+    frame = 0
+    for i in range(6):
+        frame |= ((digits // 10**i) % 10) << (4 * i)
+    frame |= (1 << 24) if negative else 0
+    frame |= (1 << 25) if half else 0
+    frame |= 0 if inch else (1 << 27)
+    return frame
+
+
+def _digimatic_frame(value_mm: float, *, inch: bool, negative: bool) -> int:
+    """13 nibbles: header 0xF x4, sign, six digits MSD first, decimal point, unit."""
+    if inch:
+        digits, point, unit = round(abs(value_mm) / INCH_MM * 100000), 5, 1
+    else:
+        digits, point, unit = round(abs(value_mm) * 1000), 3, 0
+    nibbles = [0xF] * 4 + [8 if negative else 0]
+    nibbles += [(digits // 10**i) % 10 for i in range(5, -1, -1)]
+    nibbles += [point, unit]
+    frame = 0
+    for i, n in enumerate(nibbles):
+        frame |= n << (4 * i)
+    return frame
 
 
 FORMAT_CLOCK = {

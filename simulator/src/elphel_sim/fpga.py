@@ -78,9 +78,7 @@ class FrameRecord:
     def strip_times_s(self) -> FloatArray:
         """Start time of each strip of the frame (one entry for a normal frame)."""
         strips = max(self.strips, 1)
-        times: FloatArray = self.start_s + self.strip_period_s * np.arange(
-            strips, dtype=np.float64
-        )
+        times: FloatArray = self.start_s + self.strip_period_s * np.arange(strips, dtype=np.float64)
         return times
 
 

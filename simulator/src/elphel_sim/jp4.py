@@ -206,44 +206,77 @@ def encode_jp4(
     binning: tuple[int, int] = (1, 1),
     model: str = "NC393",
 ) -> bytes:
-    """Compress one read-out Bayer frame the way a stock NC393 does.
+    """Compress one read-out Bayer frame into the JPEG file a stock NC393's imgsrv serves.
 
     Parameters
     ----------
     mosaic
-        The frame as the sensor read it out (flips already applied), (H, W) unsigned
-        integers of ``bits`` significant bits.
-    bits
-        Sample depth of ``mosaic`` (8..16); samples are scaled to 16 bits before the
-        gamma table (the table's index 256 is full scale).
-    frame, timestamp_ns, port, exposure_us
+        The frame as the sensor read it out (flips applied), (H, W) unsigned integers of
+        ``bits`` (8..16) significant bits, scaled to 16 bits before the gamma table.
+    frame, timestamp_ns, port, exposure_us, model
         Exif ImageNumber, DateTimeOriginal + SubSecTimeOriginal (UTC, microseconds),
-        PageNumber and ExposureTime.
-    color_mode
-        5 JP4, 2 JP46, 0 mono (greyscale JPEG of the gamma-coded frame as it is).
-    quality
-        JPEG quality 1..100 (also in MakerNote word 13).
+        PageNumber, ExposureTime and Model.
+    color_mode, quality
+        5 JP4, 2 JP46, 0 mono (greyscale JPEG of the gamma-coded frame as it is); JPEG
+        quality 1..100 (also in MakerNote word 13).
     gamma, black, gamma_scale
         Each one value or four (channels R, Gr, Gb, B): gamma in steps of 0.01
         (0.13..2.55), black level in steps of 1/256 of full scale (0..255/256), gamma
         scale with 0x400 = 1.0.
-    gains
-        GAINR, GAING, GAINGB, GAINB (16.16): recorded in the MakerNote only (the sensor
-        applied them before the frame was read out).
     flips, bayer_mode
         (FLIPH, FLIPV) and BAYER_MODE: which gamma channel each site of the cell uses
         (G R / B G unflipped), and recorded in the MakerNote.
-    woi
-        (WOI_LEFT, WOI_TOP, WOI_WIDTH, WOI_HEIGHT); default (0, 0, W, H).
-    decimation, binning
-        (DCM_HOR, DCM_VERT) and (BIN_HOR, BIN_VERT), 1..15, recorded in the MakerNote.
-    model
-        Exif Model.
+    gains, woi, decimation, binning
+        Recorded in the MakerNote only: GAINR, GAING, GAINGB, GAINB (16.16, applied by
+        the sensor); (WOI_LEFT, WOI_TOP, WOI_WIDTH, WOI_HEIGHT), default (0, 0, W, H);
+        (DCM_HOR, DCM_VERT) and (BIN_HOR, BIN_VERT), 1..15.
 
-    Returns
-    -------
-    bytes
-        The JPEG file as imgsrv would serve it.
+    Raises
+    ------
+    ValueError
+        Shape, depth or a value outside what the MakerNote can hold.
+    """
+    gammas, blacks, scales = check_encoding(
+        mosaic, bits, color_mode, quality, gamma=gamma, black=black, gamma_scale=gamma_scale
+    )
+    sites = site_channels(*flips, bayer_mode)
+    codes = gamma_codes(mosaic, bits, list(zip(gammas, blacks, scales, strict=True)), sites)
+    note = maker_note(
+        gains=gains,
+        gamma=gammas,
+        black=blacks,
+        gamma_scale=scales,
+        woi=woi or (0, 0, mosaic.shape[1], mosaic.shape[0]),
+        flips=flips,
+        bayer_mode=bayer_mode,
+        color_mode=color_mode,
+        quality=quality,
+        decimation=decimation,
+        binning=binning,
+    )
+    app1 = exif_block(
+        frame=frame,
+        port=port,
+        timestamp_ns=timestamp_ns,
+        exposure_us=exposure_us,
+        maker_note=note,
+        model=model,
+    )
+    jpeg = jpeg_bytes(rearrange(codes, color_mode), quality)
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+
+
+def check_encoding(
+    mosaic: NDArray[np.uint16],
+    bits: int,
+    color_mode: int,
+    quality: int,
+    *,
+    gamma: float | Sequence[float],
+    black: float | Sequence[float],
+    gamma_scale: int | Sequence[int],
+) -> tuple[tuple[float, ...], tuple[float, ...], tuple[int, ...]]:
+    """Check `encode_jp4`'s frame and settings; return gamma, black and scale per channel.
 
     Raises
     ------
@@ -271,40 +304,32 @@ def encode_jp4(
     for s in scales:
         if not 0 < s <= 0xFFFF:
             raise ValueError(f"gamma_scale={s:#x}; allowed: 1..0xffff (0x400 = 1.0)")
-    # The camera's table is built from the MakerNote's quantised values.
+    return gammas, blacks, scales
+
+
+def gamma_codes(
+    mosaic: NDArray[np.uint16],
+    bits: int,
+    curves: Sequence[tuple[float, float, int]],
+    sites: NDArray[np.intp],
+) -> NDArray[np.uint8]:
+    """The 8-bit codes of ``mosaic`` through each site's gamma curve (gamma, black, scale).
+
+    The camera's table is built from the MakerNote's quantised values.
+    """
     luts = [
-        code_lut(gamma_table(round(g * 100) / 100, round(b * 256) / 256, s))
-        for g, b, s in zip(gammas, blacks, scales, strict=True)
+        code_lut(gamma_table(round(g * 100) / 100, round(b * 256) / 256, s)) for g, b, s in curves
     ]
-    sites = site_channels(*flips, bayer_mode)
     wide = mosaic.astype(np.uint16) << np.uint16(16 - bits)
     codes = np.empty(mosaic.shape, dtype=np.uint8)
     for dy in (0, 1):
         for dx in (0, 1):
             codes[dy::2, dx::2] = np.take(luts[sites[dy, dx]], wide[dy::2, dx::2])
-    h, w = mosaic.shape
+    return codes
+
+
+def jpeg_bytes(image: NDArray[np.uint8], quality: int) -> bytes:
+    """``image`` as a greyscale JPEG file of ``quality``."""
     buf = io.BytesIO()
-    Image.fromarray(rearrange(codes, color_mode)).save(buf, format="JPEG", quality=quality)
-    note = maker_note(
-        gains=gains,
-        gamma=gammas,
-        black=blacks,
-        gamma_scale=scales,
-        woi=woi or (0, 0, w, h),
-        flips=flips,
-        bayer_mode=bayer_mode,
-        color_mode=color_mode,
-        quality=quality,
-        decimation=decimation,
-        binning=binning,
-    )
-    app1 = exif_block(
-        frame=frame,
-        port=port,
-        timestamp_ns=timestamp_ns,
-        exposure_us=exposure_us,
-        maker_note=note,
-        model=model,
-    )
-    jpeg = buf.getvalue()
-    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+    Image.fromarray(image).save(buf, format="JPEG", quality=quality)
+    return buf.getvalue()

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import tifffile
-from fastapi import FastAPI, HTTPException, Response
+from fastapi import APIRouter, FastAPI, HTTPException, Response
 
 from elphel_camd.api import create_app
 from elphel_camd.errors import FrameNotAvailableError, PortError
@@ -44,16 +44,23 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
     """The inspection API: what the simulator knows to be true, and its fault hooks."""
     app = FastAPI(title="elphel-sim inspection")
     app.include_router(fault_router(board, stage))
-    lock = threading.Lock()
+    app.include_router(rig_router(board, stage))
+    app.include_router(quad_router(board))
+    return app
 
-    @app.get("/stage")
+
+def rig_router(board: SimCameraBoard, stage: SimStage | None) -> APIRouter:
+    """``/stage``, ``/ports/{port}/frames/{frame}`` and ``/world``: the rig's truth."""
+    router = APIRouter()
+
+    @router.get("/stage")
     def stage_state() -> dict[str, Any]:
         """The carriage's true position and the simulated mechanics."""
         if stage is None:
             raise HTTPException(status_code=404, detail="this rig has no simulated stage")
         return stage.sim_state()
 
-    @app.get("/ports/{port}/frames/{frame}")
+    @router.get("/ports/{port}/frames/{frame}")
     def frame_truth(port: int, frame: int) -> dict[str, Any]:
         """A recorded frame's true time and camera pose (carriage position)."""
         try:
@@ -61,7 +68,7 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
         except (PortError, FrameNotAvailableError) as e:
             raise HTTPException(status_code=404, detail=str(e)) from e
 
-    @app.get("/world")
+    @router.get("/world")
     def world() -> dict[str, Any]:
         """Carriage position and the scene's planes."""
         w = board.world
@@ -77,49 +84,88 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
             },
         }
 
+    return router
+
+
+def quad_scene(board: SimCameraBoard) -> QuadScene:
+    """The board's quad scene; a 404 when the scenario has no quad camera."""
+    if board.quad is None:
+        raise HTTPException(
+            status_code=404, detail="this scenario has no quad camera (try --scenario quad)"
+        )
+    return board.quad
+
+
+def quad_geometry(scene: QuadScene) -> dict[str, Any]:
+    """The quad camera's geometry and the scene's regions with their disparities."""
+    rig = scene.rig
+    window = {"window": scene.window} if scene.window else {}
+    return window | {
+        "cameras": [
+            {"port": i, "position": list(position)} for i, position in enumerate(rig.positions)
+        ],
+        "optics": {
+            "focal_length_mm": rig.focal_length_mm,
+            "pixel_pitch_um": rig.pixel_pitch_um,
+            "baseline_mm": rig.baseline_mm,
+        },
+        "image_size": [rig.width, rig.height],
+        "bayer": rig.bayer,
+        "regions": [
+            {
+                "name": r.name,
+                "textured": r.textured,
+                "depth_mm": float(r.plane.origin[2]),
+                "disparity_px": float(rig.disparity_px(r.plane.origin[2])),
+            }
+            for r in scene.regions
+        ],
+    }
+
+
+def tile_truth_document(t: TileTruth) -> dict[str, Any]:
+    """``t`` as JSON: tile grid, region names and the per-tile maps (rows are tiles-Y)."""
+    return {
+        "tile_size": 16,
+        "tile_stride": 8,
+        "tiles_x": int(t.disparity.shape[1]),
+        "tiles_y": int(t.disparity.shape[0]),
+        "names": list(t.names),
+        "disparity": t.disparity.tolist(),
+        "label": t.label.tolist(),
+        "interior": t.interior.tolist(),
+        "textured": t.textured.tolist(),
+    }
+
+
+def quad_offset_mm(board: SimCameraBoard, carriage_mm: float | None) -> tuple[float, float, float]:
+    """Where the quad is: carried by the stage (quad-rig) or fixed (quad)."""
+    rig = board.world.rig
+    mount = rig.mounts.get("cam0")
+    if mount is None or not mount.on_stage:
+        return (0.0, 0.0, 0.0)
+    c = rig.carriage_mm if carriage_mm is None else carriage_mm
+    norm = sum(a * a for a in rig.axis) ** 0.5
+    return (c * rig.axis[0] / norm, c * rig.axis[1] / norm, c * rig.axis[2] / norm)
+
+
+def quad_router(board: SimCameraBoard) -> APIRouter:
+    """``/quad``, ``/quad/truth``, ``/quad/reference.ply``, ``/quad/depth/{camera}``."""
+    router = APIRouter()
+    lock = threading.Lock()
     truths: list[TileTruth] = []  # computed on the first request (about a second)
 
-    def quad_scene() -> QuadScene:
-        if board.quad is None:
-            raise HTTPException(
-                status_code=404, detail="this scenario has no quad camera (try --scenario quad)"
-            )
-        return board.quad
-
-    @app.get("/quad")
-    def quad_geometry() -> dict[str, Any]:
+    @router.get("/quad")
+    def quad() -> dict[str, Any]:
         """The quad camera's geometry and the scene's regions with their disparities.
 
         ``cameras`` (port and position) and ``optics`` make it an `elphel tp capture
         --geometry` file; ``window`` is the sensor window (``WOI_*``) whose pixels are
         ``image_size`` (the default window when absent).
         """
-        scene = quad_scene()
-        rig = scene.rig
-        window = {"window": scene.window} if scene.window else {}
-        return window | {
-            "cameras": [
-                {"port": i, "position": list(position)} for i, position in enumerate(rig.positions)
-            ],
-            "optics": {
-                "focal_length_mm": rig.focal_length_mm,
-                "pixel_pitch_um": rig.pixel_pitch_um,
-                "baseline_mm": rig.baseline_mm,
-            },
-            "image_size": [rig.width, rig.height],
-            "bayer": rig.bayer,
-            "regions": [
-                {
-                    "name": r.name,
-                    "textured": r.textured,
-                    "depth_mm": float(r.plane.origin[2]),
-                    "disparity_px": float(rig.disparity_px(r.plane.origin[2])),
-                }
-                for r in scene.regions
-            ],
-        }
+        return quad_geometry(quad_scene(board))
 
-    @app.get("/quad/truth")
+    @router.get("/quad/truth")
     def quad_truth() -> dict[str, Any]:
         """True disparity of every tile centre (8tx+4, 8ty+4) of the default window.
 
@@ -127,34 +173,13 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
         inside that region (``interior``) and whether the region is textured; rows are
         tiles-Y.
         """
-        scene = quad_scene()
+        scene = quad_scene(board)
         with lock:
             if not truths:
                 truths.append(tile_truth(scene))
-        t = truths[0]
-        return {
-            "tile_size": 16,
-            "tile_stride": 8,
-            "tiles_x": int(t.disparity.shape[1]),
-            "tiles_y": int(t.disparity.shape[0]),
-            "names": list(t.names),
-            "disparity": t.disparity.tolist(),
-            "label": t.label.tolist(),
-            "interior": t.interior.tolist(),
-            "textured": t.textured.tolist(),
-        }
+        return tile_truth_document(truths[0])
 
-    def quad_offset_mm(carriage_mm: float | None) -> tuple[float, float, float]:
-        """Where the quad is: carried by the stage (quad-rig) or fixed (quad)."""
-        rig = board.world.rig
-        mount = rig.mounts.get("cam0")
-        if mount is None or not mount.on_stage:
-            return (0.0, 0.0, 0.0)
-        c = rig.carriage_mm if carriage_mm is None else carriage_mm
-        norm = sum(a * a for a in rig.axis) ** 0.5
-        return (c * rig.axis[0] / norm, c * rig.axis[1] / norm, c * rig.axis[2] / norm)
-
-    @app.get("/quad/reference.ply")
+    @router.get("/quad/reference.ply")
     def quad_reference(step_px: float = 1.0, carriage_mm: float | None = None) -> Response:
         """The true surface seen by the quad's virtual centre camera (binary PLY, mm).
 
@@ -163,22 +188,22 @@ def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> Fast
         """
         if not 0.25 <= step_px <= 64:
             raise HTTPException(status_code=422, detail=f"step_px={step_px}; allowed: 0.25..64")
-        cloud = surface_cloud(
-            quad_scene(), step_px=step_px, carriage_mm=quad_offset_mm(carriage_mm)
-        )
+        offset = quad_offset_mm(board, carriage_mm)
+        cloud = surface_cloud(quad_scene(board), step_px=step_px, carriage_mm=offset)
         return Response(ply_bytes(cloud), media_type="application/octet-stream")
 
-    @app.get("/quad/depth/{camera}")
+    @router.get("/quad/depth/{camera}")
     def quad_depth(camera: int, carriage_mm: float | None = None) -> Response:
         """Camera ``camera``'s true depth per pixel (float32 TIFF, mm; inf where nothing)."""
         if not 0 <= camera <= 3:
             raise HTTPException(status_code=422, detail=f"camera={camera}; allowed: 0..3")
-        depth = depth_map(quad_scene(), camera, carriage_mm=quad_offset_mm(carriage_mm))
+        offset = quad_offset_mm(board, carriage_mm)
+        depth = depth_map(quad_scene(board), camera, carriage_mm=offset)
         buf = io.BytesIO()
         tifffile.imwrite(buf, depth, metadata={"unit": "mm", "camera": camera})
         return Response(buf.getvalue(), media_type="image/tiff")
 
-    return app
+    return router
 
 
 def bind_loopback(port: int, host: str = "127.0.0.1") -> socket.socket:
@@ -235,6 +260,39 @@ async def serve_all(
     )
 
 
+def serve_cameras(
+    board: SimCameraBoard, camera: CameraService, *, firmware: str, port: int, public_reads: bool
+) -> tuple[list[Served], str, str | None]:
+    """The camera's servers on loopback, its URL and its token (None: the stock firmware).
+
+    ``firmware`` "elphel" serves a stock NC393 (parsedit.php and imgsrv, no token);
+    otherwise elphel-camd's REST API, whose reads need the token unless ``public_reads``
+    and whose Host must be an address or localhost.
+    """
+    if firmware == "elphel":
+        stock = StockFirmware(board, camera)
+        cameras = [Served(parsedit_app(stock), bind_loopback(port))]
+        imgsrv = consecutive_sockets(bind_loopback)
+        cameras += [Served(imgsrv_app(stock, p), sock) for p, sock in enumerate(imgsrv)]
+        host, http_port = cameras[0].sock.getsockname()[:2]
+        return cameras, f"nc393://{host}:{http_port}?imgsrv={imgsrv[0].getsockname()[1]}", None
+    token = new_token()
+    app = create_app(camera, token=token, public_reads=public_reads, allowed_hosts=[])
+    cameras = [Served(app, bind_loopback(port))]
+    return cameras, cameras[0].url, token
+
+
+def print_announcement(announce: dict[str, Any], *, scenario: str, seed: int) -> None:
+    """What `elphel-sim up` serves, for a person, with a first command to try."""
+    print(f"simulated rig up (scenario {scenario}, seed {seed}); Ctrl-C stops it", flush=True)
+    for key, value in announce.items():
+        print(f"  {key:11s} {value}", flush=True)
+    hint = f"elphel camera info --camera {announce['camera_url']}"
+    if announce["token"] is not None:
+        hint += f" --token {announce['token']}"
+    print(f"  try: {hint}", flush=True)
+
+
 def up(
     *,
     scenario: str,
@@ -253,23 +311,9 @@ def up(
     """
     board = SimCameraBoard(build(scenario, seed=seed, lens_blur=lens_blur), seed=seed)
     camera = CameraService(board)
-    secret = new_token()
-    token: str | None = secret
-    if firmware == "elphel":  # the stock NC393: parsedit.php and imgsrv, no token
-        stock = StockFirmware(board, camera)
-        cameras = [Served(parsedit_app(stock), bind_loopback(camera_port))]
-        imgsrv = consecutive_sockets(bind_loopback)
-        cameras += [Served(imgsrv_app(stock, p), sock) for p, sock in enumerate(imgsrv)]
-        host, port = cameras[0].sock.getsockname()[:2]
-        camera_url, token = f"nc393://{host}:{port}?imgsrv={imgsrv[0].getsockname()[1]}", None
-        hint = f"elphel camera info --url {camera_url}"
-    else:
-        # As the daemon: reads need the token (unless public_reads), Host must be an
-        # address or localhost.
-        app = create_app(camera, token=secret, public_reads=public_reads, allowed_hosts=[])
-        cameras = [Served(app, bind_loopback(camera_port))]
-        camera_url = cameras[0].url
-        hint = f"elphel camera info --url {camera_url} --token {token}"
+    cameras, camera_url, token = serve_cameras(
+        board, camera, firmware=firmware, port=camera_port, public_reads=public_reads
+    )
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
@@ -284,10 +328,7 @@ def up(
     if as_json:
         print(json.dumps(announce), flush=True)
     else:
-        print(f"simulated rig up (scenario {scenario}, seed {seed}); Ctrl-C stops it", flush=True)
-        for key, value in announce.items():
-            print(f"  {key:11s} {value}", flush=True)
-        print(f"  try: {hint}", flush=True)
+        print_announcement(announce, scenario=scenario, seed=seed)
     try:
         asyncio.run(serve_all([*cameras, sim_served], on_shutdown=[camera.events.close]))
     finally:

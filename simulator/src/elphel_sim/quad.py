@@ -104,6 +104,24 @@ class QuadRig:
         s = depth_mm * self.pitch_mm / self.focal_length_mm
         return np.array([(x_px - cx) * s, (y_px - cy) * s, depth_mm])
 
+    def fronto_box(
+        self, disparity: float, box: tuple[float, float, float, float]
+    ) -> tuple[float, FloatArray, tuple[float, float]]:
+        """Depth, centre and half extents (mm) of a fronto-parallel rectangle at ``disparity``.
+
+        ``box`` = (x0, y0, x1, y1) in fractions of the centre view.
+        """
+        z = self.depth_mm(disparity)
+        x0, y0, x1, y1 = (
+            box[0] * self.width,
+            box[1] * self.height,
+            box[2] * self.width,
+            box[3] * self.height,
+        )
+        centre = self.point_mm(0.5 * (x0 + x1), 0.5 * (y0 + y1), z)
+        s = z * self.pitch_mm / self.focal_length_mm
+        return z, centre, (0.5 * (x1 - x0) * s, 0.5 * (y1 - y0) * s)
+
 
 @dataclass(frozen=True)
 class Region:
@@ -154,20 +172,12 @@ def fronto_rect(
     albedo: tuple[float, float, float] = (0.9, 1.0, 0.8),
 ) -> Region:
     """A fronto-parallel rectangle on ``box`` = (x0, y0, x1, y1), fractions of the centre view."""
-    z = rig.depth_mm(disparity)
-    x0, y0, x1, y1 = (
-        box[0] * rig.width,
-        box[1] * rig.height,
-        box[2] * rig.width,
-        box[3] * rig.height,
-    )
-    centre = rig.point_mm(0.5 * (x0 + x1), 0.5 * (y0 + y1), z)
-    s = z * rig.pitch_mm / rig.focal_length_mm
+    z, centre, half = rig.fronto_box(disparity, box)
     tex = _scaled(_texture(seed, flat=not textured), rig, z)
     plane = Plane(
         tex,
         origin=tuple(centre),
-        half_extent_mm=(0.5 * (x1 - x0) * s, 0.5 * (y1 - y0) * s),
+        half_extent_mm=half,
         albedo_rgb=albedo,
     )
     return Region(name, plane, textured)

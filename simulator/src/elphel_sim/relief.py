@@ -101,18 +101,58 @@ def _fronto(
     seed: int,
     albedo: tuple[float, float, float],
 ) -> Region:
-    z = rig.depth_mm(disparity)
-    x0, y0, x1, y1 = (
-        box[0] * rig.width,
-        box[1] * rig.height,
-        box[2] * rig.width,
-        box[3] * rig.height,
-    )
-    s = z * rig.pitch_mm / rig.focal_length_mm
-    centre = rig.point_mm(0.5 * (x0 + x1), 0.5 * (y0 + y1), z)
-    half = (0.5 * (x1 - x0) * s, 0.5 * (y1 - y0) * s)
+    _, centre, half = rig.fronto_box(disparity, box)
     ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     return _plane(rig, name, centre, ex, ey, half, seed=seed, albedo=albedo)
+
+
+def _slanted(rig: QuadRig, slant: tuple[float, float], *, seed: int) -> Region:
+    """The slanted plane: disparity linear from the left to the right edge of its box."""
+    x0, x1, y0, y1 = 0.05 * rig.width, 0.50 * rig.width, 0.55 * rig.height, 0.94 * rig.height
+    pl = rig.point_mm(x0, 0.5 * (y0 + y1), rig.depth_mm(slant[0]))
+    pr = rig.point_mm(x1, 0.5 * (y0 + y1), rig.depth_mm(slant[1]))
+    u = pr - pl
+    zmin = min(pl[2], pr[2])
+    half_v = 0.5 * (y1 - y0) * zmin * rig.pitch_mm / rig.focal_length_mm
+    return _plane(
+        rig,
+        "slanted",
+        0.5 * (pl + pr),
+        u / np.linalg.norm(u),
+        np.array([0, 1.0, 0]),
+        (0.5 * float(np.linalg.norm(u)), half_v),
+        seed=seed,
+        albedo=(1.0, 0.9, 0.85),
+    )
+
+
+def _cylinder(rig: QuadRig, spec: ReliefSpec, *, seed: int) -> list[Region]:
+    """The cylinder's facets: vertical axis, front at ``spec.cylinder_front``, at x = 0.74."""
+    r = spec.cylinder_radius_mm
+    z_front = rig.depth_mm(spec.cylinder_front)
+    axis = rig.point_mm(0.74 * rig.width, 0.745 * rig.height, z_front + r)
+    half_h = 0.5 * 0.39 * rig.height * z_front * rig.pitch_mm / rig.focal_length_mm
+    angles = np.radians(np.linspace(-75.0, 75.0, CYLINDER_FACETS + 1))
+    facets = []
+    for k in range(CYLINDER_FACETS):
+        a0, a1 = angles[k], angles[k + 1]
+        p0 = axis + r * np.array([np.sin(a0), 0.0, -np.cos(a0)])
+        p1 = axis + r * np.array([np.sin(a1), 0.0, -np.cos(a1)])
+        chord = p1 - p0
+        length = float(np.linalg.norm(chord))
+        facets.append(
+            _plane(
+                rig,
+                f"cylinder_{k}",
+                0.5 * (p0 + p1),
+                chord / length,
+                np.array([0, 1.0, 0]),
+                (0.5 * length * 1.001, half_h),
+                seed=seed + k,
+                albedo=(0.8, 0.95, 0.8),
+            )
+        )
+    return facets
 
 
 def relief_scene(
@@ -136,49 +176,8 @@ def relief_scene(
                 albedo=(0.95, 0.85, 0.7),
             )
         )
-    # slanted: disparity linear from left to right edge of its box
-    x0, x1, y0, y1 = 0.05 * rig.width, 0.50 * rig.width, 0.55 * rig.height, 0.94 * rig.height
-    pl = rig.point_mm(x0, 0.5 * (y0 + y1), rig.depth_mm(spec.slant[0]))
-    pr = rig.point_mm(x1, 0.5 * (y0 + y1), rig.depth_mm(spec.slant[1]))
-    u = pr - pl
-    zmin = min(pl[2], pr[2])
-    half_v = 0.5 * (y1 - y0) * zmin * rig.pitch_mm / rig.focal_length_mm
-    regions.append(
-        _plane(
-            rig,
-            "slanted",
-            0.5 * (pl + pr),
-            u / np.linalg.norm(u),
-            np.array([0, 1.0, 0]),
-            (0.5 * float(np.linalg.norm(u)), half_v),
-            seed=seed + 10,
-            albedo=(1.0, 0.9, 0.85),
-        )
-    )
-    # cylinder: vertical axis, front at spec.cylinder_front, centred at x = 0.74 of the view
-    r = spec.cylinder_radius_mm
-    z_front = rig.depth_mm(spec.cylinder_front)
-    axis = rig.point_mm(0.74 * rig.width, 0.745 * rig.height, z_front + r)
-    half_h = 0.5 * 0.39 * rig.height * z_front * rig.pitch_mm / rig.focal_length_mm
-    angles = np.radians(np.linspace(-75.0, 75.0, CYLINDER_FACETS + 1))
-    for k in range(CYLINDER_FACETS):
-        a0, a1 = angles[k], angles[k + 1]
-        p0 = axis + r * np.array([np.sin(a0), 0.0, -np.cos(a0)])
-        p1 = axis + r * np.array([np.sin(a1), 0.0, -np.cos(a1)])
-        chord = p1 - p0
-        length = float(np.linalg.norm(chord))
-        regions.append(
-            _plane(
-                rig,
-                f"cylinder_{k}",
-                0.5 * (p0 + p1),
-                chord / length,
-                np.array([0, 1.0, 0]),
-                (0.5 * length * 1.001, half_h),
-                seed=seed + 20 + k,
-                albedo=(0.8, 0.95, 0.8),
-            )
-        )
+    regions.append(_slanted(rig, spec.slant, seed=seed + 10))
+    regions += _cylinder(rig, spec, seed=seed + 20)
     regions.sort(key=lambda reg: float(reg.plane.origin[2]))
     regions.append(
         _fronto(

@@ -14,7 +14,7 @@ import pytest
 import tifffile
 
 from elphel_host.burst.capture import BurstRunner, capture_burst
-from elphel_host.burst.io import FrameInfo, read_burst
+from elphel_host.burst.io import read_burst
 from elphel_host.burst.manifest import FrameEntry, Manifest, read_manifest
 from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, write_plan
 from elphel_host.errors import CaptureTimeout, InputFormatError, ScaleError
@@ -73,7 +73,6 @@ def test_a_captured_manifest_round_trips_key_for_key(tmp_path):
     assert manifest is not None and manifest.to_json() == raw
     assert Manifest.from_json(raw) == manifest
     assert read_burst(tmp_path).manifest == manifest
-    assert FrameInfo is FrameEntry  # the older name, at its older place, still works
 
 
 def test_unknown_keys_are_kept_and_bad_fields_named():

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 
 import httpx
 
-from elphel_host.camera.nc393 import NC393Client
+from elphel_host.camera.nc393.client import NC393Client
 
 WEB = "http://cam/parsedit.php?immediate&sensor_port="
 

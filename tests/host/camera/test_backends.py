@@ -4,8 +4,8 @@ import httpx
 import pytest
 
 from elphel_host.camera import CameraClient, connect
-from elphel_host.camera.nc393 import NC393Client
-from elphel_host.camera.nc393_address import NC393Address, parse_nc393_url
+from elphel_host.camera.nc393.address import NC393Address, parse_nc393_url
+from elphel_host.camera.nc393.client import NC393Client
 
 
 def test_http_urls_are_elphel_camd():

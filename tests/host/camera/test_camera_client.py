@@ -6,7 +6,7 @@ import httpx
 import numpy as np
 import pytest
 
-from elphel_host.camera import Burst, CameraClient, CameraHTTPError, CameraUnauthorizedError
+from elphel_host.camera import CameraClient, CameraHTTPError, CameraUnauthorizedError, CapturedBurst
 from elphel_host.camera.events import SSEParser
 from elphel_host.errors import CameraClientError
 
@@ -85,7 +85,7 @@ def test_sse_parser_reads_events_ids_and_skips_comments():
     assert (events[0].type, events[0].id, events[0].data) == ("frame", 3, {"frame": 9})
 
 
-def _composites(starts: list[int], *, period: int = 1000, strips: int = 4) -> Burst:
+def _composites(starts: list[int], *, period: int = 1000, strips: int = 4) -> CapturedBurst:
     meta = [
         {
             "frame": 10 + k,
@@ -97,7 +97,7 @@ def _composites(starts: list[int], *, period: int = 1000, strips: int = 4) -> Bu
         for k, t in enumerate(starts)
     ]
     images = np.arange(len(starts) * 2 * strips * 3, dtype=np.uint16).reshape(len(starts), -1, 3)
-    return Burst(tiff=b"", images=images, metadata=meta)
+    return CapturedBurst(tiff=b"", images=images, metadata=meta)
 
 
 def test_photofinish_joins_contiguous_composites_with_row_times():
@@ -111,6 +111,8 @@ def test_photofinish_joins_contiguous_composites_with_row_times():
 def test_photofinish_refuses_gaps_and_plain_frames():
     with pytest.raises(CameraClientError, match=r"not contiguous: \+1\.0 strips"):
         _composites([5000, 10000]).photofinish()
-    plain = Burst(tiff=b"", images=np.zeros((2, 4, 4), np.uint16), metadata=[{"frame": 1}] * 2)
+    plain = CapturedBurst(
+        tiff=b"", images=np.zeros((2, 4, 4), np.uint16), metadata=[{"frame": 1}] * 2
+    )
     with pytest.raises(CameraClientError, match="PF_HEIGHT"):
         plain.photofinish()

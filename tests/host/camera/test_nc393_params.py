@@ -3,7 +3,7 @@
 import httpx
 import pytest
 
-from elphel_host.camera import parsedit
+from elphel_host.camera.nc393 import parsedit
 from elphel_host.errors import (
     CameraClientError,
     CameraParameterError,

@@ -10,15 +10,17 @@ import pytest
 
 from elphel_host.burst.io import write_burst
 from elphel_host.cli import main
+from elphel_host.mfsr.gaussian_psf import GaussianPsf
 from elphel_host.mfsr.metrics import psnr
-from elphel_host.mfsr.psf import TAU_GRID, estimate_psf
-from elphel_host.mfsr.psf_given import parse_psf
+from elphel_host.mfsr.psf import TAU_GRID, Optics, estimate_psf
+from elphel_host.mfsr.psf_spec import EstimateBlur, GivenKernel, NoBlur, parse_psf
 from elphel_host.mfsr.registration import register_frames
-from elphel_host.mfsr.robust import reconstruct
+from elphel_host.mfsr.robust import ResolvedPsf, reconstruct, reconstruct_resolved
 from elphel_host.mfsr.robust_config import RobustConfig
+from elphel_host.mfsr.solve import Geometry
 from elphel_host.mfsr.synth import make_burst, random_shifts
 
-NO_PSF = RobustConfig(estimate_psf=False)
+NO_PSF = RobustConfig(psf=NoBlur())
 
 
 def _camera() -> np.ndarray:
@@ -79,7 +81,7 @@ def test_soft_scene_is_not_sharpened():
     shifts = random_shifts(16, seed=11, spread=2.0)
     frames = make_burst(hr, shifts, scale=2, noise_sigma=0.01, seed=12)
     regs = [r.shift for r in register_frames(frames)]
-    img, info = reconstruct(frames, regs, scale=2, config=RobustConfig(estimate_psf=True))
+    img, info = reconstruct(frames, regs, scale=2, config=RobustConfig(psf=EstimateBlur()))
     plain, _ = reconstruct(frames, regs, scale=2, config=NO_PSF)
     assert info["psf"]["apparent_sigma_hr_px"] > 0.5, info["psf"]  # it does look blurred
     loss = psnr(hr, plain, data_range=1.0, border=8) - psnr(hr, img, data_range=1.0, border=8)
@@ -97,31 +99,19 @@ def test_prior_sigma_shapes_the_denoising_only(blurred):
         return np.fft.ifft2(np.fft.fft2(x) * np.exp(-2 * (np.pi * s * f) ** 2)).real
 
     splits = ((0.8, 0.0), (0.6, np.sqrt(0.28)), (0.0, 0.8))
-    imgs, infos = zip(
-        *(
-            reconstruct(
-                frames,
-                shifts,
-                scale=2,
-                config=RobustConfig(blur_sigma=d, prior_sigma=p, passes=0, estimate_psf=False),
-            )
-            for d, p in splits
-        ),
-        strict=True,
-    )
-    assert infos[2]["psf"] == {
-        "model": "none",
-        "sigma_hr_px": 0.0,
-        "source": "given",
-        "prior_sigma_hr_px": 0.8,
-        "tau_used": 0.04,
-    }
+    config = RobustConfig(passes=0)
+    imgs = [
+        reconstruct_resolved(
+            frames, shifts, Geometry(2), ResolvedPsf(Optics(d, None, p), 0.04), config
+        )[0]
+        for d, p in splits
+    ]
     seen = [fourier_blur(x, d) for x, (d, _) in zip(imgs, splits, strict=True)]
     for k in (1, 2):
         assert psnr(seen[0], seen[k], data_range=1.0, border=16) > 60
         assert psnr(imgs[0], imgs[k], data_range=1.0, border=16) < 45
     with pytest.raises(ValueError, match="prior_sigma"):
-        RobustConfig(prior_sigma=-0.1)
+        Optics(prior_sigma=-0.1)
 
 
 def test_a_burst_cannot_tell_a_soft_scene_from_a_wider_blur():
@@ -153,7 +143,9 @@ def test_a_burst_cannot_tell_a_soft_scene_from_a_wider_blur():
 
 def test_given_sigma_is_used_and_its_prior_cross_validated(blurred):
     hr, frames, shifts = blurred
-    img, info = reconstruct(frames, shifts, scale=2, config=RobustConfig(blur_sigma=0.8))
+    img, info = reconstruct(
+        frames, shifts, scale=2, config=RobustConfig(psf=GaussianPsf.round(0.8))
+    )
     # no search for the blur; the prior's tau chosen for it as for an estimate
     tau = info["psf"].pop("tau")
     assert tau in TAU_GRID
@@ -164,7 +156,7 @@ def test_given_sigma_is_used_and_its_prior_cross_validated(blurred):
         "tau_used": round(float(np.sqrt(0.04 * tau)), 4),
     }
     fixed, finfo = reconstruct(
-        frames, shifts, scale=2, config=RobustConfig(blur_sigma=0.8, estimate_psf=False)
+        frames, shifts, scale=2, config=RobustConfig(psf=GaussianPsf.round(0.8), choose_tau=False)
     )
     assert finfo["psf"] == {
         "model": "gaussian",
@@ -181,21 +173,21 @@ def test_estimate_needs_frames():
     _, frames = _blurred_burst(0.5, n=4)
     with pytest.raises(ValueError, match="at least 5 frames"):
         estimate_psf(frames, [(0.0, 0.0)] * 4, scale=2)
-    cfg = RobustConfig(estimate_psf=True)
+    cfg = RobustConfig(psf=EstimateBlur())
     _, info = reconstruct(frames, [(0.0, 0.0)] * 4, scale=2, config=cfg)
     assert info["psf"]["source"] == "too few frames" and info["psf"]["sigma_hr_px"] == 0
 
 
 def test_parse_psf():
-    assert parse_psf("auto") is None
-    assert parse_psf("none").sigma == 0 and parse_psf("none").source == "disabled"
+    assert parse_psf("auto") == EstimateBlur()
+    assert parse_psf("none") == NoBlur() and parse_psf("sigma=0") == NoBlur()
     g = parse_psf("sigma=0.7")
-    assert g is not None and g.sigma == 0.7 and g.model == "gaussian" and g.source == "given"
+    assert isinstance(g, GaussianPsf) and g.sigma_px == pytest.approx(0.7, abs=1e-12)
     for bad in ("sigma=-1", "sigma=x", "disc=2", "sigma=9"):
         with pytest.raises(ValueError, match="--psf"):
             parse_psf(bad)
-    with pytest.raises(ValueError, match="blur_sigma"):
-        RobustConfig(blur_sigma=-0.1)
+    with pytest.raises(ValueError, match="sigma_px"):
+        GaussianPsf.round(-0.1)
 
 
 def test_cli_psf_option(tmp_path, capsys):
@@ -214,13 +206,6 @@ def test_cli_psf_option(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["psf"] == auto
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "none", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["psf"]["source"] == "disabled"
-    assert (
-        main(["mfsr", str(b), "--scale", "2", "--out", out, "--blur-sigma", "0.5", "--json"]) == 0
-    )
-    assert json.loads(capsys.readouterr().out)["psf"]["sigma_hr_px"] == 0.5
-    args = ["--psf", "auto", "--blur-sigma", "0.5"]
-    assert main(["mfsr", str(b), "--scale", "2", "--out", out, *args]) != 0
-    assert "give one of them" in capsys.readouterr().err
     assert main(["mfsr", str(b), "--scale", "2", "--out", out, "--psf", "gauss"]) != 0
     assert "--psf 'gauss'; allowed: auto, none, sigma=S" in capsys.readouterr().err
 
@@ -233,9 +218,11 @@ def _gauss_kernel(sigma: float, r: int = 4) -> np.ndarray:
 
 def test_kernel_psf_matches_gaussian_model(blurred):
     hr, frames, shifts = blurred
-    by_sigma, _ = reconstruct(frames, shifts, scale=2, config=RobustConfig(blur_sigma=0.8))
+    by_sigma, _ = reconstruct(
+        frames, shifts, scale=2, config=RobustConfig(psf=GaussianPsf.round(0.8))
+    )
     by_kernel, info = reconstruct(
-        frames, shifts, scale=2, config=RobustConfig(psf_kernel=_gauss_kernel(0.8))
+        frames, shifts, scale=2, config=RobustConfig(psf=GivenKernel(_gauss_kernel(0.8)))
     )
     assert info["psf"]["model"] == "kernel" and info["psf"]["kernel_shape"] == [9, 9]
     # a sampled Gaussian is not the continuous one, but nearly
@@ -249,12 +236,12 @@ def test_kernel_psf_matches_gaussian_model(blurred):
 
 def test_kernel_checks(tmp_path):
     for bad in (np.ones((4, 5)), np.ones((33, 33)), -np.ones((3, 3)), np.ones(5)):
-        with pytest.raises(ValueError, match="psf_kernel"):
-            RobustConfig(psf_kernel=bad)
-    with pytest.raises(ValueError, match="only without blur_sigma"):
-        RobustConfig(psf_kernel=np.ones((3, 3)), blur_sigma=0.5)
-    cfg = RobustConfig(psf_kernel=2 * np.ones((3, 3)))
-    assert cfg.psf_kernel is not None and abs(cfg.psf_kernel.sum() - 1) < 1e-12
+        with pytest.raises(ValueError, match="kernel"):
+            GivenKernel(bad)
+    with pytest.raises(ValueError, match="one of them"):
+        Optics(0.5, np.ones((3, 3)))
+    given = GivenKernel(2 * np.ones((3, 3)))
+    assert abs(given.kernel.sum() - 1) < 1e-12
     with pytest.raises(ValueError, match="no such file"):
         parse_psf(str(tmp_path / "missing.npy"))
 

@@ -13,15 +13,10 @@ from scipy import ndimage
 from elphel_host.burst.io import write_burst
 from elphel_host.cli import main
 from elphel_host.mfsr.fuse import fuse_frames
+from elphel_host.mfsr.gaussian_psf import GaussianPsf
 from elphel_host.mfsr.metrics import psnr
-from elphel_host.mfsr.psf_tp import (
-    GaussianPsf,
-    QuadPsfs,
-    SensorWindow,
-    psf_from_kernel,
-    quad_config,
-    quad_psfs,
-)
+from elphel_host.mfsr.psf_spec import GivenGrid, GivenKernel
+from elphel_host.mfsr.psf_tp import QuadPsfs, SensorWindow, psf_from_kernel, quad_psf, quad_psfs
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.synth import make_burst, random_shifts
 from elphel_sim import quad as simquad
@@ -136,8 +131,6 @@ def test_quad_psf_errors(
         (["--psf", f"quad={quad},camera=4"], "camera=4; allowed: 0..3"),
         (["--psf", f"quad={quad},cam=1"], "allowed: quad=QUAD_DIR or quad=QUAD_DIR,camera=N"),
         (["--psf", f"quad={tmp_path}"], "no quad.json"),
-        (["--psf", f"quad={quad}", "--psf-regions", "2x2"], "give one of them"),
-        (["--psf", f"quad={quad}", "--blur-sigma", "0.5"], "give one of them"),
     ]
     for extra, message in cases:
         assert main([*args, *extra]) != 0, extra
@@ -258,10 +251,13 @@ def test_a_bayer_quads_colours_each_get_their_own_psf(tmp_path: Path) -> None:
         for c, name in enumerate("RGB")
     ]
     mosaics = [mosaic(np.stack([p[k] for p in planes], axis=-1), "GRBG") for k in range(16)]
-    config = quad_config(found, 2)
-    assert config.psf_rgb is not None and config.psf_rgb.shape[0] == 3
+    psf = quad_psf(found, 2)
+    assert isinstance(psf, GivenKernel) and psf.rgb is not None and psf.rgb.shape[0] == 3
+    config = RobustConfig(psf=psf)
     own = fuse_frames(mosaics, scale=2, bayer="GRBG", config=config)
-    green = fuse_frames(mosaics, scale=2, bayer="GRBG", config=replace(config, psf_rgb=None))
+    green = fuse_frames(
+        mosaics, scale=2, bayer="GRBG", config=replace(config, psf=replace(psf, rgb=None))
+    )
     assert own.info["psf"]["per_colour"] is True
     score = {
         (name, c): psnr(hr[..., c], result.image[..., c], data_range=1.0, border=16)
@@ -277,19 +273,18 @@ def test_a_bayer_quads_colours_each_get_their_own_psf(tmp_path: Path) -> None:
 
 def test_per_colour_psfs_are_checked() -> None:
     k = _gauss15(0.8)
-    ok = RobustConfig(psf_kernel=k, psf_rgb=np.stack([k, k, k]))
-    assert ok.psf_rgb is not None and ok.psf_rgb.shape == (3, 15, 15)
+    ok = GivenKernel(k, rgb=np.stack([k, k, k]))
+    assert ok.rgb is not None and ok.rgb.shape == (3, 15, 15)
     grid = np.broadcast_to(k, (2, 2, 15, 15))
-    assert RobustConfig(psf_grid=grid, psf_rgb=np.stack([grid] * 3)).psf_rgb.shape[:3] == (3, 2, 2)
+    assert GivenGrid(grid, rgb=np.stack([grid] * 3)).cell(1, 0).rgb.shape == (3, 15, 15)
     cases = [
-        (dict(psf_rgb=np.stack([k, k, k])), r"allowed: \(3, h, w\) with psf_kernel"),
-        (dict(psf_kernel=k, psf_rgb=np.stack([k, k])), r"allowed: \(3, h, w\) with psf_kernel"),
-        (dict(psf_kernel=k, psf_rgb=np.stack([k, k, -k])), r"psf_rgb\[2\]: allowed: finite"),
+        (lambda: GivenKernel(k, rgb=np.stack([k, k])), r"rgb: shape \(2, 15, 15\); allowed"),
+        (lambda: GivenKernel(k, rgb=np.stack([k, k, -k])), r"rgb\[2\]: allowed: finite"),
         (
-            dict(psf_grid=grid, psf_rgb=np.stack([grid[:1]] * 3)),
-            r"psf_rgb: \(1, 2\) regions; psf_grid has \(2, 2\)",
+            lambda: GivenGrid(grid, rgb=np.stack([grid[:1]] * 3)),
+            r"allowed: \(3, 2, 2, h, w\), each colour's grid of the same regions",
         ),
     ]
-    for kwargs, message in cases:
+    for make, message in cases:
         with pytest.raises(ValueError, match=message):
-            RobustConfig(**kwargs)
+            make()

@@ -2,7 +2,7 @@
 
 The burst is what `make demo` captures, on a small window: the MT9P006 (GRBG Bayer) of
 the default scenario, rolled by atan(1/4), moved along the stage axis by the x2 Bayer plan.
-The reference is :func:`elphel_sim.demo_report.reference_image`, the same scene seen by pixels
+The reference is :func:`elphel_sim.demo.report.reference_image`, the same scene seen by pixels
 of half the pitch. Robust fusion must beat bicubic on it clearly, as it does on synthetic
 bursts: robust once scored below bicubic here, because the noise was estimated on each
 colour plane alone and read its aliased texture as noise (about 4x the real noise).
@@ -21,8 +21,8 @@ from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_sim.board import SimCameraBoard
-from elphel_sim.demo_burst import DISTANCE_MM, FRAMES, SCALE
-from elphel_sim.demo_report import comparison_picture, reference_image
+from elphel_sim.demo.burst import DISTANCE_MM, FRAMES, SCALE
+from elphel_sim.demo.report import comparison_picture, reference_image
 from elphel_sim.scenarios import build
 
 SEED = 5

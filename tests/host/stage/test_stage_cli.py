@@ -37,7 +37,7 @@ def test_cli_session(sim, capsys, tmp_path, monkeypatch):
     moved = run(capsys, "move", "25.0", "--model", model)
     truth = sim.sim_state()["true_mm"] - sim.sim_state()["caliper_zero_mm"]
     assert abs(truth - 25.0) <= 0.01 and moved["closed_loop"] is True
-    st = run(capsys, "status", "--url", sim.tcp_url)
+    st = run(capsys, "status", "--stage", sim.tcp_url)
     assert st["caliper_mm"] == pytest.approx(25.0, abs=0.011) and isinstance(st["steps"], int)
     rel = run(capsys, "move", "1.0", "--relative", "--open-loop", "--model", model)
     assert rel["closed_loop"] is False
@@ -50,6 +50,6 @@ def test_cli_errors_are_one_line(sim, capsys, monkeypatch):
     monkeypatch.delenv("ELPHEL_STAGE_URL", raising=False)
     assert main(["stage", "status"]) == 1
     assert "ELPHEL_STAGE_URL" in capsys.readouterr().err
-    assert main(["stage", "move", "500", "--url", sim.tcp_url, "--open-loop"]) == 1
+    assert main(["stage", "move", "500", "--stage", sim.tcp_url, "--open-loop"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "soft limits" in err[0]

@@ -15,7 +15,7 @@ from elphel_host.tp import bayer, clt
 from elphel_host.tp.clt import batch, reference
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.geometry import TilePlacement
-from elphel_host.tp.pipeline import colour_masks
+from elphel_host.tp.tile_pass import colour_masks
 
 H, W, PAD = 64, 80, 24
 PATTERNS = [None, "GRBG", "RGGB", "GBRG", "BGGR"]

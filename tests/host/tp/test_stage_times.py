@@ -1,4 +1,4 @@
-"""`pipeline.stage_times`: where a pass spends its time, without changing what it computes."""
+"""`tile_pass.stage_times`: where a pass spends its time, without changing what it computes."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import tempfile
 
 import numpy as np
 
-from elphel_host.tp import io, pipeline, processor
+from elphel_host.tp import io, processor, tile_pass
+from elphel_host.tp.config import TpConfig
 from elphel_sim import quad as simquad
 
 
@@ -17,17 +18,17 @@ def test_stage_times_cover_every_stage_and_leave_results_alone() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         simquad.write_quad_dir(tmp, raw, rig)
         quad = io.read_quad_dir(tmp).quad
-    config = processor.TpConfig(threads=2, chunk_tiles=64)
+    config = TpConfig(threads=2, chunk_tiles=64)
     plain = processor.disparity_map(quad, config=config)
-    with pipeline.stage_times() as outer:
-        with pipeline.stage_times() as inner:
+    with tile_pass.stage_times() as outer:
+        with tile_pass.stage_times() as inner:
             timed = processor.disparity_map(quad, config=config)
         after_inner = dict(inner)
         processor.disparity_map(quad, config=config)
-    assert set(outer) == set(pipeline.STAGES)
+    assert set(outer) == set(tile_pass.STAGES)
     assert all(v > 0 for v in after_inner.values()), after_inner
     # the outer collector saw both runs, the inner one only the first
-    assert all(outer[k] > after_inner[k] for k in pipeline.STAGES)
+    assert all(outer[k] > after_inner[k] for k in tile_pass.STAGES)
     assert dict(inner) == after_inner
     for k in plain:
         assert np.array_equal(plain[k], timed[k], equal_nan=True), k

@@ -12,7 +12,7 @@ import argparse
 import os
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from elphel_host.burst.capture import BurstRunner, CaptureResult, RigEngine, load_progress
 from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, sensor_geometry, write_plan
@@ -33,6 +33,9 @@ from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.model import StageModel
 from elphel_host.stage.positioning import Positioner
+
+if TYPE_CHECKING:
+    from elphel_host.mfsr.stream import FusionStream
 
 
 def register(subparsers: Any) -> None:
@@ -303,26 +306,32 @@ def run_capture(args: argparse.Namespace) -> int:
         ]
         error = None
         if stream is not None and fuse is not None:
-            from elphel_host.mfsr.stream import finish_and_write
-
-            try:
-                fused = finish_and_write(
-                    stream, fuse[2], burst=result.directory, progress=line.say("fusion: ")
-                )
-            except FusionError as e:
-                error = str(e)
-                fused = {"error": error}
-                human.append(error)
-            else:
-                excluded = "; ".join(f"{e['index']}: {e['reason']}" for e in fused["excluded"])
-                human.append(
-                    f"{fused['out']}: {fused['method']} x{fuse[0]}, {fused['used']}/"
-                    f"{fused['frames']} frames, written {fused['after_capture_s']:.2f} s "
-                    "after the last frame" + (f"; excluded {excluded}" if excluded else "")
-                )
+            fused, said = _finish_fusion(stream, fuse, result.directory, line)
+            error = fused.get("error")
+            human.append(said)
             summary["fusion"] = fused
     emit(args, summary, "\n".join(human))
     return 0 if error is None else fail(error)
+
+
+def _finish_fusion(
+    stream: FusionStream, fuse: tuple[int, str, Path], burst: Path, line: ProgressLine
+) -> tuple[dict[str, Any], str]:
+    """Finish the fusion and write the image: its summary (or the error) and a line for people."""
+    from elphel_host.mfsr.stream import finish_and_write
+
+    scale, _method, out = fuse
+    try:
+        fused = finish_and_write(stream, out, burst=burst, progress=line.say("fusion: "))
+    except FusionError as e:
+        return {"error": str(e)}, str(e)
+    excluded = "; ".join(f"{e['index']}: {e['reason']}" for e in fused["excluded"])
+    said = (
+        f"{fused['out']}: {fused['method']} x{scale}, {fused['used']}/"
+        f"{fused['frames']} frames, written {fused['after_capture_s']:.2f} s "
+        "after the last frame" + (f"; excluded {excluded}" if excluded else "")
+    )
+    return fused, said
 
 
 def _capture_summary(result: CaptureResult, frames: int, start_mm: float) -> dict[str, Any]:

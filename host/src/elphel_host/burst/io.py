@@ -22,9 +22,6 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
-# The manifest is manifest.py's; BAYER_PATTERNS, VERSION and FrameInfo, which scripts
-# imported from here before it had its own module, still import from here.
-from elphel_host.burst.manifest import BAYER_PATTERNS as BAYER_PATTERNS
 from elphel_host.burst.manifest import (
     MANIFEST,
     OPTICS,
@@ -34,8 +31,6 @@ from elphel_host.burst.manifest import (
     read_manifest,
     write_manifest,
 )
-from elphel_host.burst.manifest import VERSION as VERSION
-from elphel_host.burst.manifest import FrameInfo as FrameInfo
 from elphel_host.errors import InputFormatError
 from elphel_host.tp.io import MANIFEST as QUAD_MANIFEST
 from elphel_host.tp.io import QuadCamera, QuadManifest
@@ -270,9 +265,14 @@ def write_quad_burst(
     burst_optics = {k: v for k, v in (optics or {}).items() if k in OPTICS}
     for i, cam in enumerate(cams):
         write_burst(
-            root / cam.file, list(a[i]), infos=infos, bayer=bayer, optics=burst_optics,
-            stage=stage, extra={"quad_camera": i},
-        )  # fmt: skip
+            root / cam.file,
+            list(a[i]),
+            infos=infos,
+            bayer=bayer,
+            optics=burst_optics,
+            stage=stage,
+            extra={"quad_camera": i},
+        )
     manifest = QuadManifest(
         cameras=cams,
         bayer=bayer,

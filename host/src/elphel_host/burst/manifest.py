@@ -137,10 +137,6 @@ def _rest(obj: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
     return {k: v for k, v in obj.items() if k not in known}
 
 
-# Older name of FrameEntry (before the burst format had one owner), kept for scripts.
-FrameInfo = FrameEntry
-
-
 @dataclass(frozen=True)
 class Manifest:
     """A burst's ``manifest.json``.

@@ -179,20 +179,7 @@ def plan_burst(
         depth tolerance and notes.
     """
     scale = check_scale(scale, minimum=MIN_PLAN_SCALE, maximum=MAX_SCALE)
-    for name, v in (
-        ("focal_length_mm", focal_length_mm),
-        ("pixel_pitch_um", pixel_pitch_um),
-        ("distance_mm", distance_mm),
-    ):
-        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{name}={v!r}; allowed: a number > 0")
-    if distance_mm <= focal_length_mm:
-        raise ValueError(
-            f"distance_mm={distance_mm}; allowed: > focal_length_mm "
-            f"({focal_length_mm}) for a real image"
-        )
-    if mm_per_step is not None and not (math.isfinite(mm_per_step) and mm_per_step > 0):
-        raise ValueError(f"mm_per_step={mm_per_step!r}; allowed: a number > 0")
+    _check_optics(focal_length_mm, pixel_pitch_um, distance_mm, mm_per_step)
     period = 2 if bayer else 1
     lattice = period * scale  # phases per period and axis
     n = lattice * lattice if frames is None else frames
@@ -203,50 +190,21 @@ def plan_burst(
     # x advances period * lattice / n px per frame: lattice^2 frames -> steps of 1/S px
     # (period/lattice), y = x / lattice
     step_x = period * lattice / n
-    along_px = [i * step_x / math.cos(theta) for i in range(n)]
-    positions = [a / px_per_mm for a in along_px]
+    positions = [i * step_x / math.cos(theta) / px_per_mm for i in range(n)]
     steps = None
     notes: list[str] = []
     if mm_per_step is not None:
-        steps = [round(p / mm_per_step) for p in positions]
-        positions = [s * mm_per_step for s in steps]
-        step_px = mm_per_step * px_per_mm
-        if step_px > step_x / 2:
-            notes.append(
-                f"stage step = {step_px:.3f} px at the object plane, coarse against "
-                f"the {step_x:.3f} px phase step: phases are uneven; get closer, "
-                "use a longer lens or accept fewer distinct phases"
-            )
-        if len(set(steps)) < len(steps):
-            notes.append("several frames round to the same step: duplicated phases")
+        steps, positions, notes = _round_to_steps(positions, mm_per_step, px_per_mm, step_x)
     shifts = [[p * px_per_mm * math.sin(theta), p * px_per_mm * math.cos(theta)] for p in positions]
     phases = [[round(v % period, 4) for v in s] for s in shifts]
     travel = max(positions) - min(positions)
     travel_px = travel * px_per_mm
     # depth error dZ changes the shift by travel_px * dZ / (Z - f); keep it under 1/(4S) px
     depth_tol = (distance_mm - focal_length_mm) / (4 * scale * max(travel_px, 1e-9))
-    notes += [
-        "one linear axis moves the image along one direction only: with the axis parallel "
-        "to the sensor rows, only x phases change and the gain in y is lost",
-        f"mount the camera so that the stage axis makes theta = {math.degrees(theta):.2f} deg "
-        f"(tan theta = 1/{lattice}) with the sensor rows: the 1-D motion then samples 2-D "
-        "phases",
-        f"parallax: only the plane at {distance_mm:g} mm gets these phases; objects more than "
-        f"about {depth_tol:.1f} mm nearer or farther shift by > 1/(4*{scale}) px differently "
-        "over the burst, and objects at other depths move relative to this plane "
-        "(registration follows the dominant plane)",
-    ]
-    if bayer:
-        notes.append(
-            "Bayer: each colour is sampled every 2 px, so the phases cover a 2 px period "
-            f"({lattice}x{lattice} of them); the travel is {period}x that of a mono plan with "
-            "the same frames, and the parallax limit tighter by as much"
-        )
-    else:
-        notes.append(
-            "for a Bayer sensor use --bayer: a mono plan gives each colour only some of "
-            "the phases of its 2 px period"
-        )
+    notes += _mounting_notes(
+        scale=scale, lattice=lattice, theta=theta, distance_mm=distance_mm, depth_tol=depth_tol
+    )
+    notes.append(_bayer_note(bayer=bayer, lattice=lattice, period=period))
     return BurstPlan(
         scale=scale,
         frames=n,
@@ -261,4 +219,70 @@ def plan_burst(
         travel_mm=travel,
         depth_tolerance_mm=depth_tol,
         notes=notes,
+    )
+
+
+def _check_optics(
+    focal_length_mm: float, pixel_pitch_um: float, distance_mm: float, mm_per_step: float | None
+) -> None:
+    for name, v in (
+        ("focal_length_mm", focal_length_mm),
+        ("pixel_pitch_um", pixel_pitch_um),
+        ("distance_mm", distance_mm),
+    ):
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}={v!r}; allowed: a number > 0")
+    if distance_mm <= focal_length_mm:
+        raise ValueError(
+            f"distance_mm={distance_mm}; allowed: > focal_length_mm "
+            f"({focal_length_mm}) for a real image"
+        )
+    if mm_per_step is not None and not (math.isfinite(mm_per_step) and mm_per_step > 0):
+        raise ValueError(f"mm_per_step={mm_per_step!r}; allowed: a number > 0")
+
+
+def _round_to_steps(
+    positions_mm: list[float], mm_per_step: float, px_per_mm: float, step_x_px: float
+) -> tuple[list[int], list[float], list[str]]:
+    """Positions rounded to whole stage steps: (steps, positions in mm, notes on the rounding)."""
+    steps = [round(p / mm_per_step) for p in positions_mm]
+    notes: list[str] = []
+    step_px = mm_per_step * px_per_mm
+    if step_px > step_x_px / 2:
+        notes.append(
+            f"stage step = {step_px:.3f} px at the object plane, coarse against "
+            f"the {step_x_px:.3f} px phase step: phases are uneven; get closer, "
+            "use a longer lens or accept fewer distinct phases"
+        )
+    if len(set(steps)) < len(steps):
+        notes.append("several frames round to the same step: duplicated phases")
+    return steps, [s * mm_per_step for s in steps], notes
+
+
+def _mounting_notes(
+    *, scale: int, lattice: int, theta: float, distance_mm: float, depth_tol: float
+) -> list[str]:
+    return [
+        "one linear axis moves the image along one direction only: with the axis parallel "
+        "to the sensor rows, only x phases change and the gain in y is lost",
+        f"mount the camera so that the stage axis makes theta = {math.degrees(theta):.2f} deg "
+        f"(tan theta = 1/{lattice}) with the sensor rows: the 1-D motion then samples 2-D "
+        "phases",
+        f"parallax: only the plane at {distance_mm:g} mm gets these phases; objects more than "
+        f"about {depth_tol:.1f} mm nearer or farther shift by > 1/(4*{scale}) px differently "
+        "over the burst, and objects at other depths move relative to this plane "
+        "(registration follows the dominant plane)",
+    ]
+
+
+def _bayer_note(*, bayer: bool, lattice: int, period: int) -> str:
+    if bayer:
+        return (
+            "Bayer: each colour is sampled every 2 px, so the phases cover a 2 px period "
+            f"({lattice}x{lattice} of them); the travel is {period}x that of a mono plan with "
+            "the same frames, and the parallax limit tighter by as much"
+        )
+    return (
+        "for a Bayer sensor use --bayer: a mono plan gives each colour only some of "
+        "the phases of its 2 px period"
     )

@@ -22,6 +22,8 @@ from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
 from elphel_host.stage.positioning import MoveResult, Positioner
+from elphel_host.tp.io import MANIFEST as QUAD_MANIFEST
+from elphel_host.tp.io import QuadCamera, QuadManifest
 
 
 @dataclass
@@ -96,25 +98,9 @@ def capture_quad_burst(
     A set counts as stored when all four cameras hold it; running the capture again takes
     the sets still missing (a set that only some cameras hold is taken again).
     """
-    from elphel_host.tp.io import MANIFEST as QUAD_MANIFEST
-    from elphel_host.tp.io import QuadCamera, QuadManifest
-
     root = Path(out)
     plan_key = {"start_mm": start_mm, "positions_mm": list(positions_mm)}
-    manifests: list[Manifest] = []
-    for name in QUAD_CAMERAS:
-        d = root / name
-        (d / "frames").mkdir(parents=True, exist_ok=True)
-        m = load_progress(d)
-        if m is None:
-            m = Manifest.from_json({"version": VERSION, "frames": [], **dict(top or {}),
-                                    "capture": plan_key, "quad_camera": int(name[3])})  # fmt: skip
-        elif m.extra.get("capture") != plan_key:
-            raise InputFormatError(
-                f"{d / MANIFEST}: holds a burst of another plan or start position; "
-                "choose a new --out or remove it"
-            )
-        manifests.append(m)
+    manifests = [_camera_progress(root / name, plan_key, top) for name in QUAD_CAMERAS]
     held = [
         {e.index for e in m.frames if e.index is not None and (root / name / e.file).exists()}
         for m, name in zip(manifests, QUAD_CAMERAS, strict=True)
@@ -134,36 +120,69 @@ def capture_quad_burst(
             for cam, data in zip(QUAD_CAMERAS, tiffs, strict=True):
                 write_atomic(root / cam / name, data, sync=True)
             if not (root / QUAD_MANIFEST).exists():
-                qm = QuadManifest(
-                    cameras=tuple(
-                        QuadCamera(file=cam, position=quad.cameras[c].position,
-                                   fields={k: v for k, v in quad.cameras[c].fields.items()
-                                           if k in ("port", "sensor")})
-                        for c, cam in enumerate(QUAD_CAMERAS)
-                    ),
-                    bayer=quad.bayer,
-                    full_scale_dn=quad.full_scale_dn,
-                    optics=dict(optics) if optics else quad.optics,
-                )  # fmt: skip
-                qm.write(root)
-            for c, cam in enumerate(QUAD_CAMERAS):
-                fields = quad.cameras[c].fields
-                entry = FrameEntry(
-                    file=name, index=i, stage_mm=round(target, 6), caliper_mm=moved.caliper_mm,
-                    frame=fields.get("frame"), timestamp_ns=fields.get("timestamp_ns"),
-                )  # fmt: skip
-                # a set only some cameras held is replaced, never entered twice
-                kept = tuple(e for e in manifests[c].frames if e.index != i)
-                m = replace(replace(manifests[c], frames=kept).with_frame(entry), bayer=quad.bayer)
-                manifests[c] = m
-                write_manifest(root / cam, m, sync=True)
+                _quad_manifest(quad, optics).write(root)
+            _record_set(
+                root,
+                manifests,
+                quad,
+                FrameEntry(
+                    file=name, index=i, stage_mm=round(target, 6), caliper_mm=moved.caliper_mm
+                ),
+            )
             result.captured.append(i)
             if progress is not None:
-                progress(len(done) + len(result.captured), total,
-                         f"set {i} at {moved.caliper_mm:.3f} mm")  # fmt: skip
+                message = f"set {i} at {moved.caliper_mm:.3f} mm"
+                progress(len(done) + len(result.captured), total, message)
     except BaseException:
         engine.stop()
         raise
     finally:
         result.seconds = time.monotonic() - t0
     return result
+
+
+def _camera_progress(
+    directory: Path, plan_key: dict[str, Any], top: Mapping[str, Any] | None
+) -> Manifest:
+    """One camera's burst so far (an empty one if none), checked to be of this plan."""
+    (directory / "frames").mkdir(parents=True, exist_ok=True)
+    m = load_progress(directory)
+    if m is None:
+        quad_camera = int(directory.name[3])
+        obj = {"version": VERSION, "frames": [], **dict(top or {})}
+        return Manifest.from_json({**obj, "capture": plan_key, "quad_camera": quad_camera})
+    if m.extra.get("capture") != plan_key:
+        raise InputFormatError(
+            f"{directory / MANIFEST}: holds a burst of another plan or start position; "
+            "choose a new --out or remove it"
+        )
+    return m
+
+
+def _quad_manifest(quad: QuadManifest, optics: Mapping[str, Any] | None) -> QuadManifest:
+    """The quad burst's ``quad.json``: the set's cameras (port, sensor) as ``cam0`` .. ``cam3``."""
+    cameras = []
+    for c, cam in enumerate(QUAD_CAMERAS):
+        fields = quad.cameras[c].fields
+        kept = {k: v for k, v in fields.items() if k in ("port", "sensor")}
+        cameras.append(QuadCamera(file=cam, position=quad.cameras[c].position, fields=kept))
+    return QuadManifest(
+        cameras=tuple(cameras),
+        bayer=quad.bayer,
+        full_scale_dn=quad.full_scale_dn,
+        optics=dict(optics) if optics else quad.optics,
+    )
+
+
+def _record_set(
+    root: Path, manifests: list[Manifest], quad: QuadManifest, entry: FrameEntry
+) -> None:
+    """Enter one set in each camera's manifest (``entry`` with that camera's frame and time)."""
+    for c, cam in enumerate(QUAD_CAMERAS):
+        fields = quad.cameras[c].fields
+        own = replace(entry, frame=fields.get("frame"), timestamp_ns=fields.get("timestamp_ns"))
+        # a set only some cameras held is replaced, never entered twice
+        kept = tuple(e for e in manifests[c].frames if e.index != entry.index)
+        m = replace(replace(manifests[c], frames=kept).with_frame(own), bayer=quad.bayer)
+        manifests[c] = m
+        write_manifest(root / cam, m, sync=True)

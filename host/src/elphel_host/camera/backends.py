@@ -12,7 +12,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from elphel_host.camera.client import CameraClient
-from elphel_host.camera.nc393_address import bad_url, parse_nc393_url
+from elphel_host.camera.nc393.address import bad_url, parse_nc393_url
 from elphel_host.camera.protocol import CameraInterface
 
 
@@ -47,7 +47,7 @@ def connect(url: str, token: str | None = None, **options: Any) -> CameraInterfa
         return CameraClient(url, token, **options)
     if scheme == "nc393":
         # imported here: elphel-camd users do not load the stock camera's parameter model
-        from elphel_host.camera.nc393 import NC393Client
+        from elphel_host.camera.nc393.client import NC393Client
 
         return NC393Client(parse_nc393_url(url), **options)
     raise bad_url(url, f"scheme {scheme or 'none'!r} names no camera backend")

@@ -31,7 +31,7 @@ from elphel_host.errors import CameraAuthError, CameraClientError, CameraParamet
 
 def register(sub: Any) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    add_camera_options(common, aliases=("--url",))
+    add_camera_options(common)
     add_json_option(common)
     ported = argparse.ArgumentParser(add_help=False)
     add_sensor_port_option(ported)
@@ -56,9 +56,26 @@ def register(sub: Any) -> None:
     get.add_argument("--frame", type=int, help="parameters of a recent or scheduled frame")
     get.set_defaults(func=cmd_get, parser=get)
 
+    _add_set(cmd, [common, ported])
+    _add_capture(cmd, [common, ported])
+
+    watch = cmd.add_parser(
+        "watch",
+        parents=[common],
+        help="print the daemon's events (frames, parameter changes, errors)",
+    )
+    watch.add_argument(
+        "--types", default="frame,params,error", help="comma-separated: frame,params,error"
+    )
+    add_sensor_port_option(watch, default=None, help="only this sensor port's events")
+    watch.add_argument("--count", type=int, help="stop after N events")
+    watch.set_defaults(func=cmd_watch, parser=watch)
+
+
+def _add_set(cmd: Any, parents: list[argparse.ArgumentParser]) -> None:
     set_ = cmd.add_parser(
         "set",
-        parents=[common, ported],
+        parents=parents,
         help="set parameters (e.g. EXPOS=5000 GAINR=0x20000; names in any case, "
         "`elphel camera params` lists them): all or none on elphel-camd; "
         "on a stock NC393 checked first, written in one request, read back",
@@ -69,9 +86,11 @@ def register(sub: Any) -> None:
     when.add_argument("--ahead", type=int, help="apply this many frames from now")
     set_.set_defaults(func=cmd_set, parser=set_)
 
+
+def _add_capture(cmd: Any, parents: list[argparse.ArgumentParser]) -> None:
     cap = cmd.add_parser(
         "capture",
-        parents=[common, ported],
+        parents=parents,
         help="capture the next frame (or a recent one, or a burst) as a 16-bit TIFF",
     )
     cap.add_argument("--out", type=Path, help="TIFF path (default: portP-frameN.tif)")
@@ -92,18 +111,6 @@ def register(sub: Any) -> None:
         "and record each row's time",
     )
     cap.set_defaults(func=cmd_capture, parser=cap)
-
-    watch = cmd.add_parser(
-        "watch",
-        parents=[common],
-        help="print the daemon's events (frames, parameter changes, errors)",
-    )
-    watch.add_argument(
-        "--types", default="frame,params,error", help="comma-separated: frame,params,error"
-    )
-    add_sensor_port_option(watch, default=None, help="only this sensor port's events")
-    watch.add_argument("--count", type=int, help="stop after N events")
-    watch.set_defaults(func=cmd_watch, parser=watch)
 
 
 def _client(args: argparse.Namespace, *, retry_s: float = 0.0) -> CameraInterface:
@@ -221,9 +228,7 @@ def cmd_params(args: argparse.Namespace) -> int:
         sensor = ports[args.sensor_port]["sensor"] or {}
         values = client.params(args.sensor_port)
     schema = daemon_schema(args.camera) if info.get("daemon") == "elphel-camd" else table_schema()
-    rows = param_rows(
-        schema, values, sensor_code=sensor.get("sensor_code"), port=args.sensor_port
-    )
+    rows = param_rows(schema, values, sensor_code=sensor.get("sensor_code"), port=args.sensor_port)
     width = max(len(r.name) for r in rows)
     lines = [
         f"{r.name:<{width}}  {'' if r.value is None else r.value:>10}  {r.unit:<8} "
@@ -372,8 +377,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             ports = sorted(p["port"] for p in client.info()["ports"])
             if args.sensor_port not in ports:
                 raise CameraClientError(
-                    f"port {args.sensor_port} does not exist; ports: "
-                    + ", ".join(map(str, ports))
+                    f"port {args.sensor_port} does not exist; ports: " + ", ".join(map(str, ports))
                 )
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):

@@ -15,7 +15,6 @@ from typing import Any
 import httpx
 
 from elphel_host.camera.events import CameraEvent, SSEParser
-from elphel_host.camera.frames import Burst as Burst  # re-exported: the older name
 from elphel_host.camera.frames import (
     CapturedBurst,
     CapturedFrame,
@@ -23,10 +22,8 @@ from elphel_host.camera.frames import (
     read_tiff_metadata,
     read_tiff_pages,
 )
-from elphel_host.camera.frames import read_burst as read_burst  # re-exported: the older name
 from elphel_host.camera.retry import Backoff, retryable
-from elphel_host.camera.staging import Applied as Applied  # re-exported: its older home
-from elphel_host.camera.staging import Staging
+from elphel_host.camera.staging import Applied, Staging
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraAuthError, CameraClientError
 
@@ -185,13 +182,8 @@ class CameraClient(Staging, Closing):
         result: dict[str, int] = self._json("GET", f"/ports/{port}/params", params=query)
         return result
 
-    def set_params(
-        self,
-        changes: Mapping[str, int],
-        *,
-        port: int = 0,
-        frame: int | None = None,
-        ahead: int | None = None,
+    def _set_params(
+        self, changes: Mapping[str, int], port: int, frame: int | None, ahead: int | None
     ) -> Applied:
         """Change parameters all-or-nothing, at once, at frame ``frame`` or ``ahead`` frames on.
 
@@ -307,11 +299,7 @@ class CameraClient(Staging, Closing):
         remaining = count
         backoff = Backoff(self.retry_s)
         while True:
-            query: dict[str, Any] = {"types": ",".join(types)}
-            if port is not None:
-                query["port"] = port
-            if remaining is not None:
-                query["count"] = remaining
+            query = _event_query(types, port=port, count=remaining)
             headers = {} if last_id is None else {"Last-Event-ID": str(last_id)}
             timeout = httpx.Timeout(self.timeout_s, read=None)
             try:
@@ -362,3 +350,13 @@ def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:
         for image, meta in zip(pages, metadata, strict=True):
             tif.write(image, description=json.dumps(meta), metadata=None)
     return buffer.getvalue()
+
+
+def _event_query(types: tuple[str, ...], *, port: int | None, count: int | None) -> dict[str, Any]:
+    """The query of ``GET /events``: the types, and the port and count when given."""
+    query: dict[str, Any] = {"types": ",".join(types)}
+    if port is not None:
+        query["port"] = port
+    if count is not None:
+        query["count"] = count
+    return query

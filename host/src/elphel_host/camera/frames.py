@@ -182,9 +182,3 @@ def read_partial_tiff(data: bytes) -> tuple[list[NDArray[Any]], list[dict[str, A
 
 def _u32(b: bytes) -> int:
     return int.from_bytes(b, "little")
-
-
-# Older names, kept for scripts: the multi-page capture was ``Burst`` (a burst directory is
-# elphel_host.burst.io.Burst) and its decoder ``read_burst``.
-Burst = CapturedBurst
-read_burst = read_tiff_pages

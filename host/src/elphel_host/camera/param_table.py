@@ -17,7 +17,7 @@ from typing import Any
 import httpx
 
 from elphel_camd.params import PARAMS
-from elphel_host.camera.stock_model import StockModel
+from elphel_host.camera.nc393.model import StockModel
 from elphel_host.errors import CameraClientError, CameraParameterError, UnsupportedError
 
 

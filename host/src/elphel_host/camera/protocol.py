@@ -1,7 +1,7 @@
 """What the host needs of a camera, whichever backend serves it: the `CameraInterface` protocol.
 
 Two backends keep it: `~elphel_host.camera.client.CameraClient` (elphel-camd over REST)
-and `~elphel_host.camera.nc393.NC393Client` (a stock NC393: parsedit.php and imgsrv).
+and `~elphel_host.camera.nc393.client.NC393Client` (a stock NC393: parsedit.php and imgsrv).
 `elphel_host.camera.connect` picks one from the camera URL. A backend that lacks a
 feature raises `~elphel_host.errors.UnsupportedError` naming it.
 """

@@ -1,7 +1,7 @@
-"""Scoped settings for every camera backend: `Staging.staged` and the `Applied` answer.
+"""Parameter changes for every camera backend: `Staging.set_params`, `Staging.staged`, `Applied`.
 
-A backend that has ``params(port)`` and ``set_params(changes, port=...)`` inherits
-``staged``: the block runs with the settings written, and the previous values come back
+A backend that has ``params(port)`` and implements ``_set_params`` inherits ``set_params``
+and ``staged``: the block runs with the settings written, and the previous values come back
 afterwards, also after an error, and also when a write fails halfway through several
 ports.
 """
@@ -9,6 +9,7 @@ ports.
 from __future__ import annotations
 
 import contextlib
+from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -27,13 +28,35 @@ class Applied:
     params: dict[str, int]
 
 
-class Staging:
-    """``staged()`` for a backend, written on its ``params`` and ``set_params``."""
+class Staging(ABC):
+    """``set_params`` and ``staged()``, written on the backend's ``params`` and ``_set_params``."""
+
+    def set_params(
+        self,
+        changes: Mapping[str, int],
+        *,
+        port: int = 0,
+        frame: int | None = None,
+        ahead: int | None = None,
+    ) -> Applied:
+        """Change parameters at frame ``frame`` or ``ahead`` frames on; the frame they take.
+
+        How, and with which guarantees, is the backend's: see its ``_set_params``.
+        """
+        return self._set_params(changes, port, frame, ahead)
+
+    @abstractmethod
+    def _set_params(
+        self, changes: Mapping[str, int], port: int, frame: int | None, ahead: int | None
+    ) -> Applied:
+        """Change ``port``'s parameters at frame ``frame`` or ``ahead`` frames on."""
 
     @contextlib.contextmanager
     def staged(
         self: CameraInterface,
-        changes: Mapping[str, int] | Mapping[int, Mapping[str, int]], *, port: int = 0
+        changes: Mapping[str, int] | Mapping[int, Mapping[str, int]],
+        *,
+        port: int = 0,
     ) -> Iterator[dict[int, Applied]]:
         """Apply settings for a block and put the previous values back on exit.
 

@@ -37,7 +37,8 @@ from elphel_host.depth.products import (
     dsi_depth,
 )
 from elphel_host.errors import InputFormatError
-from elphel_host.mfsr.fuse import bayer_luma, fuse_frames, register_lumas
+from elphel_host.mfsr.bayer import bayer_luma
+from elphel_host.mfsr.fuse import fuse_frames, register_lumas
 from elphel_host.mfsr.local_motion import (
     ParallaxModel,
     camera_view_disparity,
@@ -171,9 +172,51 @@ def parallax_model(qb: QuadBurst, cam: int, optics: DepthOptics) -> ParallaxMode
         return None
     angle = float(burst.stage.get("axis_angle_deg", 0.0))
     return ParallaxModel.from_caliper(
-        [float(p) for p in pos if p is not None], baseline_mm=optics.baseline_mm,
+        [float(p) for p in pos if p is not None],
+        baseline_mm=optics.baseline_mm,
         axis_angle_deg=angle,
-    )  # fmt: skip
+    )
+
+
+def _fuse_camera(
+    qb: QuadBurst,
+    cam: int,
+    optics: DepthOptics,
+    config: DepthConfig,
+    centre: F32,
+    median_disparity_px: float,
+) -> tuple[F32, dict[str, Any]]:
+    """One camera's burst fused as ``config.fusion`` says, and what the fusion reports.
+
+    ``centre`` is the centre view's disparity per pixel (for the shift-and-add fusion);
+    ``median_disparity_px`` scales a parallax model found by
+    registration when the burst has no stage positions.
+    """
+    burst = qb.bursts[cam]
+    bayer = qb.manifest.bayer
+    if config.fusion != SHIFT_AND_ADD:
+        res = fuse_frames(
+            [f.astype(np.float32) for f in burst.frames],
+            scale=config.scale,
+            method=config.method,
+            bayer=bayer,
+            prior=burst.stage_prior_px(),
+        )
+        return res.image, {"used": len(res.registrations) - len(res.excluded)}
+    cam_info: dict[str, Any] = {"parallax_from": "caliper"}
+    model = parallax_model(qb, cam, optics)
+    if model is None:
+        frames = [f.astype(np.float32) for f in burst.frames]
+        lumas = frames if bayer is None else [bayer_luma(f) for f in frames]
+        regs = register_lumas(lumas, mosaic=bayer is not None)
+        model = ParallaxModel.from_registration(regs, disparity_px=median_disparity_px)
+        cam_info = {"parallax_from": "registration"}
+    view = camera_view_disparity(centre, qb.manifest.geometry.positions[cam])
+    img, finfo = fuse_parallax(
+        list(burst.frames), model, view, scale=config.scale, bayer=bayer, threads=config.threads
+    )
+    cam_info.update(finfo)
+    return img, cam_info
 
 
 def quad_burst_depth(
@@ -204,7 +247,6 @@ def quad_burst_depth(
         prior["disparity"], prior["strength"], min_strength=config.min_strength
     )
     centre = pixel_disparity(field_lr, lr.images.shape[1:])
-    positions = geometry.positions
     h, w = lr.images.shape[1:]
     hs, ws = h * config.scale, w * config.scale
     # the fused quad, filled camera by camera (no stacked copies: at 2592x1936 x2 the
@@ -212,33 +254,10 @@ def quad_burst_depth(
     rgb = np.empty((4, hs, ws, 3), np.float32) if bayer is not None else None
     lum = np.empty((4, hs, ws), np.float32)
     info: dict[str, Any] = {}
+    median_px = float(np.median(field_lr))
     for cam, burst in enumerate(qb.bursts):
         say(f"fuse: camera {cam} ({burst.frames.shape[0]} frames, x{config.scale})")
-        if config.fusion == SHIFT_AND_ADD:
-            cam_info: dict[str, Any]
-            model = parallax_model(qb, cam, optics)
-            if model is None:
-                frames = [f.astype(np.float32) for f in burst.frames]
-                lumas = frames if bayer is None else [bayer_luma(f) for f in frames]
-                regs = register_lumas(lumas, mosaic=bayer is not None)
-                model = ParallaxModel.from_registration(
-                    regs, disparity_px=float(np.median(field_lr))
-                )
-                cam_info = {"parallax_from": "registration"}
-            else:
-                cam_info = {"parallax_from": "caliper"}
-            view = camera_view_disparity(centre, positions[cam])
-            img, finfo = fuse_parallax(
-                list(burst.frames), model, view, scale=config.scale, bayer=bayer,
-                threads=config.threads,
-            )  # fmt: skip
-            cam_info.update(finfo)
-        else:
-            res = fuse_frames(
-                [f.astype(np.float32) for f in burst.frames], scale=config.scale,
-                method=config.method, bayer=bayer, prior=burst.stage_prior_px(),
-            )  # fmt: skip
-            img, cam_info = res.image, {"used": len(res.registrations) - len(res.excluded)}
+        img, cam_info = _fuse_camera(qb, cam, optics, config, centre, median_px)
         info[f"cam{cam}"] = cam_info
         img = np.asarray(img, dtype=np.float32)
         img /= full

@@ -186,20 +186,9 @@ def dsi_depth(
         Optional ``(4, H, W, 3)`` colour images of the quad (a fused Bayer burst) to take
         the points' colours from instead of the quad's own images.
     """
-    for name in ("disparity", "strength"):
-        if name not in dsi:
-            raise InputFormatError(f"DSI has no {name!r} layer; layers: {', '.join(dsi)}")
-    if not min_strength >= 0:
-        raise InputFormatError(f"min_strength={min_strength}; allowed: >= 0")
-    if max_disagreement is not None and not max_disagreement > 0:
-        raise InputFormatError(f"max_disagreement={max_disagreement}; allowed: > 0 or None")
+    _check_dsi(dsi, quad, min_strength=min_strength, max_disagreement=max_disagreement)
     disparity = np.asarray(dsi["disparity"], dtype=np.float64)
     strength = np.asarray(dsi["strength"], dtype=np.float64)
-    if disparity.shape != quad.tiles:
-        raise InputFormatError(
-            f"DSI has {disparity.shape[1]}x{disparity.shape[0]} tiles, the quad "
-            f"{quad.tiles[1]}x{quad.tiles[0]}"
-        )
     h, w = quad.images.shape[1:]
     infinite = ~(np.isfinite(disparity) & (disparity > 0))
     weak = ~infinite & ~(strength >= min_strength)
@@ -232,6 +221,28 @@ def dsi_depth(
         inconsistent=int(np.count_nonzero(inconsistent)),
         max_disagreement=None if max_disagreement is None else float(max_disagreement),
     )
+
+
+def _check_dsi(
+    dsi: dict[str, F32],
+    quad: QuadImages,
+    *,
+    min_strength: float,
+    max_disagreement: float | None,
+) -> None:
+    """The DSI has the layers and tiles ``dsi_depth`` needs; the limits are in range."""
+    for name in ("disparity", "strength"):
+        if name not in dsi:
+            raise InputFormatError(f"DSI has no {name!r} layer; layers: {', '.join(dsi)}")
+    if not min_strength >= 0:
+        raise InputFormatError(f"min_strength={min_strength}; allowed: >= 0")
+    if max_disagreement is not None and not max_disagreement > 0:
+        raise InputFormatError(f"max_disagreement={max_disagreement}; allowed: > 0 or None")
+    shape = np.shape(dsi["disparity"])
+    if shape != quad.tiles:
+        raise InputFormatError(
+            f"DSI has {shape[1]}x{shape[0]} tiles, the quad {quad.tiles[1]}x{quad.tiles[0]}"
+        )
 
 
 def write_depth_tiff(path: str | Path, depth_mm: F32, *, metadata: dict[str, Any]) -> Path:

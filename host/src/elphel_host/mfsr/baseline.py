@@ -27,6 +27,28 @@ F32 = NDArray[np.float32]
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-3)
 
 
+def _upsampled(frame: F32, size: tuple[int, int]) -> F32:
+    """``frame`` resized bicubically to ``size`` (width, height)."""
+    up = cv2.resize(np.asarray(frame, np.float32), size, interpolation=cv2.INTER_CUBIC)
+    return np.asarray(up, dtype=np.float32)
+
+
+def _ecc_warp(ref: F32, up: F32) -> NDArray[np.float32] | None:
+    """ECC translation of ``up`` onto ``ref`` from identity, else from phase correlation."""
+    for init in ((0.0, 0.0), None):
+        if init is None:
+            init = phase_correlation_shift(ref, up)
+        m = np.array([[1.0, 0.0, -init[1]], [0.0, 1.0, -init[0]]], dtype=np.float32)
+        try:
+            _, warp = cv2.findTransformECC(  # type: ignore[call-overload]
+                ref, up, m, cv2.MOTION_TRANSLATION, _CRITERIA, None, 5
+            )
+            return np.asarray(warp, dtype=np.float32)
+        except cv2.error:
+            continue
+    return None
+
+
 def fuse_baseline(frames: Sequence[F32], *, scale: int) -> tuple[F32, dict[str, Any]]:
     """Bicubic up-sampling, ECC translation registration, median.
 
@@ -48,10 +70,7 @@ def fuse_baseline(frames: Sequence[F32], *, scale: int) -> tuple[F32, dict[str, 
     scale = check_scale(scale, maximum=None)
     h, w = frames[0].shape
     size = (w * scale, h * scale)
-    ref = np.asarray(
-        cv2.resize(np.asarray(frames[0], np.float32), size, interpolation=cv2.INTER_CUBIC),
-        dtype=np.float32,
-    )
+    ref = _upsampled(frames[0], size)
     stack = np.empty((len(frames), size[1], size[0]), dtype=np.float32)
     stack[0] = ref
     used = [0]
@@ -60,33 +79,15 @@ def fuse_baseline(frames: Sequence[F32], *, scale: int) -> tuple[F32, dict[str, 
     for i in range(1, len(frames)):
         if frames[i].shape != (h, w):
             raise ValueError(f"frames[{i}].shape={frames[i].shape}; allowed: {(h, w)}")
-        up = np.asarray(
-            cv2.resize(np.asarray(frames[i], np.float32), size, interpolation=cv2.INTER_CUBIC),
-            dtype=np.float32,
-        )
-        warp = None
-        for init in ((0.0, 0.0), None):
-            if init is None:
-                dy, dx = phase_correlation_shift(ref, up)
-                init = (dy, dx)
-            m = np.array([[1.0, 0.0, -init[1]], [0.0, 1.0, -init[0]]], dtype=np.float32)
-            try:
-                _, warp = cv2.findTransformECC(  # type: ignore[call-overload]
-                    ref, up, m, cv2.MOTION_TRANSLATION, _CRITERIA, None, 5
-                )
-                break
-            except cv2.error:
-                warp = None
+        up = _upsampled(frames[i], size)
+        warp = _ecc_warp(ref, up)
         if warp is None:
             excluded.append(i)
             shifts.append(None)
             continue
+        flags = cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP
         stack[len(used)] = cv2.warpAffine(
-            up,
-            warp,
-            size,
-            flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_REFLECT_101,
+            up, warp, size, flags=flags, borderMode=cv2.BORDER_REFLECT_101
         )
         used.append(i)
         shifts.append([-float(warp[1, 2]) / scale, -float(warp[0, 2]) / scale])

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,7 +27,7 @@ from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.output import fused_meta, write_image
-from elphel_host.mfsr.psf_given import parse_psf
+from elphel_host.mfsr.psf_spec import PsfSpec, parse_psf
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import save_preview
@@ -83,20 +82,6 @@ def register(subparsers: Any) -> None:
         "one per kernel cell; the burst must cover that camera's whole image)",
     )
     p.add_argument(
-        "--psf-regions",
-        default=None,
-        metavar="RxC",
-        help="a PSF per image region: R rows x C columns of regions (1..8 each), each "
-        "estimated from its own pixels and the results blended (default 1x1: one PSF)",
-    )
-    p.add_argument(
-        "--blur-sigma",
-        type=float,
-        default=None,
-        metavar="PX",
-        help="the same as --psf sigma=PX",
-    )
-    p.add_argument(
         "--no-prior", action="store_true", help="ignore the stage/optics prior of the manifest"
     )
     p.add_argument(
@@ -111,89 +96,37 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-def psf_regions(text: str | None) -> tuple[int, int]:
-    """``--psf-regions RxC`` as (rows, columns); None: (1, 1)."""
-    if text is None:
-        return (1, 1)
-    parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
-        raise InputFormatError(f"--psf-regions {text!r}; allowed: RxC, e.g. 2x3")
-    return (int(parts[0]), int(parts[1]))
+def psf_choice(text: str | None) -> PsfSpec | QuadPsfs:
+    """``--psf``: a :data:`~elphel_host.mfsr.psf_spec.PsfSpec`, or a quad's PSFs.
 
-
-def robust_config(
-    psf: str | None,
-    blur_sigma: float | None = None,
-    regions: str | None = None,
-    *,
-    scale: int | None = None,
-) -> RobustConfig:
-    """The robust method's options from ``--psf``, ``--blur-sigma`` and ``--psf-regions``.
-
-    ``scale``: the output's, which a quad's PSFs (``--psf quad=DIR``) are drawn at, for
-    frames that are the quad's whole images (`elphel_host.mfsr.psf_tp.burst_config` draws
-    them for a burst's own window).
+    ``quad=DIR[,camera=N]`` gives the PSFs recovered from a quad's kernel file, drawn per
+    burst under its window (:func:`robust_config`); any other value is parsed by
+    :func:`~elphel_host.mfsr.psf_spec.parse_psf`.
     """
+    text = "auto" if text is None else text
     try:
-        quad = quad_option(psf, blur_sigma, regions)
-        if quad is not None:
-            if scale is None:
-                raise ValueError("--psf quad=DIR needs the output's scale")
-            from elphel_host.mfsr.psf_tp import quad_config
-
-            return quad_config(quad, scale)
-        return replace(_psf_config(psf, blur_sigma), psf_regions=psf_regions(regions))
+        if not text.strip().startswith("quad="):
+            return parse_psf(text)
     except ValueError as e:
         raise InputFormatError(str(e)) from e
+    from elphel_host.mfsr.psf_tp import quad_psfs  # SciPy's optimiser: only when asked for
 
-
-def quad_option(psf: str | None, blur_sigma: float | None, regions: str | None) -> QuadPsfs | None:
-    """``--psf quad=DIR[,camera=N]``: the PSFs recovered from a quad's kernel file."""
-    if psf is None or not psf.strip().startswith("quad="):
-        return None
-    from elphel_host.mfsr.psf_tp import quad_psfs
-
-    if regions is not None:
-        raise InputFormatError(
-            f"--psf-regions {regions} and --psf {psf}: the quad's kernel grid sets "
-            "the regions; give one of them"
-        )
-    if blur_sigma is not None:
-        raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
-    where, _, rest = psf.strip()[len("quad=") :].partition(",")
+    where, _, rest = text.strip()[len("quad=") :].partition(",")
     camera = rest[len("camera=") :] if rest.startswith("camera=") else None
     if not where or (rest and (camera is None or not camera.isdigit())):
-        raise InputFormatError(f"--psf {psf!r}; allowed: quad=QUAD_DIR or quad=QUAD_DIR,camera=N")
+        raise InputFormatError(f"--psf {text!r}; allowed: quad=QUAD_DIR or quad=QUAD_DIR,camera=N")
     return quad_psfs(where, int(camera or 0))
 
 
-def _burst_config(
-    config: RobustConfig, quad: QuadPsfs | None, burst_dir: str, burst: Burst, scale: int
+def robust_config(
+    choice: PsfSpec | QuadPsfs, burst_dir: str, burst: Burst, scale: int
 ) -> RobustConfig:
-    if quad is None:
-        return config
-    from elphel_host.mfsr.psf_tp import burst_config
+    """The robust method's options for one burst: a quad's PSFs drawn under its window."""
+    if isinstance(choice, PsfSpec):
+        return RobustConfig(psf=choice)
+    from elphel_host.mfsr.psf_tp import burst_psf
 
-    return burst_config(quad, burst_dir, burst, scale)
-
-
-def _psf_config(psf: str | None, blur_sigma: float | None) -> RobustConfig:
-    if blur_sigma is not None:
-        if psf is not None:
-            raise InputFormatError(f"--blur-sigma {blur_sigma} and --psf {psf}: give one of them")
-        psf = f"sigma={blur_sigma}"
-    try:
-        given = parse_psf(psf or "auto")
-    except ValueError as e:
-        raise InputFormatError(str(e)) from e
-    if given is None:
-        return RobustConfig(estimate_psf=True)
-    if given.kernel is not None and given.kernel.ndim == 4:
-        return RobustConfig(psf_grid=given.kernel)
-    if given.kernel is not None:
-        return RobustConfig(psf_kernel=given.kernel)
-    # a given sigma: its prior's tau is still chosen (`none`: the pixel aperture alone, no search)
-    return RobustConfig(blur_sigma=given.sigma, estimate_psf=given.sigma > 0)
+    return RobustConfig(psf=burst_psf(choice, burst_dir, burst, scale))
 
 
 def _fuse_one(
@@ -202,9 +135,8 @@ def _fuse_one(
     method: str,
     out: str,
     as_float: bool,
-    config: RobustConfig,
+    psf: PsfSpec | QuadPsfs,
     use_prior: bool,
-    quad: QuadPsfs | None = None,
 ) -> dict[str, Any]:
     burst = read_burst(burst_dir)
     res = fuse_burst(
@@ -212,7 +144,7 @@ def _fuse_one(
         scale=scale,
         method=method,
         use_prior=use_prior,
-        config=_burst_config(config, quad, burst_dir, burst, scale),
+        config=robust_config(psf, burst_dir, burst, scale),
     )
     meta = fused_meta(method=method, scale=scale, burst=burst_dir, bayer=burst.bayer)
     written = write_image(Path(out), res.image, as_float=as_float, meta=meta)
@@ -220,12 +152,7 @@ def _fuse_one(
 
 
 def run(args: argparse.Namespace) -> int:
-    args.quad_psfs = quad_option(args.psf, args.blur_sigma, args.psf_regions)
-    args.robust_config = (
-        RobustConfig()  # the quad's PSFs are drawn per burst, under its window
-        if args.quad_psfs is not None
-        else robust_config(args.psf, args.blur_sigma, args.psf_regions, scale=args.scale)
-    )
+    args.psf_choice = psf_choice(args.psf)
     if args.burst_dirs[0] == "compare":
         return run_compare(args)
     dirs = args.burst_dirs
@@ -236,9 +163,8 @@ def run(args: argparse.Namespace) -> int:
             args.method,
             args.out,
             args.float,
-            args.robust_config,
+            args.psf_choice,
             not args.no_prior,
-            args.quad_psfs,
         )
         human = (
             f"{result['out']}: {result['method']} x{args.scale}, {result['used']}/"
@@ -298,9 +224,8 @@ def _run_many(args: argparse.Namespace) -> list[dict[str, Any]]:
                     args.method,
                     o,
                     args.float,
-                    args.robust_config,
+                    args.psf_choice,
                     not args.no_prior,
-                    args.quad_psfs,
                     pure=False,
                 ): i
                 for i, (d, o) in enumerate(zip(args.burst_dirs, outs, strict=True))
@@ -322,13 +247,32 @@ def _crop(image: NDArray[np.float32], size: int) -> NDArray[np.float32]:
     return image[y0 : y0 + size, x0 : x0 + size]
 
 
+def _scores(
+    ref: NDArray[np.float32], image: NDArray[np.float32], scale: int, name: str
+) -> dict[str, float]:
+    """PSNR and SSIM of ``image`` against the reference ``ref`` (luminance of RGB)."""
+    if ref.shape != image.shape:
+        raise InputFormatError(
+            f"{name}: shape={ref.shape}; allowed: {image.shape} (the output grid)"
+        )
+    # scores relative to the reference's own span (a 12-bit image in 16-bit containers
+    # would otherwise look 24 dB better than it is)
+    rng = max(float(ref.max() - ref.min()), 1e-12)
+    b = 4 * scale
+    a2 = image if image.ndim == 2 else image.mean(axis=2)
+    r2 = ref if ref.ndim == 2 else ref.mean(axis=2)
+    return {
+        "psnr_db": round(psnr(r2, a2, data_range=rng, border=b), 3),
+        "ssim": round(ssim(r2, a2, data_range=rng, border=b), 4),
+        "data_range": rng,
+    }
+
+
 def run_compare(args: argparse.Namespace) -> int:
     if len(args.burst_dirs) != 2:
         raise InputFormatError(f"compare takes one BURST_DIR, got {args.burst_dirs[1:]}")
     burst = read_burst(args.burst_dirs[1])
-    config = _burst_config(
-        args.robust_config, args.quad_psfs, args.burst_dirs[1], burst, args.scale
-    )
+    config = robust_config(args.psf_choice, args.burst_dirs[1], burst, args.scale)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     ref = None
@@ -354,20 +298,7 @@ def run_compare(args: argparse.Namespace) -> int:
         if "psf" in res.info:
             entry["psf"] = res.info["psf"]
         if ref is not None:
-            if ref.shape != res.image.shape:
-                raise InputFormatError(
-                    f"{args.reference}: shape={ref.shape}; allowed: "
-                    f"{res.image.shape} (the output grid)"
-                )
-            # scores relative to the reference's own span (a 12-bit image in 16-bit
-            # containers would otherwise look 24 dB better than it is)
-            rng = max(float(ref.max() - ref.min()), 1e-12)
-            b = 4 * args.scale
-            a2 = res.image if res.image.ndim == 2 else res.image.mean(axis=2)
-            r2 = ref if ref.ndim == 2 else ref.mean(axis=2)
-            entry["psnr_db"] = round(psnr(r2, a2, data_range=rng, border=b), 3)
-            entry["ssim"] = round(ssim(r2, a2, data_range=rng, border=b), 4)
-            entry["data_range"] = rng
+            entry.update(_scores(ref, res.image, args.scale, args.reference))
         results[method] = entry
         crops.append(_crop(res.image, 256))
     side = np.concatenate([np.asarray(c, np.float32) for c in crops], axis=1)

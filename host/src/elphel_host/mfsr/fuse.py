@@ -23,10 +23,13 @@ from numpy.typing import NDArray
 from elphel_host.burst.io import Burst
 from elphel_host.burst.manifest import check_bayer
 from elphel_host.mfsr.baseline import fuse_baseline
+from elphel_host.mfsr.bayer import bayer_luma, bayer_sites, demosaic_plane
 from elphel_host.mfsr.frames import check_frames
+from elphel_host.mfsr.psf_spec import GivenGrid
+from elphel_host.mfsr.regions import fuse_regions
 from elphel_host.mfsr.registration import FrameRegistration, register_frames
-from elphel_host.mfsr.robust import psf_for, reconstruct, with_psf
 from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
+from elphel_host.mfsr.robust_fuse import fuse_robust
 from elphel_host.mfsr.scale import check_scale
 
 F32 = NDArray[np.float32]
@@ -93,20 +96,6 @@ def peak_memory_mb() -> float:
     except OSError:
         pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def bayer_luma(mosaic: F32) -> F32:
-    """2x2-cell mean: a half-resolution luminance for registration."""
-    h, w = mosaic.shape
-    a = mosaic[: h // 2 * 2, : w // 2 * 2]
-    return np.asarray(a.reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3)), dtype=np.float32)
-
-
-def bayer_sites(bayer: str) -> dict[str, list[tuple[int, int]]]:
-    out: dict[str, list[tuple[int, int]]] = {"R": [], "G": [], "B": []}
-    for idx, c in enumerate(bayer):
-        out[c].append((idx // 2, idx % 2))
-    return out
 
 
 def fuse_frames(
@@ -183,6 +172,36 @@ def register_lumas(
     ]
 
 
+def _check_psf_frame(config: RobustConfig, frame: tuple[int, ...]) -> None:
+    """Given PSFs made for frames of one size refuse frames of another."""
+    made_for = getattr(config.psf, "frame", None)
+    if made_for is not None and tuple(frame) != made_for:
+        raise ValueError(
+            f"the given PSFs were made for {made_for[1]}x{made_for[0]} frames "
+            f"(their quad's images); these frames are {frame[1]}x{frame[0]}; allowed: the "
+            "same sensor area"
+        )
+
+
+def _fuse_baseline(
+    frames: list[F32], used: list[int], *, scale: int, bayer: str | None
+) -> tuple[NDArray[Any], dict[str, Any]]:
+    """The published direct method on the used frames; each colour apart for Bayer."""
+    if bayer is None:
+        img, binfo = fuse_baseline([frames[i] for i in used], scale=scale)
+    else:
+        planes = []
+        for sites in bayer_sites(bayer).values():
+            # each colour: bilinear demosaic of that plane, then the published method
+            ch = [demosaic_plane(frames[i], sites) for i in used]
+            planes.append(fuse_baseline(ch, scale=scale)[0])
+        img, binfo = np.stack(planes, axis=-1), {}
+    info: dict[str, Any] = {"baseline_excluded": [used[i] for i in binfo.get("excluded", [])]}
+    if "shifts" in binfo:  # ECC on the up-sampled frames, in LR px, for the used frames
+        info["shifts"] = binfo["shifts"]
+    return img, info
+
+
 def fuse_registered(
     frames: Sequence[F32],
     regs: Sequence[FrameRegistration],
@@ -196,83 +215,21 @@ def fuse_registered(
 
     Returns the image (RGB for a Bayer burst) and the method's details.
     """
-    frame = tuple(frames[0].shape)
-    if method == "robust" and config.psf_frame is not None and frame != config.psf_frame:
-        raise ValueError(
-            f"the given PSFs were made for {config.psf_frame[1]}x{config.psf_frame[0]} frames "
-            f"(their quad's images); these frames are {frame[1]}x{frame[0]}; allowed: the "
-            "same sensor area"
-        )
-    if method == "robust" and config.psf_regions != (1, 1):
-        from elphel_host.mfsr.regions import fuse_regions
-
-        return fuse_regions(frames, regs, scale=scale, bayer=bayer, config=config)
-    fl = list(frames)
-    used = [r.index for r in regs if r.ok]
-    shifts = [regs[i].shift for i in used]
-    info: dict[str, Any] = {}
-    img: NDArray[Any]
+    ok = [r for r in regs if r.ok]
     if method == "baseline":
-        if bayer is None:
-            img, binfo = fuse_baseline([fl[i] for i in used], scale=scale)
-        else:
-            planes = []
-            for sites in bayer_sites(bayer).values():
-                # each colour: bilinear demosaic of that plane, then the published method
-                ch = [demosaic_plane(fl[i], sites) for i in used]
-                planes.append(fuse_baseline(ch, scale=scale)[0])
-            img, binfo = np.stack(planes, axis=-1), {}
-        info["baseline_excluded"] = [used[i] for i in binfo.get("excluded", [])]
-        if "shifts" in binfo:  # ECC on the up-sampled frames, in LR px, for the used frames
-            info["shifts"] = binfo["shifts"]
-    elif bayer is None:
-        img, rinfo = reconstruct(
-            [fl[i] for i in used],
-            shifts,  # type: ignore[arg-type]
-            scale=scale,
-            config=config,
-        )
-        info.update(rinfo)
+        img, info = _fuse_baseline(list(frames), [r.index for r in ok], scale=scale, bayer=bayer)
+        return np.asarray(img, np.float32), info
+    _check_psf_frame(config, frames[0].shape)
+    used = [frames[r.index] for r in ok]
+    shifts = [r.shift for r in ok if r.shift is not None]
+    psf = config.psf
+    if isinstance(psf, GivenGrid) and psf.regions != (1, 1):
+        img, info = fuse_regions(used, shifts, scale=scale, bayer=bayer, grid=psf, config=config)
     else:
-        colours: list[tuple[list[F32], list[tuple[float, float]]]] = []
-        for sites in bayer_sites(bayer).values():
-            pf: list[F32] = []
-            ps: list[tuple[float, float]] = []
-            for i, s in zip(used, shifts, strict=True):
-                assert s is not None
-                for oy, ox in sites:
-                    pf.append(np.ascontiguousarray(fl[i][oy::2, ox::2]))
-                    ps.append(((oy + s[0] - 0.5) / 2, (ox + s[1] - 0.5) / 2))
-            colours.append((pf, ps))
-        # one lens for the three colours: estimated on green (twice the samples)
-        psf = psf_for(*colours[1], scale=2 * scale, aperture=scale, config=config)
-        config = with_psf(config, psf)
-        planes = []
-        for c, (pf, ps) in enumerate(colours):
-            own = config  # or the colour's own given PSF
-            if config.psf_rgb is not None:
-                own = replace(config, psf_kernel=config.psf_rgb[c], psf_rgb=None)
-            plane, rinfo = reconstruct(pf, ps, scale=2 * scale, aperture=scale, config=own)
-            planes.append(plane)
-            info.setdefault("noise_sigma_rgb", []).append(rinfo["noise_sigma"])
-        info["psf"] = {**psf.to_json(), "tau_used": round(config.tau, 4)}
-        if config.psf_rgb is not None:
-            info["psf"]["per_colour"] = True
-        img = np.stack(planes, axis=-1)
+        if isinstance(psf, GivenGrid):
+            config = replace(config, psf=psf.cell(0, 0))
+        img, info = fuse_robust(used, shifts, scale=scale, bayer=bayer, config=config)
     return np.asarray(img, np.float32), info
-
-
-def demosaic_plane(mosaic: F32, sites: list[tuple[int, int]]) -> F32:
-    """One colour at every pixel by normalised bilinear interpolation of its sites."""
-    vals = np.zeros_like(mosaic)
-    mask = np.zeros_like(mosaic)
-    for oy, ox in sites:
-        vals[oy::2, ox::2] = mosaic[oy::2, ox::2]
-        mask[oy::2, ox::2] = 1.0
-    k = np.array([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]], np.float32)
-    num = cv2.filter2D(vals, -1, k, borderType=cv2.BORDER_REFLECT_101)
-    den = cv2.filter2D(mask, -1, k, borderType=cv2.BORDER_REFLECT_101)
-    return np.asarray(num / np.maximum(den, 1e-6), dtype=np.float32)
 
 
 def _bicubic(frame: F32, scale: int, bayer: str | None) -> F32:

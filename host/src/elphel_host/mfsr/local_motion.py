@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.fuse import bayer_sites
+from elphel_host.mfsr.bayer import bayer_sites
 from elphel_host.mfsr.registration import FrameRegistration
 from elphel_host.parallel import parallel_map
 
@@ -53,10 +53,11 @@ class ParallaxModel:
             raise ValueError(f"baseline_mm={baseline_mm}; allowed: > 0")
         t = math.radians(axis_angle_deg)
         c0 = positions_mm[0]
-        return cls(
-            tuple(((c - c0) * math.sin(t) / baseline_mm, (c - c0) * math.cos(t) / baseline_mm)
-                  for c in positions_mm)
-        )  # fmt: skip
+        sin, cos = math.sin(t), math.cos(t)
+        shifts = (
+            ((c - c0) * sin / baseline_mm, (c - c0) * cos / baseline_mm) for c in positions_mm
+        )
+        return cls(tuple(shifts))
 
     @classmethod
     def from_registration(
@@ -127,8 +128,8 @@ def camera_view_disparity(centre: F32, position: tuple[float, float], *, steps: 
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     d: NDArray[Any] = centre
     for _ in range(steps):
-        d = cv2.remap(centre, xs + d * px, ys + d * py, cv2.INTER_LINEAR,
-                      borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+        rx, ry = xs + d * px, ys + d * py
+        d = cv2.remap(centre, rx, ry, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     out: F32 = np.asarray(d, np.float32)
     return out
 
@@ -199,82 +200,138 @@ def fuse_parallax(
     if disparity.shape != (h, w):
         raise ValueError(f"disparity map {disparity.shape}, frames {(h, w)}: allowed: the same")
     s = int(scale)
-    hs, ws = h * s, w * s
     chan, nc = _channels(bayer, h, w)
     dmap = np.ascontiguousarray(disparity, dtype=np.float32)
-    d_min, d_max = float(dmap.min()), float(dmap.max())
-    reach_y = max(abs(vy) for vy, _ in model.per_disparity) * max(abs(d_min), abs(d_max))
-    margin = int(np.ceil(reach_y)) + 2
-    num = np.zeros((nc, hs, ws), np.float32)
-    den = np.zeros((nc, hs, ws), np.float32)
-    data = [np.asarray(f) for f in frames]  # read as they are, band by band
+    reach_y = max(abs(vy) for vy, _ in model.per_disparity) * float(np.abs(dmap).max())
+    splat = _Splat(
+        frames=[np.asarray(f) for f in frames],  # read as they are, band by band
+        per_disparity=model.per_disparity,
+        dmap=dmap,
+        chan=chan,
+        nc=nc,
+        scale=s,
+        margin=int(np.ceil(reach_y)) + 2,
+        fixed_point_steps=fixed_point_steps,
+    )
     bands = [(b, min(b + band_rows, h)) for b in range(0, h, band_rows)]
+    parallel_map(splat.band, bands, threads=threads)
+    image, filled = _normalised_image(splat, min_weight, mono=bayer is None)
+    return image, {
+        "fusion": "parallax shift-and-add",
+        "frames": len(frames),
+        "filled_fraction": round(filled / (h * s * w * s), 6),
+        "max_shift_px": round(
+            max(float(np.hypot(vy, vx)) for vy, vx in model.per_disparity) * float(dmap.max()), 3
+        ),
+    }
 
-    def band(rows: tuple[int, int]) -> None:
+
+def _normalised_image(splat: _Splat, min_weight: float, *, mono: bool) -> tuple[F32, int]:
+    """The accumulated planes normalised (holes filled); for Bayer, R and B from green."""
+    nc, (hs, ws) = splat.nc, splat.num.shape[1:]
+    out = np.empty((hs, ws, nc), np.float32)
+    detail = nc // 2  # mono: the only plane; Bayer: green
+    out[..., detail], filled = _normalise(splat.num[detail], splat.den[detail], min_weight)
+    if nc == 3:
+        # Red and blue: green's detail plus their difference from green, smoothed over the
+        # mosaic's period (each has a quarter of the samples, which a short carriage travel
+        # leaves far apart on the output grid; their own detail there is mostly holes).
+        sigma = 2.0 * splat.scale
+        green = _smooth(splat.num[1], splat.den[1], sigma)
+        for c in (0, 2):
+            out[..., c] = out[..., 1] + (_smooth(splat.num[c], splat.den[c], sigma) - green)
+    image: F32 = out[..., 0] if mono else out
+    return image, filled
+
+
+class _Splat:
+    """Bilinear splatting of every frame's samples where frame 0 saw them, band by band.
+
+    Each band of LR rows owns its output rows (no locks); ``num`` and ``den`` gather the
+    weighted samples and the weights per colour plane.
+    """
+
+    def __init__(
+        self,
+        *,
+        frames: list[NDArray[Any]],
+        per_disparity: Sequence[tuple[float, float]],
+        dmap: F32,
+        chan: NDArray[Any],
+        nc: int,
+        scale: int,
+        margin: int,
+        fixed_point_steps: int,
+    ) -> None:
+        self.frames, self.per_disparity, self.dmap = frames, per_disparity, dmap
+        self.chan, self.nc, self.scale, self.margin = chan, nc, scale, margin
+        self.fixed_point_steps = fixed_point_steps
+        self.d_min, self.d_max = float(dmap.min()), float(dmap.max())
+        h, w = dmap.shape
+        self.num = np.zeros((nc, h * scale, w * scale), np.float32)
+        self.den = np.zeros((nc, h * scale, w * scale), np.float32)
+
+    def _seen_at(self, vy: float, vx: float, ys: F32, xs: F32, rows: tuple[int, int]) -> F32:
+        """Disparity where samples (ys, xs) were seen on frame 0: r = q + D(r) v, the nearest."""
+        vy32, vx32 = np.float32(vy), np.float32(vx)
+        d: NDArray[Any] = _line_max(self.dmap, vy, vx, self.d_min, self.d_max, rows=rows)
+        for _ in range(self.fixed_point_steps):
+            ry, rx = ys + d * vy32, xs + d * vx32
+            d = cv2.remap(self.dmap, rx, ry, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return d
+
+    def band(self, rows: tuple[int, int]) -> None:
+        """Splat every frame's rows around ``rows`` into the output rows ``rows`` own."""
+        s, (h, w) = self.scale, self.dmap.shape
         b0, b1 = rows[0] * s, rows[1] * s  # the output rows this band owns
-        ya, yb = max(0, rows[0] - margin), min(h, rows[1] + margin)
+        ya, yb = max(0, rows[0] - self.margin), min(h, rows[1] + self.margin)
         ys, xs = np.mgrid[ya:yb, 0:w].astype(np.float32)
         # Bins: the band's output rows and columns with a border of 2 on each side, where
         # samples outside the band land (clipped) and are dropped: no masks, no copies.
-        bh, bw = b1 - b0 + 4, ws + 4
-        plane = (chan[ya:yb] * (bh * bw)).ravel()
-        size = nc * bh * bw
-        acc_num = np.zeros(size, np.float64)
-        acc_den = np.zeros(size, np.float64)
+        bh, bw = b1 - b0 + 4, w * s + 4
+        plane = (self.chan[ya:yb] * (bh * bw)).ravel()
+        acc_num = np.zeros(self.nc * bh * bw, np.float64)
+        acc_den = np.zeros(self.nc * bh * bw, np.float64)
         index = np.empty((4, plane.size), np.int64)
         weight = np.empty((4, plane.size), np.float64)
-        for frame, (vy, vx) in zip(data, model.per_disparity, strict=True):
-            vy32, vx32 = np.float32(vy), np.float32(vx)
-            # where sample q was seen on frame 0: r = q + D(r) v, the nearest such point
-            d: NDArray[Any] = _line_max(dmap, vy, vx, d_min, d_max, rows=(ya, yb))
-            for _ in range(fixed_point_steps):
-                ry, rx = ys + d * vy32, xs + d * vx32
-                d = cv2.remap(dmap, rx, ry, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            uy = (ys + d * vy32) * np.float32(s) + np.float32((s - 1) / 2 + 2 - b0)
-            ux = (xs + d * vx32) * np.float32(s) + np.float32((s - 1) / 2 + 2)
-            y0, x0 = np.floor(uy), np.floor(ux)
-            fy, fx = (uy - y0).ravel(), (ux - x0).ravel()
-            base = np.clip(y0, 0, bh - 2).astype(np.int64).ravel() * bw
-            base += np.clip(x0, 0, bw - 2).astype(np.int64).ravel()
-            base += plane
-            index[0] = base
-            np.add(base, 1, out=index[1])
-            np.add(base, bw, out=index[2])
-            np.add(base, bw + 1, out=index[3])
-            gy, gx = 1 - fy, 1 - fx
-            np.multiply(gy, gx, out=weight[0])
-            np.multiply(gy, fx, out=weight[1])
-            np.multiply(fy, gx, out=weight[2])
-            np.multiply(fy, fx, out=weight[3])
+        for frame, (vy, vx) in zip(self.frames, self.per_disparity, strict=True):
+            d = self._seen_at(vy, vx, ys, xs, (ya, yb))
+            uy = (ys + d * np.float32(vy)) * np.float32(s) + np.float32((s - 1) / 2 + 2 - b0)
+            ux = (xs + d * np.float32(vx)) * np.float32(s) + np.float32((s - 1) / 2 + 2)
+            _bilinear(uy, ux, (bh, bw), plane, index, weight)
             # np.add.at adds every entry, repeated indices too (occlusions, compressions)
             np.add.at(acc_den, index.ravel(), weight.ravel())
             weight *= frame[ya:yb].ravel()
             np.add.at(acc_num, index.ravel(), weight.ravel())
         inner = np.s_[:, 2:-2, 2:-2]
-        num[:, b0:b1] = acc_num.reshape(nc, bh, bw)[inner]
-        den[:, b0:b1] = acc_den.reshape(nc, bh, bw)[inner]
+        self.num[:, b0:b1] = acc_num.reshape(self.nc, bh, bw)[inner]
+        self.den[:, b0:b1] = acc_den.reshape(self.nc, bh, bw)[inner]
 
-    parallel_map(band, bands, threads=threads)
-    out = np.empty((hs, ws, nc), np.float32)
-    detail = nc // 2  # mono: the only plane; Bayer: green
-    out[..., detail], filled = _normalise(num[detail], den[detail], min_weight)
-    if nc == 3:
-        # Red and blue: green's detail plus their difference from green, smoothed over the
-        # mosaic's period (each has a quarter of the samples, which a short carriage travel
-        # leaves far apart on the output grid; their own detail there is mostly holes).
-        sigma = 2.0 * s
-        green = _smooth(num[1], den[1], sigma)
-        for c in (0, 2):
-            out[..., c] = out[..., 1] + (_smooth(num[c], den[c], sigma) - green)
-    image: F32 = out[..., 0] if bayer is None else out
-    return image, {
-        "fusion": "parallax shift-and-add",
-        "frames": len(frames),
-        "filled_fraction": round(filled / (hs * ws), 6),
-        "max_shift_px": round(
-            max(float(np.hypot(vy, vx)) for vy, vx in model.per_disparity) * d_max, 3
-        ),
-    }
+
+def _bilinear(
+    uy: F32,
+    ux: F32,
+    bins: tuple[int, int],
+    plane: NDArray[np.int64],
+    index: NDArray[np.int64],
+    weight: NDArray[np.float64],
+) -> None:
+    """The four bins around each point (uy, ux) and their bilinear weights, in place."""
+    bh, bw = bins
+    y0, x0 = np.floor(uy), np.floor(ux)
+    fy, fx = (uy - y0).ravel(), (ux - x0).ravel()
+    base = np.clip(y0, 0, bh - 2).astype(np.int64).ravel() * bw
+    base += np.clip(x0, 0, bw - 2).astype(np.int64).ravel()
+    base += plane
+    index[0] = base
+    np.add(base, 1, out=index[1])
+    np.add(base, bw, out=index[2])
+    np.add(base, bw + 1, out=index[3])
+    gy, gx = 1 - fy, 1 - fx
+    np.multiply(gy, gx, out=weight[0])
+    np.multiply(gy, fx, out=weight[1])
+    np.multiply(fy, gx, out=weight[2])
+    np.multiply(fy, fx, out=weight[3])
 
 
 def _line_max(

@@ -20,7 +20,7 @@ a burst without them must be the quad's whole image.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +30,8 @@ from scipy.optimize import least_squares
 
 from elphel_host.burst.io import Burst
 from elphel_host.errors import InputFormatError
-from elphel_host.mfsr.psf_given import MAX_KERNEL, MAX_REGIONS
-from elphel_host.mfsr.robust_config import RobustConfig
+from elphel_host.mfsr.gaussian_psf import GaussianPsf
+from elphel_host.mfsr.psf_spec import MAX_REGIONS, GivenGrid, GivenKernel
 from elphel_host.recordings.frames import complete_tiff_metadata
 from elphel_host.tp.io import MANIFEST, QuadManifest
 from elphel_host.tp.kernel_file import load_kernels
@@ -40,40 +40,6 @@ F64 = NDArray[np.float64]
 
 #: DFT size the kernels' spectra are taken at.
 N_FFT = 64
-
-
-@dataclass(frozen=True)
-class GaussianPsf:
-    """An elliptical Gaussian PSF in sensor px: covariance ``cov`` (y, x) and centre offset."""
-
-    cov: F64  # (2, 2), rows/columns (y, x)
-    offset: tuple[float, float]  # (dy, dx)
-
-    @property
-    def sigmas(self) -> tuple[float, float]:
-        """Standard deviations along the principal axes, larger first."""
-        ev = np.linalg.eigvalsh(self.cov)
-        return float(np.sqrt(max(ev[1], 0.0))), float(np.sqrt(max(ev[0], 0.0)))
-
-    def mirrored(self, *, flip_y: bool, flip_x: bool) -> GaussianPsf:
-        """The PSF as seen in an image mirrored top-bottom (``flip_y``) and/or left-right."""
-        sy, sx = (-1.0 if flip_y else 1.0), (-1.0 if flip_x else 1.0)
-        m = np.diag([sy, sx])
-        return replace(
-            self, cov=m @ self.cov @ m, offset=(sy * self.offset[0], sx * self.offset[1])
-        )
-
-    def on_grid(self, scale: int) -> F64:
-        """The PSF on the output grid (``scale`` output px per sensor px), sum 1, odd sides."""
-        cov = self.cov * scale * scale
-        oy, ox = self.offset[0] * scale, self.offset[1] * scale
-        reach = 3.0 * float(np.sqrt(np.linalg.eigvalsh(cov)[1])) + max(abs(oy), abs(ox))
-        half = int(min(np.ceil(reach), MAX_KERNEL // 2))
-        y, x = np.mgrid[-half : half + 1, -half : half + 1].astype(np.float64)
-        d = np.stack([y - oy, x - ox], axis=-1)
-        q = np.einsum("...i,ij,...j->...", d, np.linalg.inv(cov), d)
-        k = np.exp(-0.5 * q)
-        return np.asarray(k / k.sum(), dtype=np.float64)
 
 
 def psf_from_kernel(kernel: NDArray[np.floating], target_sigma_px: float) -> GaussianPsf:
@@ -301,7 +267,9 @@ def quad_psfs(quad_dir: str | Path, camera: int = 0) -> QuadPsfs:
     return QuadPsfs(psfs=fitted[-1], step=spec.step, window=window, colour_psfs=rgb)
 
 
-def quad_config(quad: QuadPsfs, scale: int, frame: SensorWindow | None = None) -> RobustConfig:
+def quad_psf(
+    quad: QuadPsfs, scale: int, frame: SensorWindow | None = None
+) -> GivenKernel | GivenGrid:
     """The quad's PSFs for frames lying at ``frame`` on the sensor (default: its images)."""
     try:
         grid = quad.grid(scale, frame)
@@ -311,15 +279,17 @@ def quad_config(quad: QuadPsfs, scale: int, frame: SensorWindow | None = None) -
     size = quad.frame if frame is None else (frame.height, frame.width)
     if grid.shape[:2] == (1, 1):
         one = None if rgb is None else rgb[:, 0, 0]
-        return RobustConfig(psf_kernel=grid[0, 0], psf_rgb=one, psf_frame=size)
-    return RobustConfig(psf_grid=grid, psf_rgb=rgb, psf_frame=size)
+        return GivenKernel(grid[0, 0], rgb=one, frame=size)
+    return GivenGrid(grid, rgb=rgb, frame=size)
 
 
-def burst_config(quad: QuadPsfs, burst_dir: str | Path, burst: Burst, scale: int) -> RobustConfig:
+def burst_psf(
+    quad: QuadPsfs, burst_dir: str | Path, burst: Burst, scale: int
+) -> GivenKernel | GivenGrid:
     """The quad's PSFs under a burst's window on the sensor (its first frame's metadata).
 
     A burst whose frames do not give their window is taken for the quad's whole image
     (frames of another size are refused when fused).
     """
     first = Path(burst_dir) / burst.infos[0].file
-    return quad_config(quad, scale, image_window(first, burst.frames.shape[1:]))
+    return quad_psf(quad, scale, image_window(first, burst.frames.shape[1:]))

@@ -1,12 +1,12 @@
 """A PSF per image region: the burst fused cell by cell, each with its own blur, blended.
 
-Lenses blur more towards the corners. With ``RobustConfig.psf_regions = (ky, kx)`` the
-frames are cut into ky x kx equal cells (plus a margin of ``MARGIN`` LR px on inner
-sides, even-aligned for Bayer mosaics), each cell is fused on its own — its blur
-estimated from its own pixels, or taken from a given kernel grid (``psf_grid``, one PSF
-per cell) — and the cells' outputs are blended with linear ramps across each inner
-border (weights summing to 1, so a uniform scene stays uniform). The registration is the
-burst's, shared by every cell.
+Lenses blur more towards the corners. With a given grid of PSFs
+(:class:`~elphel_host.mfsr.psf_spec.GivenGrid`, ``ky x kx`` regions) the frames are cut
+into ky x kx equal cells (plus a margin of ``MARGIN`` LR px on inner sides, even-aligned
+for Bayer mosaics), each cell is fused on its own with its region's PSF (its prior's tau
+cross-validated on its own pixels), and the cells' outputs are blended with linear ramps
+across each inner border (weights summing to 1, so a uniform scene stays uniform). The
+registration is the burst's, shared by every cell.
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.registration import FrameRegistration
+from elphel_host.mfsr.psf_spec import GivenGrid
 from elphel_host.mfsr.robust_config import RobustConfig
+from elphel_host.mfsr.robust_fuse import fuse_robust
 
 F32 = NDArray[np.float32]
 
@@ -34,91 +35,60 @@ def cell_bounds(n: int, k: int, step: int) -> list[int]:
     return [0, *(round(n * i / k / step) * step for i in range(1, k)), n]
 
 
-def _ramp(n: int, lo: int, hi: int, margin: int, first: bool, last: bool) -> F32:
-    """Weights over ``n`` samples of a crop for the cell [lo, hi) (crop coordinates)."""
-    x = np.arange(n, dtype=np.float64) + 0.5
-    w = np.ones(n)
-    if not first:
-        w *= np.clip((x - (lo - margin)) / (2 * margin), 0.0, 1.0)
-    if not last:
-        w *= np.clip(((hi + margin) - x) / (2 * margin), 0.0, 1.0)
-    return np.asarray(w, dtype=np.float32)
+def _span(bounds: list[int], i: int, n: int, scale: int) -> tuple[int, int, F32]:
+    """Cell ``i``'s crop [lo, hi) in LR px (with its margins) and its blend weights (HR)."""
+    lo, hi = max(bounds[i] - MARGIN, 0), min(bounds[i + 1] + MARGIN, n)
+    x = np.arange((hi - lo) * scale, dtype=np.float64) + 0.5
+    w = np.ones(x.size)
+    m = MARGIN * scale
+    if i > 0:
+        w *= np.clip((x - ((bounds[i] - lo) * scale - m)) / (2 * m), 0.0, 1.0)
+    if i < len(bounds) - 2:
+        w *= np.clip((((bounds[i + 1] - lo) * scale + m) - x) / (2 * m), 0.0, 1.0)
+    return lo, hi, np.asarray(w, dtype=np.float32)
 
 
-def cell_config(config: RobustConfig, iy: int, ix: int) -> RobustConfig:
-    """The options one cell is fused with: its kernel from the grid, else an estimate.
-
-    A cell with its kernel still gets its own prior's tau searched (``estimate_psf``).
-    """
-    if config.psf_grid is None:
-        return replace(config, psf_regions=(1, 1), psf_frame=None)
-    return replace(
-        config,
-        psf_regions=(1, 1),
-        psf_grid=None,
-        psf_frame=None,
-        psf_kernel=config.psf_grid[iy, ix],
-        psf_rgb=None if config.psf_rgb is None else config.psf_rgb[:, iy, ix],
-    )
-
-
-def fuse_regions(
-    frames: Sequence[F32],
-    regs: Sequence[FrameRegistration],
-    *,
-    scale: int,
-    bayer: str | None,
-    config: RobustConfig,
-) -> tuple[F32, dict[str, Any]]:
-    """`fuse_registered` (robust) cell by cell with ``config.psf_regions``, blended."""
-    from elphel_host.mfsr.fuse import fuse_registered
-
-    ky, kx = config.psf_regions
-    h, w = frames[0].shape
+def _check_cells(shape: tuple[int, ...], regions: tuple[int, int]) -> None:
+    (h, w), (ky, kx) = shape[:2], regions
     if h < ky * MIN_CELL or w < kx * MIN_CELL:
         raise ValueError(
             f"psf regions {ky}x{kx} on {w}x{h} frames; allowed: cells of at least "
             f"{MIN_CELL} px ({w // MIN_CELL}x{h // MIN_CELL} regions at most)"
         )
+
+
+def fuse_regions(
+    frames: Sequence[F32],
+    shifts: Sequence[tuple[float, float]],
+    *,
+    scale: int,
+    bayer: str | None,
+    grid: GivenGrid,
+    config: RobustConfig,
+) -> tuple[F32, dict[str, Any]]:
+    """:func:`~elphel_host.mfsr.robust_fuse.fuse_robust` cell by cell with ``grid``, blended."""
+    (ky, kx), (h, w), s = grid.regions, frames[0].shape, int(scale)
+    _check_cells((h, w), (ky, kx))
     step = 2 if bayer is not None else 1
     by, bx = cell_bounds(h, ky, step), cell_bounds(w, kx, step)
-    m, s = MARGIN, int(scale)
     out: F32 | None = None
-    cells: list[list[dict[str, Any]]] = []
+    cells: list[list[dict[str, Any]]] = [[] for _ in range(ky)]
     centre: dict[str, Any] = {}
     for iy in range(ky):
-        row = []
-        y0, y1 = max(by[iy] - m, 0), min(by[iy + 1] + m, h)
-        wy = _ramp((y1 - y0) * s, (by[iy] - y0) * s, (by[iy + 1] - y0) * s, m * s,
-                   iy == 0, iy == ky - 1)  # fmt: skip
+        y0, y1, wy = _span(by, iy, h, s)
         for ix in range(kx):
-            x0, x1 = max(bx[ix] - m, 0), min(bx[ix + 1] + m, w)
-            wx = _ramp((x1 - x0) * s, (bx[ix] - x0) * s, (bx[ix + 1] - x0) * s, m * s,
-                       ix == 0, ix == kx - 1)  # fmt: skip
+            x0, x1, wx = _span(bx, ix, w, s)
             crop = [np.ascontiguousarray(f[y0:y1, x0:x1]) for f in frames]
-            img, info = fuse_registered(
-                crop,
-                regs,
-                scale=s,
-                method="robust",
-                bayer=bayer,
-                config=cell_config(config, iy, ix),
-            )
+            cell = replace(config, psf=grid.cell(iy, ix))
+            img, info = fuse_robust(crop, shifts, scale=s, bayer=bayer, config=cell)
             if out is None:
                 out = np.zeros((h * s, w * s, *img.shape[2:]), np.float32)
             weight = wy[:, None] * wx[None, :]
-            out[y0 * s : y1 * s, x0 * s : x1 * s] += img * weight.reshape(
-                weight.shape + (1,) * (img.ndim - 2)
-            )
+            weight = weight.reshape(weight.shape + (1,) * (img.ndim - 2))
+            out[y0 * s : y1 * s, x0 * s : x1 * s] += img * weight
             if (iy, ix) == (ky // 2, kx // 2):  # the shifts and noise the middle cell saw
                 centre = {k: v for k, v in info.items() if k != "psf"}
-            row.append(
-                {
-                    "rows": [by[iy], by[iy + 1]],
-                    "columns": [bx[ix], bx[ix + 1]],
-                    **info.get("psf", {}),
-                }
-            )
-        cells.append(row)
+            where = {"rows": [by[iy], by[iy + 1]], "columns": [bx[ix], bx[ix + 1]]}
+            cells[iy].append({**where, **info.get("psf", {})})
     assert out is not None
     return out, {**centre, "psf": {"model": "regions", "regions": [ky, kx], "cells": cells}}

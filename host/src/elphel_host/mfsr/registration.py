@@ -94,6 +94,49 @@ def ecc_shift(
     return (-float(warp[1, 2]), -float(warp[0, 2])), float(cc)
 
 
+Start = tuple[str, tuple[float, float], float]  # (initial guess's name, shift, correlation)
+
+
+def _best_start(
+    ref: F32, img: F32, starts: dict[str, tuple[float, float]], gauss_size: int
+) -> Start | None:
+    """ECC from each distinct initial guess; the result of highest correlation."""
+    best: Start | None = None
+    tried: list[tuple[float, float]] = []
+    for name, init in starts.items():
+        if any(np.hypot(init[0] - t[0], init[1] - t[1]) < 0.25 for t in tried):
+            continue
+        tried.append(init)
+        res = ecc_shift(ref, img, init, gauss_size=gauss_size)
+        if res is not None and (best is None or res[1] > best[2]):
+            best = (name, res[0], res[1])
+    return best
+
+
+def _verdict(
+    i: int,
+    best: Start | None,
+    starts: dict[str, tuple[float, float]],
+    min_correlation: float,
+    max_disagreement_px: float,
+) -> FrameRegistration:
+    """Frame ``i``'s registration: ECC's result, or why it is rejected."""
+    if best is None:
+        return FrameRegistration(
+            i, None, 0.0, "", False, "ECC did not converge from any initial guess"
+        )
+    name, shift, cc = best
+    if cc < min_correlation:
+        return FrameRegistration(
+            i, None, cc, name, False, f"correlation {cc:.3f} < {min_correlation}"
+        )
+    dist = min(float(np.hypot(shift[0] - s[0], shift[1] - s[1])) for s in starts.values())
+    if dist > max_disagreement_px:
+        reason = f"ECC result {dist:.2f} px from every initial guess (> {max_disagreement_px})"
+        return FrameRegistration(i, None, cc, name, False, reason)
+    return FrameRegistration(i, shift, cc, name, True)
+
+
 def register_frames(
     frames: Sequence[F32],
     *,
@@ -145,38 +188,11 @@ def register_frames(
         if prior is not None:
             starts["prior"] = (prior[i][0] - p0[0], prior[i][1] - p0[1])
         # pick the start on a small window, then refine on the full one
-        best: tuple[str, tuple[float, float], float] | None = None
-        tried: list[tuple[float, float]] = []
-        for name, init in starts.items():
-            if any(np.hypot(init[0] - t[0], init[1] - t[1]) < 0.25 for t in tried):
-                continue
-            tried.append(init)
-            res = ecc_shift(ref_small, img_small, init, gauss_size=gauss_size)
-            if res is not None and (best is None or res[1] > best[2]):
-                best = (name, res[0], res[1])
+        best = _best_start(ref_small, img_small, starts, gauss_size)
         if best is not None and (sy, sx) != (qy, qx):
             fine = ecc_shift(ref, img, best[1], gauss_size=gauss_size)
             best = None if fine is None else (best[0], fine[0], fine[1])
-        if best is None:
-            return FrameRegistration(
-                i, None, 0.0, "", False, "ECC did not converge from any initial guess"
-            )
-        name, shift, cc = best
-        dist = min(float(np.hypot(shift[0] - s[0], shift[1] - s[1])) for s in starts.values())
-        if cc < min_correlation:
-            return FrameRegistration(
-                i, None, cc, name, False, f"correlation {cc:.3f} < {min_correlation}"
-            )
-        if dist > max_disagreement_px:
-            return FrameRegistration(
-                i,
-                None,
-                cc,
-                name,
-                False,
-                f"ECC result {dist:.2f} px from every initial guess (> {max_disagreement_px})",
-            )
-        return FrameRegistration(i, shift, cc, name, True)
+        return _verdict(i, best, starts, min_correlation, max_disagreement_px)
 
     rest = parallel_map(register_one, range(1, len(frames)))  # frames are independent
     return [FrameRegistration(0, (0.0, 0.0), 1.0, "reference", True), *rest]

@@ -37,7 +37,8 @@ from elphel_host.burst.io import read_frame
 from elphel_host.burst.manifest import FrameEntry, Manifest
 from elphel_host.closing import Closing
 from elphel_host.errors import FusionError, InputFormatError
-from elphel_host.mfsr.fuse import FusionResult, bayer_luma, fuse_registered, register_lumas
+from elphel_host.mfsr.bayer import bayer_luma
+from elphel_host.mfsr.fuse import FusionResult, fuse_registered, register_lumas
 from elphel_host.mfsr.output import fused_meta, write_image
 from elphel_host.mfsr.registration import FrameRegistration
 from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig

@@ -3,7 +3,7 @@
 Exposure is ``EXPOS`` in ms (the daemon's µs / 1000); the ROI is the sensor window
 (``WOI_LEFT``, ``WOI_TOP``, ``WOI_WIDTH``, ``WOI_HEIGHT``, in full-sensor pixels, even on
 a Bayer sensor). The Exposure limits are the daemon's for the current window: they come
-from elphel-camd's own sensor model (`elphel_host.camera.stock_model`), the same code
+from elphel-camd's own sensor model (`elphel_host.camera.nc393.model`), the same code
 the daemon checks a change with, so the upper limit is accepted and one µs more is not.
 The sensor rounds exposure to whole rows, so a value read back may differ from the one
 set by up to one row time (tens of µs), and it moves by a few µs when the window width
@@ -24,7 +24,7 @@ from pymmcore_plus.core import Keyword
 from pymmcore_plus.experimental.unicore import CameraDevice
 
 from elphel_host.camera.client import CameraClient, CameraHTTPError
-from elphel_host.camera.stock_model import StockModel
+from elphel_host.camera.nc393.model import StockModel
 from elphel_host.errors import CameraClientError, CameraParameterError, UnsupportedError
 
 _RANGE = re.compile(r"(-?\d+)\.\.(-?\d+)")

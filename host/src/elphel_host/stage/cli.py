@@ -1,7 +1,7 @@
 """`elphel stage ...`: status, move, home, zero, stop, calibrate, backlash, list.
 
 The stage URL is any pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, a pty path),
-from --stage (--url is the older spelling, kept) or the environment variable
+from --stage or the environment variable
 ELPHEL_STAGE_URL. Calibration results persist
 in a small JSON file (--model) so later closed-loop moves can use them.
 """
@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from elphel_host.cli_common import (
-    DEFAULT_STAGE_MODEL,
     STAGE_URL_ENV,
     add_json_option,
     add_stage_model_option,
@@ -28,13 +27,11 @@ from elphel_host.stage.discovery import find_stage_boards
 from elphel_host.stage.model import StageModel
 from elphel_host.stage.positioning import Positioner
 
-DEFAULT_MODEL = DEFAULT_STAGE_MODEL  # the older name, kept for scripts
-
 
 def _url(args: argparse.Namespace) -> str:
     url: str | None = args.stage
     if not url:
-        raise StageConnectionError(f"no stage URL: pass --stage (or --url) or set {STAGE_URL_ENV}")
+        raise StageConnectionError(f"no stage URL: pass --stage or set {STAGE_URL_ENV}")
     return url
 
 
@@ -223,7 +220,7 @@ def register(subparsers: Any) -> None:
     def add(name: str, func: Any, help_text: str) -> argparse.ArgumentParser:
         sp = sub.add_parser(name, help=help_text, description=help_text)
         if name != "list":
-            add_stage_option(sp, aliases=("--url",))
+            add_stage_option(sp)
         add_json_option(sp)
         sp.set_defaults(func=func)
         return sp

@@ -10,9 +10,8 @@ ended; a move whose caliper change does not match the steps raises StageStallErr
 from __future__ import annotations
 
 import statistics
-import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from elphel_host.errors import (
     StageClosedLoopError,
@@ -252,47 +251,28 @@ class Positioner:
             )
         self._require_reference()
         m = self.model
-        mps = m.mm_per_step
         assert m.offset_mm is not None
-        overshoot = max(10, round((approach_mm + m.backlash_mm) / mps))
-        by_step: dict[int, list[float]] = {}  # readings at each step, all arrived from below
-        arrived: list[float] = []  # readings since arriving at the current step
-
-        def fitted_offset() -> float:
-            return statistics.fmean(statistics.fmean(r) - s * mps for s, r in by_step.items())
-
-        def nearest(offset: float) -> int:
-            return round((target_mm - offset) / mps)
-
-        def record(at: int, reading: float, *, moved: bool) -> None:
-            if moved:
-                arrived.clear()
-            arrived.append(reading)
-            by_step.setdefault(at, []).append(reading)
+        overshoot = max(10, round((approach_mm + m.backlash_mm) / m.mm_per_step))
+        fit = _StepFit(target_mm, m.mm_per_step)
 
         def start_window(goal: int) -> int:
-            by_step.clear()
+            fit.by_step.clear()
             first = goal - fit_steps + 1
-            record(first, self._approach(first, overshoot), moved=True)
+            fit.record(first, self._approach(first, overshoot), moved=True)
             return first
 
-        steps = start_window(nearest(m.offset_mm))
+        steps = start_window(fit.nearest(m.offset_mm))
         needed = verify_readings
         iterations = 0
         while True:
-            best = nearest(fitted_offset())
-            while len(by_step) < fit_steps or steps < best <= steps + fit_steps:
+            best = fit.nearest(fit.offset())
+            while len(fit.by_step) < fit_steps or steps < best <= steps + fit_steps:
                 steps += 1
-                record(steps, self._goto(steps), moved=True)
-                best = nearest(fitted_offset())
+                fit.record(steps, self._goto(steps), moved=True)
+                best = fit.nearest(fit.offset())
             iterations += 1
             if iterations > max_iterations:
-                raise StageClosedLoopError(
-                    f"closed-loop move to {target_mm:.4f} mm: caliper reads "
-                    f"{statistics.fmean(arrived):.4f} mm at step {steps} after "
-                    f"{max_iterations} corrections (tolerance ±{tolerance_mm} mm beyond half "
-                    f"the {CALIPER_LSB_MM} mm caliper LSB)"
-                )
+                raise fit.failed(steps, max_iterations, tolerance_mm)
             if abs(best - steps) > fit_steps:
                 # The model was far off here: fit again next to the target.
                 steps = start_window(best)
@@ -300,18 +280,19 @@ class Positioner:
             if best < steps:
                 # The fit puts the target lower: come up to it again from below.
                 steps = best
-                record(steps, self._approach(steps, overshoot), moved=True)
+                fit.record(steps, self._approach(steps, overshoot), moved=True)
                 continue
-            while len(arrived) < needed:
-                record(steps, self.read_mm(), moved=False)
-            offset = fitted_offset()
-            caliper_mm = statistics.fmean(arrived)
-            if nearest(offset) == steps and (
+            while len(fit.arrived) < needed:
+                fit.record(steps, self.read_mm(), moved=False)
+            offset = fit.offset()
+            caliper_mm = statistics.fmean(fit.arrived)
+            if fit.nearest(offset) == steps and (
                 abs(caliper_mm - target_mm) <= CALIPER_LSB_MM / 2 + tolerance_mm
             ):
                 self.last_dir = 1
-                return MoveResult(target_mm, caliper_mm, steps, iterations, offset + steps * mps)
-            needed = len(arrived) + verify_readings
+                at_mm = offset + steps * m.mm_per_step
+                return MoveResult(target_mm, caliper_mm, steps, iterations, at_mm)
+            needed = len(fit.arrived) + verify_readings
 
     # ---- recovery -------------------------------------------------------------------------
     def resync_from_caliper(self) -> int:
@@ -325,11 +306,34 @@ class Positioner:
         return steps
 
 
-def wait_idle(client: StageClient, timeout_s: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while client.status().moving:
-        if time.monotonic() > deadline:
-            from elphel_host.errors import StageTimeout
+@dataclass
+class _StepFit:
+    """The readings of a closed-loop move: per step (all arrived from below), and since arriving."""
 
-            raise StageTimeout(f"stage still moving after {timeout_s} s")
-        time.sleep(0.01)
+    target_mm: float
+    mm_per_step: float
+    by_step: dict[int, list[float]] = field(default_factory=dict)
+    arrived: list[float] = field(default_factory=list)
+
+    def offset(self) -> float:
+        """The local offset: mean of ``reading - steps * mm_per_step``, each step averaged."""
+        mps = self.mm_per_step
+        return statistics.fmean(statistics.fmean(r) - s * mps for s, r in self.by_step.items())
+
+    def nearest(self, offset: float) -> int:
+        """The step nearest the target under ``offset``."""
+        return round((self.target_mm - offset) / self.mm_per_step)
+
+    def record(self, at: int, reading: float, *, moved: bool) -> None:
+        if moved:
+            self.arrived.clear()
+        self.arrived.append(reading)
+        self.by_step.setdefault(at, []).append(reading)
+
+    def failed(self, steps: int, max_iterations: int, tolerance_mm: float) -> StageClosedLoopError:
+        return StageClosedLoopError(
+            f"closed-loop move to {self.target_mm:.4f} mm: caliper reads "
+            f"{statistics.fmean(self.arrived):.4f} mm at step {steps} after "
+            f"{max_iterations} corrections (tolerance ±{tolerance_mm} mm beyond half "
+            f"the {CALIPER_LSB_MM} mm caliper LSB)"
+        )

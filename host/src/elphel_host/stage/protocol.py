@@ -29,8 +29,6 @@ ERROR_CLASSES: dict[int, type[StageCommandError]] = {
     22: StageCaliperError,
     23: StageCaliperError,
 }
-# Codes that mean the request itself was damaged on the way (worth a retry).
-LINK_ERROR_CODES = (1, 2, 3, 4, 5)
 
 STATES = ("IDLE", "RUN", "HOME", "ALARM")
 

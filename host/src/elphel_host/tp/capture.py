@@ -117,42 +117,12 @@ def capture_quad(
     check_target(target, force=force)
     info = camera.info()
     sensors = _quad_sensors(camera, info, layout)
-    if "trigger" not in info.get("capabilities", ["trigger"]):
-        raise QuadCaptureError(
-            f"{camera.url}: board {info.get('board')!r} has no common trigger; a quad set needs one"
-        )
-    before = {p: camera.params(p) for p in layout.ports}
-    for p, params in before.items():
-        if params.get("PF_HEIGHT", 0):
-            raise QuadCaptureError(
-                f"port {p} is in photo-finish mode (PF_HEIGHT={params['PF_HEIGHT']}); "
-                "allowed for a quad set: PF_HEIGHT=0"
-            )
+    before = _settings_before(camera, info, layout)
     master, period = choose_trigger(before, layout.ports, trigger_period_ms)
     total = 4 + len(layout.ports)
     step = progress or (lambda _done, _total, _message: None)
     deadline = time.monotonic() + timeout_s
-    try:
-        with on_common_trigger(camera, before, master=master, period=period) as applied:
-            step(1, total, f"common trigger set ({period / TICKS_PER_MS:g} ms, master {master})")
-            # one frame past the change, so every port's latest frame is a triggered one
-            _wait_for(camera, {p: f + 1 for p, f in applied.items()}, deadline, period)
-            step(2, total, "ports synchronised")
-            frames = _pick_frames(camera, layout.ports, period)
-            _wait_for(camera, frames, deadline, period)
-            step(3, total, "set taken: " + ", ".join(f"port {p} #{f}" for p, f in frames.items()))
-
-            def fetched(port: int, done: int) -> None:
-                step(3 + done, total, f"port {port} frame {frames[port]} fetched")
-
-            captured = _fetch(camera, frames, on_fetched=fetched)
-    except CameraHTTPError as e:
-        if e.parameter != "TRIG_PERIOD":
-            raise
-        raise QuadCaptureError(
-            f"the camera refused a {period / TICKS_PER_MS:g} ms trigger period for these "
-            f"settings ({e}); give a longer one (--trigger-period-ms)"
-        ) from e
+    captured = _take_set(camera, before, layout, (master, period), deadline, step)
     timestamp_ns, (height, width), bayer = _check_set(captured, layout.ports)
     bits = max(int(sensors[p].get("bits", 16)) for p in layout.ports)
     manifest = _manifest(
@@ -171,6 +141,58 @@ def capture_quad(
         bayer=bayer,
         manifest=manifest,
     )
+
+
+def _settings_before(
+    camera: CameraInterface, info: Mapping[str, Any], layout: QuadLayout
+) -> dict[int, dict[str, Any]]:
+    """The ports' parameters before the capture, checked to allow a quad set."""
+    if "trigger" not in info.get("capabilities", ["trigger"]):
+        raise QuadCaptureError(
+            f"{camera.url}: board {info.get('board')!r} has no common trigger; a quad set needs one"
+        )
+    before = {p: camera.params(p) for p in layout.ports}
+    for p, params in before.items():
+        if params.get("PF_HEIGHT", 0):
+            raise QuadCaptureError(
+                f"port {p} is in photo-finish mode (PF_HEIGHT={params['PF_HEIGHT']}); "
+                "allowed for a quad set: PF_HEIGHT=0"
+            )
+    return before
+
+
+def _take_set(
+    camera: CameraInterface,
+    before: dict[int, dict[str, Any]],
+    layout: QuadLayout,
+    trigger: tuple[int, int],
+    deadline: float,
+    step: CaptureProgress,
+) -> dict[int, CapturedFrame]:
+    """On the common trigger ``(master, period)``: wait for a set, fetch its frames."""
+    master, period = trigger
+    total = 4 + len(layout.ports)
+    try:
+        with on_common_trigger(camera, before, master=master, period=period) as applied:
+            step(1, total, f"common trigger set ({period / TICKS_PER_MS:g} ms, master {master})")
+            # one frame past the change, so every port's latest frame is a triggered one
+            _wait_for(camera, {p: f + 1 for p, f in applied.items()}, deadline, period)
+            step(2, total, "ports synchronised")
+            frames = _pick_frames(camera, layout.ports, period)
+            _wait_for(camera, frames, deadline, period)
+            step(3, total, "set taken: " + ", ".join(f"port {p} #{f}" for p, f in frames.items()))
+
+            def fetched(port: int, done: int) -> None:
+                step(3 + done, total, f"port {port} frame {frames[port]} fetched")
+
+            return _fetch(camera, frames, on_fetched=fetched)
+    except CameraHTTPError as e:
+        if e.parameter != "TRIG_PERIOD":
+            raise
+        raise QuadCaptureError(
+            f"the camera refused a {period / TICKS_PER_MS:g} ms trigger period for these "
+            f"settings ({e}); give a longer one (--trigger-period-ms)"
+        ) from e
 
 
 def check_target(target: Path, *, force: bool) -> None:

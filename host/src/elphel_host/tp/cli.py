@@ -12,8 +12,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.depth.cli import add_disagreement_option, max_disagreement
@@ -22,13 +20,12 @@ from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_de
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
-from elphel_host.tp.dsi import write_dsi, write_ml_data
+from elphel_host.tp.dsi import write_ml_data
 from elphel_host.tp.io import read_quad_dir
 from elphel_host.tp.layout import read_layout
-from elphel_host.tp.pipeline import correlation_tiles
-from elphel_host.tp.processor import disparity_map
-from elphel_host.tp.sequence import find_quads, plan_jobs, run_sequence
+from elphel_host.tp.sequence import find_quads, plan_jobs, quad_dsi, run_sequence
 from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
+from elphel_host.tp.tile_pass import correlation_tiles
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
@@ -61,6 +58,13 @@ def register(subparsers: Any) -> None:
         help="DSI.tif to write (ImageJ stack); with `capture`, the quad directory to create",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    _add_capture_options(p)
+    _add_tp_options(p)
+    _add_sequence_options(p)
+    p.set_defaults(func=run, parser=p)
+
+
+def _add_capture_options(p: argparse.ArgumentParser) -> None:
     cap = p.add_argument_group("capture (elphel tp capture ...)")
     add_camera_options(cap)
     cap.add_argument(
@@ -86,6 +90,9 @@ def register(subparsers: Any) -> None:
         metavar="S",
         help="seconds to wait for the frames (default 60)",
     )
+
+
+def _add_tp_options(p: argparse.ArgumentParser) -> None:
     tp = p.add_argument_group("tile processor (elphel tp QUAD_DIR ...)")
     tp.add_argument(
         "--refine", type=int, default=1, metavar="N", help="refinement passes (default 1)"
@@ -111,8 +118,6 @@ def register(subparsers: Any) -> None:
         help="also write an RGBA float32 TIFF: the four cameras blended at the measured disparity",
     )
     add_depth_options(tp)
-    _add_sequence_options(p)
-    p.set_defaults(func=run, parser=p)
 
 
 def add_depth_options(group: Any) -> None:
@@ -277,27 +282,7 @@ def run_tp(args: argparse.Namespace) -> int:
         fat_zero=args.fat_zero,
         threads=args.threads,
     )
-    t0 = time.perf_counter()
-    dsi = disparity_map(qs.quad, config=config)
-    seconds = time.perf_counter() - t0
-    h, w = qs.quad.images.shape[1:]
-    write_dsi(
-        args.out,
-        dsi,
-        image_size=(w, h),
-        geometry=qs.quad.geometry,
-        bayer=qs.quad.bayer,
-        extra={"fatZero": config.fat_zero, "refinePasses": config.refine_passes},
-    )
-    result: dict[str, Any] = {
-        "dsi": str(args.out),
-        "tiles_x": int(dsi["disparity"].shape[1]),
-        "tiles_y": int(dsi["disparity"].shape[0]),
-        "layers": list(dsi),
-        "seconds": round(seconds, 3),
-        "disparity_median": float(np.nanmedian(dsi["disparity"])),
-        "strength_median": float(np.nanmedian(dsi["strength"])),
-    }
+    dsi, result = quad_dsi(qs, args.out, config)
     if args.ml_data:
         corr = correlation_tiles(qs.quad, dsi["target_disparity"], config=config)
         write_ml_data(
@@ -320,7 +305,7 @@ def run_tp(args: argparse.Namespace) -> int:
         result["depth"] = {**depth.summary(), **write_depth_products(args.ply, depth, optics)}
     human = (
         f"{result['dsi']}: {result['tiles_x']}x{result['tiles_y']} tiles, {len(dsi)} layers, "
-        f"{seconds:.2f} s; median disparity {result['disparity_median']:.3f} px"
+        f"{result['seconds']:.2f} s; median disparity {result['disparity_median']:.3f} px"
     )
     if "depth" in result:
         d = result["depth"]

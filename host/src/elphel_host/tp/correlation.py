@@ -329,33 +329,57 @@ def subpixel_max(
     position, value, index
         Peak position (residual disparity, pixels), value at the peak, integer argmax.
     """
-    lags = profiles.lags
-    nl = lags.size
-    nd = profiles.deriv_lags.size
-    prof = samples[..., :nl]
+    nl = profiles.lags.size
     idx = integer_max(samples, profiles, lag_min=lag_min, select=select) if index is None else index
-    inner = np.clip(idx, 1, nl - 2)
+    pos, value = _parabola_peak(samples[..., :nl], profiles.lags, idx)
+    good, gauss_pos, gauss_value = _gaussian_peak(samples, profiles, idx)
+    pos = np.where(good, gauss_pos, pos)
+    if lag_min is not None:
+        pos = np.maximum(pos, np.asarray(lag_min) - 0.5)
+    value = np.where(good, gauss_value, value)
+    return pos.astype(np.float32), value.astype(np.float32), idx
 
-    def at(i: NDArray[np.intp], arr: F32 = prof) -> F32:
-        out: F32 = np.take_along_axis(arr, i[..., None], axis=-1)[..., 0]
-        return out
 
-    c0, cm, cp = at(inner), at(inner - 1), at(inner + 1)
+def _at(arr: F32, i: NDArray[np.intp]) -> F32:
+    out: F32 = np.take_along_axis(arr, i[..., None], axis=-1)[..., 0]
+    return out
+
+
+def _parabola_peak(
+    prof: F32, lags: NDArray[np.float64], idx: NDArray[np.intp]
+) -> tuple[NDArray[np.floating], NDArray[np.floating]]:
+    """Peak position and value of the parabola through the maximum and its neighbours.
+
+    At the ends of ``lags`` or where the parabola opens upwards, the integer maximum.
+    """
+    inner = np.clip(idx, 1, lags.size - 2)
+    c0, cm, cp = _at(prof, inner), _at(prof, inner - 1), _at(prof, inner + 1)
     with np.errstate(invalid="ignore"):
         curv = cm + cp - 2.0 * c0
     ok = (curv < 0) & (idx == inner)
     with np.errstate(divide="ignore", invalid="ignore"):
         frac = np.clip(np.where(ok, 0.5 * (cm - cp) / np.where(ok, curv, -1.0), 0.0), -0.5, 0.5)
-        value = np.where(ok, c0 - 0.25 * (cm - cp) * frac, at(idx))
-    pos = lags[0] + idx + frac
-    # Gaussian (log-parabola) fit from exact derivatives where available
+        value = np.where(ok, c0 - 0.25 * (cm - cp) * frac, _at(prof, idx))
+    return lags[0] + idx + frac, value
+
+
+def _gaussian_peak(
+    samples: F32, profiles: Profiles, idx: NDArray[np.intp]
+) -> tuple[NDArray[np.bool_], NDArray[np.floating], NDArray[np.floating]]:
+    """Gaussian (log-parabola) fit from the exact derivatives at the integer maximum.
+
+    Returns where the fit holds (the maximum is on ``deriv_lags``, the log opens downwards,
+    the step is at most 1 px), and the peak position and value there.
+    """
+    lags = profiles.lags
+    nl = lags.size
+    nd = profiles.deriv_lags.size
     lag_of_idx = lags[idx]
-    j = np.searchsorted(profiles.deriv_lags, lag_of_idx)
-    j = np.clip(j, 0, nd - 1)
+    j = np.clip(np.searchsorted(profiles.deriv_lags, lag_of_idx), 0, nd - 1)
     has = profiles.deriv_lags[j] == lag_of_idx
-    g = at(idx)
-    g1 = at(j, samples[..., nl : nl + nd])
-    g2 = at(j, samples[..., nl + nd : nl + 2 * nd])
+    g = _at(samples[..., :nl], idx)
+    g1 = _at(samples[..., nl : nl + nd], j)
+    g2 = _at(samples[..., nl + nd : nl + 2 * nd], j)
     den = g * g2 - g1 * g1
     good = has & (g > 0) & (den < 0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -363,11 +387,7 @@ def subpixel_max(
         good &= np.abs(step) <= 1.0
         # peak of exp(L0 + L1 x + L2 x^2 / 2): L1 = g1/g, L2 = den/g^2
         lg_peak = np.where(good, 0.5 * g1 * step / np.where(good, g, 1.0), 0.0)
-    pos = np.where(good, lag_of_idx + step, pos)
-    if lag_min is not None:
-        pos = np.maximum(pos, np.asarray(lag_min) - 0.5)
-    value = np.where(good, g * np.exp(lg_peak), value)
-    return pos.astype(np.float32), value.astype(np.float32), idx
+    return good, lag_of_idx + step, g * np.exp(lg_peak)
 
 
 def windowed_centroid(

@@ -196,14 +196,7 @@ def write_ml_data(
         _combine(centre[:, :, 0], centre[:, :, 1], combine_offset),
         _combine(centre[:, :, 2], centre[:, :, 3], combine_offset),
     ]
-    other = np.full((ty, tx, 9, 9), np.nan, dtype=np.float32)
-    flat = other.reshape(ty, tx, 81)
-    flat[:, :, ML_OTHER_TARGET] = target
-    if ground_truth is not None:
-        flat[:, :, ML_OTHER_GTRUTH] = ground_truth
-    if ground_truth_strength is not None:
-        flat[:, :, ML_OTHER_GTRUTH_STRENGTH] = ground_truth_strength
-    layers.append(other)
+    layers.append(_other_layer((ty, tx), target, ground_truth, ground_truth_strength))
     side = 2 * ML_HALF + 1
     images = np.stack([lay.transpose(0, 2, 1, 3).reshape(ty * side, tx * side) for lay in layers])
     corr = np.stack(layers[:4])
@@ -223,6 +216,21 @@ def write_ml_data(
         imagej=True,
         metadata={"Labels": list(ML_LAYERS), "Info": properties_xml(props)},
     )
+
+
+def _other_layer(
+    tiles: tuple[int, int], target: F32, ground_truth: F32 | None, strength: F32 | None
+) -> F32:
+    """The ``other`` layer: per tile 9x9 NaN but the target and the optional ground truth."""
+    ty, tx = tiles
+    other = np.full((ty, tx, 9, 9), np.nan, dtype=np.float32)
+    flat = other.reshape(ty, tx, 81)
+    flat[:, :, ML_OTHER_TARGET] = target
+    if ground_truth is not None:
+        flat[:, :, ML_OTHER_GTRUTH] = ground_truth
+    if strength is not None:
+        flat[:, :, ML_OTHER_GTRUTH_STRENGTH] = strength
+    return other
 
 
 def read_ml_data(path: str | Path) -> tuple[F32, F32, dict[str, str]]:

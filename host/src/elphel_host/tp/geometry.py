@@ -18,7 +18,6 @@ from elphel_host.errors import InputFormatError
 IDEAL_POSITIONS = ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))
 #: The six pairs (first, second): top, bottom, left, right, main diagonal, other diagonal.
 PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (2, 1))
-PAIR_NAMES = ("top", "bottom", "left", "right", "diagm", "diago")
 
 
 @dataclass(frozen=True)

@@ -27,12 +27,6 @@ from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
 from elphel_host.tp.bayer import BAYER_PATTERNS
 from elphel_host.tp.dsi import DAMAGED_TIFF_ERRORS
-
-# The DSI and ML_DATA files are dsi.py's; importable from here as they always were.
-from elphel_host.tp.dsi import read_dsi as read_dsi
-from elphel_host.tp.dsi import read_ml_data as read_ml_data
-from elphel_host.tp.dsi import write_dsi as write_dsi
-from elphel_host.tp.dsi import write_ml_data as write_ml_data
 from elphel_host.tp.geometry import QuadGeometry
 from elphel_host.tp.images import QuadImages
 from elphel_host.tp.kernel_file import KernelFile, kernel_file, load_kernels

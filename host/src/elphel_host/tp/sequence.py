@@ -3,7 +3,7 @@
 A recorded sequence is thousands of independent quads, so they run as independent
 tasks, one quad per task, on a Dask cluster (a local one by default, or an existing one
 given by its scheduler address). Each task reads its quad directory, computes the DSI
-exactly as the single-quad command does (the same :func:`dsi_of_quad`, so the layers are
+exactly as the single-quad command does (the same :func:`quad_dsi`, so the layers are
 bit for bit the same) and writes ``DIR/<quad name>.tif`` through a temporary name. A quad
 that fails is reported with its error and the others go on; a DSI already in ``DIR`` is
 not computed again, so an interrupted run is resumed by running it again.
@@ -11,18 +11,20 @@ not computed again, so an interrupted run is resumed by running it again.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from elphel_host.errors import InputFormatError
 from elphel_host.parallel import heap_reuse
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_dsi
-from elphel_host.tp.io import MANIFEST, read_quad_dir
+from elphel_host.tp.io import MANIFEST, QuadSet, read_quad_dir
 from elphel_host.tp.processor import disparity_map
 
 
@@ -82,11 +84,10 @@ def plan_jobs(quads: Sequence[Path], out_dir: str | Path) -> list[QuadJob]:
     ]
 
 
-def dsi_of_quad(quad_dir: str | Path, out: str | Path, config: TpConfig) -> dict[str, Any]:
-    """Read a quad directory, compute its DSI, write it to ``out``; a summary."""
-    import time
-
-    qs = read_quad_dir(quad_dir)
+def quad_dsi(
+    qs: QuadSet, out: str | Path, config: TpConfig
+) -> tuple[dict[str, NDArray[np.float32]], dict[str, Any]]:
+    """Compute a quad set's DSI and write it to ``out``; its layers and a summary."""
     t0 = time.perf_counter()
     dsi = disparity_map(qs.quad, config=config)
     seconds = time.perf_counter() - t0
@@ -99,7 +100,7 @@ def dsi_of_quad(quad_dir: str | Path, out: str | Path, config: TpConfig) -> dict
         bayer=qs.quad.bayer,
         extra={"fatZero": config.fat_zero, "refinePasses": config.refine_passes},
     )
-    return {
+    return dsi, {
         "dsi": str(out),
         "tiles_x": int(dsi["disparity"].shape[1]),
         "tiles_y": int(dsi["disparity"].shape[0]),
@@ -107,8 +108,12 @@ def dsi_of_quad(quad_dir: str | Path, out: str | Path, config: TpConfig) -> dict
         "seconds": round(seconds, 3),
         "disparity_median": float(np.nanmedian(dsi["disparity"])),
         "strength_median": float(np.nanmedian(dsi["strength"])),
-        "_dsi": dsi,
     }
+
+
+def dsi_of_quad(quad_dir: str | Path, out: str | Path, config: TpConfig) -> dict[str, Any]:
+    """Read a quad directory, compute its DSI, write it to ``out``; a summary."""
+    return quad_dsi(read_quad_dir(quad_dir), out, config)[1]
 
 
 def run_job(job: QuadJob, config: TpConfig) -> dict[str, Any]:
@@ -119,7 +124,6 @@ def run_job(job: QuadJob, config: TpConfig) -> dict[str, Any]:
             got = dsi_of_quad(job.quad_dir, job.out, config)
     except Exception as e:
         return {"quad": job.quad_dir, "dsi": job.out, "status": "failed", "error": _error(e)}
-    got.pop("_dsi")
     return {"quad": job.quad_dir, "status": "done", "worker": _worker(), **got}
 
 

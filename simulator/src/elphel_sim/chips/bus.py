@@ -55,9 +55,6 @@ class SimI2CBus:
     def attach(self, address: int, device: SimDevice) -> None:
         self.devices[address] = device
 
-    def detach(self, address: int) -> None:
-        self.devices.pop(address, None)
-
     # -- fault hooks ---------------------------------------------------------------------
 
     def sim_nak(self, count: int = 1, *, address: int | None = None) -> None:

@@ -11,6 +11,7 @@ import builtins
 import errno
 import os
 import types
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -75,22 +76,115 @@ def _ticks_diff(a: int, b: int) -> int:
 
 
 def build_fakes(board: SimEsp8266) -> dict[str, types.ModuleType]:
+    """The fakes of MicroPython's own modules, bound to ``board``, by module name."""
+    return {
+        "time": fake_time(board),
+        "machine": fake_machine(board),
+        "os": fake_os(board),
+        "socket": fake_module(
+            "socket",
+            AF_INET=2,
+            SOCK_STREAM=1,
+            SOL_SOCKET=1,
+            SO_REUSEADDR=4,
+            socket=lambda af=2, kind=1, proto=0: FakeSocket(board, None),
+            getaddrinfo=lambda host, port, *a: [(2, 1, 0, "", (host, port))],
+        ),
+        "select": fake_module(
+            "select", POLLIN=1, POLLOUT=4, POLLERR=8, POLLHUP=16, poll=lambda: FakePoll(board)
+        ),
+        "network": fake_module("network", WLAN=WLAN, STA_IF=0, AP_IF=1),
+        "micropython": fake_module(
+            "micropython",
+            const=lambda x: x,
+            alloc_emergency_exception_buf=lambda n: None,
+            kbd_intr=lambda c: None,
+            schedule=lambda fn, arg: fn(arg),
+        ),
+        "gc": fake_module(
+            "gc", collect=lambda: None, mem_free=lambda: 30_000, mem_alloc=lambda: 8_000
+        ),
+    }
+
+
+def fake_module(name: str, **attributes: Any) -> types.ModuleType:
+    """A module called ``name`` holding ``attributes``."""
+    module = types.ModuleType(name)
+    for key, value in attributes.items():
+        setattr(module, key, value)
+    return module
+
+
+def fake_time(board: SimEsp8266) -> types.ModuleType:
+    """``time``: ticks and sleeps on the board's virtual clock (30-bit ticks)."""
     clock = board.clock
-    pins = board.pins
     mask = (1 << 30) - 1
 
-    t = types.ModuleType("time")
-    t.ticks_us = lambda: clock.now_us & mask  # type: ignore[attr-defined]
-    t.ticks_ms = lambda: (clock.now_us // 1000) & mask  # type: ignore[attr-defined]
-    t.ticks_cpu = t.ticks_us  # type: ignore[attr-defined]
-    t.ticks_diff = _ticks_diff  # type: ignore[attr-defined]
-    t.ticks_add = lambda a, d: (a + d) & mask  # type: ignore[attr-defined]
-    t.sleep_us = lambda us: clock.advance(max(0, int(us)))  # type: ignore[attr-defined]
-    t.sleep_ms = lambda ms: clock.advance(max(0, int(ms)) * 1000)  # type: ignore[attr-defined]
-    t.sleep = lambda s: clock.advance(int(s * 1_000_000))  # type: ignore[attr-defined]
-    t.time = lambda: 946684800 // 1 + clock.now_us // 1_000_000  # type: ignore[attr-defined]
+    def ticks_us() -> int:
+        return clock.now_us & mask
 
-    m = types.ModuleType("machine")
+    return fake_module(
+        "time",
+        ticks_us=ticks_us,
+        ticks_ms=lambda: (clock.now_us // 1000) & mask,
+        ticks_cpu=ticks_us,
+        ticks_diff=_ticks_diff,
+        ticks_add=lambda a, d: (a + d) & mask,
+        sleep_us=lambda us: clock.advance(max(0, int(us))),
+        sleep_ms=lambda ms: clock.advance(max(0, int(ms)) * 1000),
+        sleep=lambda s: clock.advance(int(s * 1_000_000)),
+        time=lambda: 946684800 // 1 + clock.now_us // 1_000_000,
+    )
+
+
+def fake_os(board: SimEsp8266) -> types.ModuleType:
+    """``os``: no REPL redirection, the board's random bytes and its filesystem folder."""
+    return fake_module(
+        "os",
+        dupterm=lambda stream=None, index=0: None,
+        urandom=lambda n: bytes(board.rng.getrandbits(8) for _ in range(n)),
+        listdir=lambda path="": sorted(os.listdir(board.fs_dir)),
+    )
+
+
+def fake_machine(board: SimEsp8266) -> types.ModuleType:
+    """``machine``: pins, pulse timing, the UART, the watchdog and resets of ``board``."""
+    clock = board.clock
+    uart = FakeUART(board)
+
+    def make_uart(num: int, baudrate: int = 115200, *args: Any, **kw: Any) -> FakeUART:
+        if num != 0:
+            raise ValueError(f"UART({num}) has no RX on the ESP8266; use UART(0)")
+        return uart
+
+    def reset() -> None:
+        raise SimReset(HARD_RESET)
+
+    return fake_module(
+        "machine",
+        Pin=pin_class(board),
+        UART=make_uart,
+        WDT=wdt_class(board),
+        time_pulse_us=time_pulse_function(board),
+        unique_id=lambda: board.unique_id,
+        reset_cause=lambda: board.reset_cause,
+        reset=reset,
+        soft_reset=reset,
+        freq=lambda f=None: 80_000_000,
+        idle=lambda: clock.advance(100),
+        disable_irq=lambda: 0,
+        enable_irq=lambda state=0: None,
+        PWRON_RESET=PWRON_RESET,
+        HARD_RESET=HARD_RESET,
+        WDT_RESET=WDT_RESET,
+        SOFT_RESET=SOFT_RESET,
+        DEEPSLEEP_RESET=DEEPSLEEP_RESET,
+    )
+
+
+def pin_class(board: SimEsp8266) -> type:
+    """``machine.Pin`` on ``board``'s simulated GPIO; each access costs virtual time."""
+    clock, pins = board.clock, board.pins
 
     class Pin:
         IN, OUT, OPEN_DRAIN = 0, 1, 2
@@ -126,7 +220,14 @@ def build_fakes(board: SimEsp8266) -> dict[str, types.ModuleType]:
             if hard:
                 raise ValueError("hard IRQ not supported")
 
-    def time_pulse_us(pin: Pin, level: int, timeout_us: int = 1_000_000) -> int:
+    return Pin
+
+
+def time_pulse_function(board: SimEsp8266) -> Callable[..., int]:
+    """``machine.time_pulse_us`` on ``board``: the virtual clock runs to the pin's edges."""
+    clock, pins = board.clock, board.pins
+
+    def time_pulse_us(pin: Any, level: int, timeout_us: int = 1_000_000) -> int:
         sig = pins.inputs.get(pin.num)
         clock.advance(PIN_ACCESS_US)
 
@@ -153,6 +254,12 @@ def build_fakes(board: SimEsp8266) -> dict[str, types.ModuleType]:
             return -1
         return clock.now_us - start
 
+    return time_pulse_us
+
+
+def wdt_class(board: SimEsp8266) -> type:
+    """``machine.WDT``: feeding it feeds ``board``'s watchdog."""
+
     class WDT:
         def __init__(self, id: int = 0, timeout: int = 5000) -> None:
             if id != 0 or timeout != 5000:
@@ -162,99 +269,31 @@ def build_fakes(board: SimEsp8266) -> dict[str, types.ModuleType]:
         def feed(self) -> None:
             board.wdt_feed()
 
-    uart = FakeUART(board)
+    return WDT
 
-    def make_uart(num: int, baudrate: int = 115200, *args: Any, **kw: Any) -> FakeUART:
-        if num != 0:
-            raise ValueError(f"UART({num}) has no RX on the ESP8266; use UART(0)")
-        return uart
 
-    def reset() -> None:
-        raise SimReset(HARD_RESET)
+class WLAN:
+    """``network.WLAN``: a station that is connected as soon as it is active."""
 
-    m.Pin = Pin  # type: ignore[attr-defined]
-    m.UART = make_uart  # type: ignore[attr-defined]
-    m.WDT = WDT  # type: ignore[attr-defined]
-    m.time_pulse_us = time_pulse_us  # type: ignore[attr-defined]
-    m.unique_id = lambda: board.unique_id  # type: ignore[attr-defined]
-    m.reset_cause = lambda: board.reset_cause  # type: ignore[attr-defined]
-    m.reset = reset  # type: ignore[attr-defined]
-    m.soft_reset = reset  # type: ignore[attr-defined]
-    m.freq = lambda f=None: 80_000_000  # type: ignore[attr-defined]
-    m.idle = lambda: clock.advance(100)  # type: ignore[attr-defined]
-    m.disable_irq = lambda: 0  # type: ignore[attr-defined]
-    m.enable_irq = lambda state=0: None  # type: ignore[attr-defined]
-    for name, value in (
-        ("PWRON_RESET", PWRON_RESET),
-        ("HARD_RESET", HARD_RESET),
-        ("WDT_RESET", WDT_RESET),
-        ("SOFT_RESET", SOFT_RESET),
-        ("DEEPSLEEP_RESET", DEEPSLEEP_RESET),
-    ):
-        setattr(m, name, value)
+    IF_STA, IF_AP = 0, 1
 
-    o = types.ModuleType("os")
-    o.dupterm = lambda stream=None, index=0: None  # type: ignore[attr-defined]
-    o.urandom = lambda n: bytes(board.rng.getrandbits(8) for _ in range(n))  # type: ignore[attr-defined]
-    o.listdir = lambda path="": sorted(os.listdir(board.fs_dir))  # type: ignore[attr-defined]
+    def __init__(self, interface: int = 0) -> None:
+        self.interface = interface
+        self._active = False
 
-    s = types.ModuleType("socket")
-    s.AF_INET, s.SOCK_STREAM = 2, 1  # type: ignore[attr-defined]
-    s.SOL_SOCKET, s.SO_REUSEADDR = 1, 4  # type: ignore[attr-defined]
-    s.socket = lambda af=2, kind=1, proto=0: FakeSocket(board, None)  # type: ignore[attr-defined]
-    s.getaddrinfo = lambda host, port, *a: [(2, 1, 0, "", (host, port))]  # type: ignore[attr-defined]
+    def active(self, flag: bool | None = None) -> bool:
+        if flag is not None:
+            self._active = bool(flag)
+        return self._active
 
-    sel = types.ModuleType("select")
-    sel.POLLIN, sel.POLLOUT, sel.POLLERR, sel.POLLHUP = 1, 4, 8, 16  # type: ignore[attr-defined]
-    sel.poll = lambda: FakePoll(board)  # type: ignore[attr-defined]
+    def connect(self, ssid: str, password: str = "") -> None:
+        pass
 
-    net = types.ModuleType("network")
+    def isconnected(self) -> bool:
+        return self._active
 
-    class WLAN:
-        IF_STA, IF_AP = 0, 1
+    def config(self, *args: Any, **kw: Any) -> None:
+        return None
 
-        def __init__(self, interface: int = 0) -> None:
-            self.interface = interface
-            self._active = False
-
-        def active(self, flag: bool | None = None) -> bool:
-            if flag is not None:
-                self._active = bool(flag)
-            return self._active
-
-        def connect(self, ssid: str, password: str = "") -> None:
-            pass
-
-        def isconnected(self) -> bool:
-            return self._active
-
-        def config(self, *args: Any, **kw: Any) -> None:
-            return None
-
-        def ifconfig(self) -> tuple[str, str, str, str]:
-            return ("127.0.0.1", "255.0.0.0", "127.0.0.1", "127.0.0.1")
-
-    net.WLAN = WLAN  # type: ignore[attr-defined]
-    net.STA_IF, net.AP_IF = 0, 1  # type: ignore[attr-defined]
-
-    mp = types.ModuleType("micropython")
-    mp.const = lambda x: x  # type: ignore[attr-defined]
-    mp.alloc_emergency_exception_buf = lambda n: None  # type: ignore[attr-defined]
-    mp.kbd_intr = lambda c: None  # type: ignore[attr-defined]
-    mp.schedule = lambda fn, arg: fn(arg)  # type: ignore[attr-defined]
-
-    g = types.ModuleType("gc")
-    g.collect = lambda: None  # type: ignore[attr-defined]
-    g.mem_free = lambda: 30_000  # type: ignore[attr-defined]
-    g.mem_alloc = lambda: 8_000  # type: ignore[attr-defined]
-
-    return {
-        "time": t,
-        "machine": m,
-        "os": o,
-        "socket": s,
-        "select": sel,
-        "network": net,
-        "micropython": mp,
-        "gc": g,
-    }
+    def ifconfig(self) -> tuple[str, str, str, str]:
+        return ("127.0.0.1", "255.0.0.0", "127.0.0.1", "127.0.0.1")

@@ -18,17 +18,6 @@ class Signal(Protocol):
         ...
 
 
-class ConstantSignal:
-    def __init__(self, level: int) -> None:
-        self.level = level
-
-    def level_at(self, t_us: int) -> int:
-        return self.level
-
-    def next_change(self, t_us: int) -> int | None:
-        return None
-
-
 class FunctionSignal:
     """A level computed from the world when read (limit switches); polled, no edge times."""
 

@@ -7,7 +7,8 @@ renders the window with a margin, blurs each colour with a Gaussian of the lens'
 integration for sigma >= 0.3 px) and crops the margin off. At the array's edges the
 nearest pixel is repeated, as if the scene went on unchanged.
 
-A blur that varies over the field (`LensBlur` with ``edge_px``) grows with the squared
+A lens's PSF is the host's :class:`~elphel_host.mfsr.gaussian_psf.GaussianPsf` (round,
+sensor px). A blur that varies over the field (`LensBlur` with ``edge``) grows with the squared
 distance from the optical centre; it is rendered as the per-pixel linear interpolation
 between the image blurred at `LEVELS` sigmas spanning the lens's range (only those a
 window needs are computed).
@@ -16,11 +17,12 @@ window needs are computed).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
 
+from elphel_host.mfsr.gaussian_psf import GaussianPsf
 from elphel_sim.render.radiance import Intrinsics, Window, render_strips
 from elphel_sim.world import FloatArray, Pose, World
 
@@ -37,42 +39,58 @@ def check_lens_blur(sigma_px: float) -> float:
     return float(sigma_px)
 
 
+def _round_sigma_px(psf: GaussianPsf, where: str) -> float:
+    sigma = psf.sigma_px
+    if sigma is None:
+        raise ValueError(
+            f"lens blur {where} {psf.cov.tolist()} offset {psf.offset}; allowed: a round, "
+            "centred Gaussian (GaussianPsf.round)"
+        )
+    return check_lens_blur(sigma)
+
+
 @dataclass(frozen=True)
 class LensBlur:
-    """A lens's Gaussian blur, sigma in sensor px.
+    """A lens's blur: round Gaussian PSFs in sensor px over the field.
 
-    ``centre_px`` on the optical axis; with ``edge_px`` it grows with the squared distance
-    from the axis to ``edge_px`` at the array's farthest corner (None: the same everywhere).
+    ``centre`` on the optical axis; with ``edge`` the sigma grows with the squared distance
+    from the axis to ``edge``'s at the array's farthest corner (None: ``centre`` everywhere).
     """
 
-    centre_px: float = 0.0
-    edge_px: float | None = None
+    centre: GaussianPsf = field(default_factory=lambda: GaussianPsf.round(0.0))
+    edge: GaussianPsf | None = None
 
     def __post_init__(self) -> None:
-        check_lens_blur(self.centre_px)
-        if self.edge_px is not None:
-            check_lens_blur(self.edge_px)
+        _round_sigma_px(self.centre, "centre")
+        if self.edge is not None:
+            _round_sigma_px(self.edge, "edge")
 
     @classmethod
     def parse(cls, text: str) -> LensBlur:
-        """``C`` (the same everywhere) or ``C:E`` (centre, corner); ValueError otherwise."""
+        """``C`` (the same everywhere) or ``C:E`` (centre, corner; sensor px); else ValueError."""
         parts = text.split(":")
         if len(parts) > 2:
             raise ValueError(f"lens blur {text!r}; allowed: C or C:E (sensor px)")
-        values = [float(p) for p in parts]
-        return cls(values[0], values[1] if len(values) == 2 else None)
+        psfs = [GaussianPsf.round(check_lens_blur(float(p))) for p in parts]
+        return cls(psfs[0], psfs[1] if len(psfs) == 2 else None)
+
+    @property
+    def centre_px(self) -> float:
+        """The sigma on the optical axis."""
+        return _round_sigma_px(self.centre, "centre")
 
     @property
     def corner_px(self) -> float:
         """The sigma at the array's farthest corner."""
-        return self.centre_px if self.edge_px is None else self.edge_px
+        return self.centre_px if self.edge is None else _round_sigma_px(self.edge, "edge")
 
     @property
     def varies(self) -> bool:
         return self.corner_px != self.centre_px
 
     def to_json(self) -> dict[str, float | None]:
-        return {"lens_blur_px": self.centre_px, "lens_blur_edge_px": self.edge_px}
+        edge = None if self.edge is None else self.corner_px
+        return {"lens_blur_px": self.centre_px, "lens_blur_edge_px": edge}
 
     def sigma_at(self, intrinsics: Intrinsics, ys: FloatArray, xs: FloatArray) -> FloatArray:
         """The sigma at pixel centres (rows ``ys``, columns ``xs``; an open grid)."""

@@ -28,6 +28,7 @@ definition):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,25 +133,7 @@ def camera_transform(
     cell = 1 if bayer is None else 2
     # a tile starts on either parity; its cell-aligned footprint is one sample wider
     span = TILE if bayer is None else TILE // 2 + 1
-    rows: list[int] = []
-    cols: list[int] = []
-    blocks: list[tuple[slice, F32]] = []
-    for colour in range(ncol):
-        members = [lat for lat in lats if lat.colour == colour]
-        first = len(rows)
-        mats = []
-        for lat in members:
-            rows.append(lat.row)
-            cols.append(lat.col)
-            mats.append(_plane_matrix(lat, span, fset, sizes[colour]))
-        m = np.concatenate(mats, axis=0)
-        # fold in the square root of the colour weight: the pair product then carries it once
-        wgt = colour_weights[colour][
-            fset.kh[: sizes[colour]], :, fset.kv[: sizes[colour]]
-        ]  # (F, which)
-        root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
-        m = m * np.repeat(root.ravel(), 2)[None, :]
-        blocks.append((slice(first, len(rows)), m.astype(np.float32)))
+    rows, cols, blocks = _colour_blocks(lats, colour_weights, fset, sizes, span)
     f = fset.size
     angles = np.zeros((2, 2 * f))
     angles[0] = np.tile(OMEGA[fset.kh], 2)
@@ -169,6 +152,34 @@ def camera_transform(
         angles=angles.astype(np.float32),
         pad=pad,
     )
+
+
+def _colour_blocks(
+    lats: Sequence[Lattice],
+    colour_weights: NDArray[np.floating],
+    fset: FrequencySet,
+    sizes: tuple[int, ...],
+    span: int,
+) -> tuple[list[int], list[int], list[tuple[slice, F32]]]:
+    """Per colour, its planes' (row, col) in the cell and its weighted transform matrix."""
+    rows: list[int] = []
+    cols: list[int] = []
+    blocks: list[tuple[slice, F32]] = []
+    for colour, size in enumerate(sizes):
+        members = [lat for lat in lats if lat.colour == colour]
+        first = len(rows)
+        mats = []
+        for lat in members:
+            rows.append(lat.row)
+            cols.append(lat.col)
+            mats.append(_plane_matrix(lat, span, fset, size))
+        m = np.concatenate(mats, axis=0)
+        # fold in the square root of the colour weight: the pair product then carries it once
+        wgt = colour_weights[colour][fset.kh[:size], :, fset.kv[:size]]  # (F, which)
+        root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
+        m = m * np.repeat(root.ravel(), 2)[None, :]
+        blocks.append((slice(first, len(rows)), m.astype(np.float32)))
+    return rows, cols, blocks
 
 
 def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
@@ -255,43 +266,18 @@ def camera_spectra(
     par_y = top_y & (c - 1)
     cols = np.clip((left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span)
     rows = np.clip((top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span)
-    s0, s1, s2 = cells.strides
-    npl = cells.shape[2]
-    # planes first in the view, so the gathered copy is already plane-major (no transpose)
-    view = np.lib.stride_tricks.as_strided(
-        cells,
-        shape=(cells.shape[0] - span + 1, cells.shape[1] - span + 1, npl, span, span),
-        strides=(s0, s1, s2, s0, s1),
-        writeable=False,
-    )
+    samples = _gather_tiles(cells, span, rows, cols)  # (T, planes * v * u)
     n_plane = span * span
-    samples = view[rows, cols].reshape(t, npl * n_plane)  # (T, planes * v * u)
-    # the window: 4 fixed windows per start parity, combined by the tile's shift
-    a = np.pi / TILE
-    cy, sy = np.cos(a * shift_y), np.sin(a * shift_y)
-    cx, sx = np.cos(a * shift_x), np.sin(a * shift_x)
-    coef = np.stack([cy * cx, cy * sx, sy * cx, sy * sx], axis=1).astype(np.float32)
+    coef = _window_coefficients(at.shift_y, at.shift_x)
     parity = par_y * c + par_x
     # one rotation by the fractional shift (and the cell offset), shared by all colours
     uniform = bool(np.ptp(shift_x) == 0 and np.ptp(shift_y) == 0 and np.ptp(parity) == 0)
     one = slice(0, 1) if uniform else slice(None)  # e.g. a first pass: one shift for all
-    shifts = np.stack([shift_x[one] - par_x[one], shift_y[one] - par_y[one]], axis=1).astype(
-        np.float32
-    )
-    ang = shifts @ tr.angles  # (T or 1, 2F)
-    phase = np.empty(ang.shape, dtype=np.complex64)
-    phase.real = np.cos(ang)
-    phase.imag = np.sin(ang)
-    phase3 = phase.reshape(-1, 2, tr.fset.size)
+    shifts = np.stack([shift_x[one] - par_x[one], shift_y[one] - par_y[one]], axis=1)
+    phase3 = _rotations(shifts.astype(np.float32), tr)
     if uniform:
         # the one window and the one rotation go into the matrices: no pass over the tiles
-        p0 = int(parity[0]) * 4
-        window = (coef[:1] @ tr.windows[p0 : p0 + 4])[0]
-        mats = []
-        for (planes, mat), n in zip(tr.blocks, tr.colour_sizes, strict=True):
-            m = mat * window[planes.start * n_plane : planes.stop * n_plane, None]
-            m.view(np.complex64)[...] *= phase3[0, :, :n].reshape(1, 2 * n)
-            mats.append(m)
+        mats = _uniform_matrices(tr, coef[:1], int(parity[0]), phase3[0])
     else:
         spread = np.zeros((t, tr.windows.shape[0]), dtype=np.float32)
         np.put_along_axis(spread, parity[:, None] * 4 + np.arange(4), coef, axis=1)
@@ -309,6 +295,50 @@ def camera_spectra(
             z *= phase3[:, :, :n]
         result.append(z)
     return result
+
+
+def _uniform_matrices(tr: CameraTransform, coef: F32, parity: int, phase: C64) -> list[F32]:
+    """The colour matrices with one window (``coef`` (1, 4) at ``parity``) and one rotation."""
+    n_plane = tr.span * tr.span
+    window = (coef @ tr.windows[parity * 4 : parity * 4 + 4])[0]
+    mats = []
+    for (planes, mat), n in zip(tr.blocks, tr.colour_sizes, strict=True):
+        m = mat * window[planes.start * n_plane : planes.stop * n_plane, None]
+        m.view(np.complex64)[...] *= phase[:, :n].reshape(1, 2 * n)
+        mats.append(m)
+    return mats
+
+
+def _gather_tiles(cells: F32, span: int, rows: NDArray[np.intp], cols: NDArray[np.intp]) -> F32:
+    """Each tile's ``span x span`` footprint of every plane: ``(T, planes * span * span)``."""
+    s0, s1, s2 = cells.strides
+    npl = cells.shape[2]
+    # planes first in the view, so the gathered copy is already plane-major (no transpose)
+    view = np.lib.stride_tricks.as_strided(
+        cells,
+        shape=(cells.shape[0] - span + 1, cells.shape[1] - span + 1, npl, span, span),
+        strides=(s0, s1, s2, s0, s1),
+        writeable=False,
+    )
+    out: F32 = view[rows, cols].reshape(rows.shape[0], npl * span * span)
+    return out
+
+
+def _window_coefficients(shift_y: NDArray[np.floating], shift_x: NDArray[np.floating]) -> F32:
+    """Weights of the 4 fixed windows (per start parity) that make each tile's shifted window."""
+    a = np.pi / TILE
+    cy, sy = np.cos(a * shift_y), np.sin(a * shift_y)
+    cx, sx = np.cos(a * shift_x), np.sin(a * shift_x)
+    return np.stack([cy * cx, cy * sx, sy * cx, sy * sx], axis=1).astype(np.float32)
+
+
+def _rotations(shifts: F32, tr: CameraTransform) -> C64:
+    """Phase rotations by ``(x, y)`` shifts: ``(T or 1, 2, F)`` complex64."""
+    ang = shifts @ tr.angles  # (T or 1, 2F)
+    phase = np.empty(ang.shape, dtype=np.complex64)
+    phase.real = np.cos(ang)
+    phase.imag = np.sin(ang)
+    return phase.reshape(-1, 2, tr.fset.size)
 
 
 def expand(products: C64, fset: FrequencySet) -> C64:

@@ -52,15 +52,30 @@ def simulated_rig(
             raise DemoError(f"elphel-sim up exited with code {proc.wait()} before serving")
         yield json.loads(line)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_child(proc)
         if proc.stdout is not None:
             proc.stdout.close()
+
+
+def stop_child(proc: subprocess.Popen[Any], *, timeout_s: float = 20.0) -> None:
+    """End a child process: SIGTERM, then SIGKILL if it has not exited after ``timeout_s``."""
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def rig_env(rig: dict[str, Any]) -> dict[str, str]:
+    """The environment that points the `elphel` CLI at ``rig``'s camera and stage."""
+    return {
+        "ELPHEL_CAMERA_URL": rig["camera_url"],
+        "ELPHEL_CAMERA_TOKEN": rig["token"],
+        "ELPHEL_STAGE_URL": rig["stage_url"],
+    }
 
 
 class DemoProgress:

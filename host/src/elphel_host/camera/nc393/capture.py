@@ -4,7 +4,7 @@
 with imgsrv's ``prev`` moves and checked by its Exif frame number; ``burst`` takes
 consecutive numbers; ``frame`` reads only the newest frame's Exif block when imgsrv's
 counter has moved. Each frame is decoded into elphel-camd's capture TIFF
-(`elphel_host.camera.nc393_frames`).
+(`elphel_host.camera.nc393.frames`).
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from collections.abc import Mapping
 
 import httpx
 
-from elphel_host.camera import imgsrv
 from elphel_host.camera.frames import CapturedBurst, CapturedFrame
-from elphel_host.camera.nc393_address import check_port
-from elphel_host.camera.nc393_frames import decoded_frame, newest_stamp, tiff_pages
-from elphel_host.camera.stock_http import http_get
-from elphel_host.camera.stock_model import StockModel
+from elphel_host.camera.nc393 import imgsrv
+from elphel_host.camera.nc393.address import check_port
+from elphel_host.camera.nc393.frames import decoded_frame, newest_stamp, tiff_pages
+from elphel_host.camera.nc393.http import http_get
+from elphel_host.camera.nc393.model import StockModel
 from elphel_host.errors import CameraParameterError, UnsupportedError
 
 # A capture waits for at most this many frames beyond the newest (elphel-camd's limit).

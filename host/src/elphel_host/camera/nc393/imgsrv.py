@@ -3,8 +3,7 @@
 One imgsrv per sensor port (BASE..BASE+3). A path is a list of commands run left to
 right: ``/towp/wait/bimg`` waits for the frame the hardware writes next and sends it,
 ``/bimg`` sends the newest complete frame, ``/frame`` the current frame number as text,
-``/wframe`` the same after the next frame sync, ``/trig`` fires one internal trigger
-(TRIG=4). Facts: reference elphel-stock-camera.md 1.2.
+``/trig`` fires one internal trigger (TRIG=4). Facts: reference elphel-stock-camera.md 1.2.
 """
 
 from __future__ import annotations
@@ -14,7 +13,6 @@ from elphel_host.errors import CameraClientError
 NEXT = "/towp/wait/bimg"
 NEWEST = "/bimg"
 FRAME = "/frame"
-WAIT_FRAME = "/wframe"
 TRIGGER = "/trig"
 
 # What imgsrv sends a frame as: JP4, JP46, a (mono) JPEG, or raw 16-bit TIFF (COLOR 15).

@@ -14,8 +14,8 @@ from typing import Any
 
 import httpx
 
-from elphel_sim.demo_report import burst_crops, reference_image
-from elphel_sim.demo_rig import elphel, read_frame_metadata, simulated_rig, step
+from elphel_sim.demo.report import burst_crops, reference_image
+from elphel_sim.demo.rig import elphel, read_frame_metadata, rig_env, simulated_rig, step
 
 # The `elphel` commands of these steps (the demo's progress bar counts them).
 COMMANDS = 9
@@ -31,14 +31,6 @@ DISTANCE_MM = 1000.0
 OPTICS = ("--focal-length-mm", "4.5", "--pixel-pitch-um", "2.2", "--distance-mm", f"{DISTANCE_MM}")
 # The second burst's lens: a Gaussian blur of 0.35 sensor px (0.7 px of the x2 output)
 LENS_BLUR_PX = 0.35
-
-
-def rig_env(rig: dict[str, Any]) -> dict[str, str]:
-    return {
-        "ELPHEL_CAMERA_URL": rig["camera_url"],
-        "ELPHEL_CAMERA_TOKEN": rig["token"],
-        "ELPHEL_STAGE_URL": rig["stage_url"],
-    }
 
 
 def write_reference(rig: dict[str, Any], burst: Path, path: Path, *, seed: int) -> Path:
@@ -57,9 +49,40 @@ def gain_over_bicubic(compare: dict[str, Any]) -> float:
     return round(methods["robust"]["psnr_db"] - methods["bicubic"]["psnr_db"], 3)
 
 
+def capture_args(plan_path: str, burst: Path) -> tuple[str, ...]:
+    """`elphel burst capture` of ``plan_path`` into ``burst`` from 40 mm, with the optics."""
+    return (
+        "burst",
+        "capture",
+        "--plan",
+        plan_path,
+        "--out",
+        str(burst),
+        "--start-mm",
+        "40",
+        *OPTICS,
+    )
+
+
+def compare_args(burst: Path, reference: Path, out_dir: Path) -> tuple[str, ...]:
+    """`elphel mfsr compare` of ``burst`` against ``reference``, written to ``out_dir``."""
+    return (
+        "mfsr",
+        "compare",
+        str(burst),
+        "--scale",
+        str(SCALE),
+        "--reference",
+        str(reference),
+        "--out",
+        str(out_dir),
+    )
+
+
 def burst_step(
     rig: dict[str, Any], out: Path, stage: dict[str, Any], *, seed: int
 ) -> dict[str, Any]:
+    """Plan, capture and fuse the x2 Bayer burst; score it against the simulator's truth."""
     env = rig_env(rig)
     elphel("camera", "set", *(f"{k}={v}" for k, v in WINDOW.items()), env=env)
     plan_path = out / "burst-plan.json"
@@ -82,43 +105,17 @@ def burst_step(
     # `burst capture` resumes a directory of the same plan and refuses another plan's;
     # each demo run captures a new burst from a new simulated rig
     shutil.rmtree(burst, ignore_errors=True)
-    captured = elphel(
-        "burst",
-        "capture",
-        "--plan",
-        str(plan_path),
-        "--out",
-        str(burst),
-        "--model",
-        stage["model"],
-        "--start-mm",
-        "40",
-        *OPTICS,
-        env=env,
-    )
+    captured = elphel(*capture_args(str(plan_path), burst), "--model", stage["model"], env=env)
     step(f"burst: {len(captured['captured'])} frames captured in {captured['seconds']:.1f} s")
     ref_path = write_reference(rig, burst, out / "burst-reference.tif", seed=seed)
     fused = elphel("mfsr", str(burst), "--scale", str(SCALE), "--out", str(out / "fused.tif"))
-    compare = elphel(
-        "mfsr",
-        "compare",
-        str(burst),
-        "--scale",
-        str(SCALE),
-        "--reference",
-        str(ref_path),
-        "--out",
-        str(out / "mfsr-compare"),
+    compare = elphel(*compare_args(burst, ref_path, out / "mfsr-compare"))
+    scores = ", ".join(
+        f"{m} {r['psnr_db']:.2f} dB SSIM {r['ssim']:.3f}"
+        for m, r in compare["methods"].items()
+        if r.get("psnr_db") is not None
     )
-    step(
-        "burst: against the simulator's truth: "
-        + ", ".join(
-            f"{m} {r['psnr_db']:.2f} dB SSIM {r['ssim']:.3f}"
-            for m, r in compare["methods"].items()
-            if r.get("psnr_db") is not None
-        )
-        + f" -> {out / 'fused.tif'}"
-    )
+    step(f"burst: against the simulator's truth: {scores} -> {out / 'fused.tif'}")
     crops = burst_crops(out / "mfsr-compare", ref_path, out / "burst-crops.png")
     step(f"burst: crops bicubic | baseline | robust | reference -> {crops}")
     return {
@@ -144,15 +141,9 @@ def lens_blur_step(out: Path, sharp: dict[str, Any], *, seed: int) -> dict[str, 
         env = rig_env(rig)
         elphel("camera", "set", *(f"{k}={v}" for k, v in WINDOW.items()), env=env)
         elphel("stage", "home", env=env)
-        elphel(
-            "burst", "capture", "--plan", sharp["plan"], "--out", str(burst),
-            "--start-mm", "40", *OPTICS, env=env,
-        )  # fmt: skip
+        elphel(*capture_args(sharp["plan"], burst), env=env)
         ref_path = write_reference(rig, burst, out / "burst-lens-blur-reference.tif", seed=seed)
-    compare = elphel(
-        "mfsr", "compare", str(burst), "--scale", str(SCALE), "--reference", str(ref_path),
-        "--out", str(cmp_dir),
-    )  # fmt: skip
+    compare = elphel(*compare_args(burst, ref_path, cmp_dir))
     psf = compare["methods"]["robust"].get("psf", {})
     gain, sharp_gain = gain_over_bicubic(compare), sharp["gain_over_bicubic_db"]
     step(

@@ -18,12 +18,12 @@ from typing import Any
 
 import httpx
 
-from elphel_host.camera import imgsrv, parsedit
-from elphel_host.camera.nc393_address import PORTS, NC393Address, check_port, parse_nc393_url
-from elphel_host.camera.nc393_capture import StockFrames
+from elphel_host.camera.nc393 import imgsrv, parsedit
+from elphel_host.camera.nc393.address import PORTS, NC393Address, check_port, parse_nc393_url
+from elphel_host.camera.nc393.capture import StockFrames
+from elphel_host.camera.nc393.http import http_get
+from elphel_host.camera.nc393.model import STOCK_ONLY, Checked, StockModel, port_entry
 from elphel_host.camera.staging import Applied, Staging
-from elphel_host.camera.stock_http import http_get
-from elphel_host.camera.stock_model import STOCK_ONLY, Checked, StockModel, port_entry
 from elphel_host.camera.unsupported import NoEventsNoRegisters
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraClientError, CameraParameterError, UnsupportedError
@@ -160,13 +160,8 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
             )
         return got if names is None or "FRAME" in names else {n: got[n] for n in names}
 
-    def set_params(
-        self,
-        changes: Mapping[str, int],
-        *,
-        port: int = 0,
-        frame: int | None = None,
-        ahead: int | None = None,
+    def _set_params(
+        self, changes: Mapping[str, int], port: int, frame: int | None, ahead: int | None
     ) -> Applied:
         """Check, write in one request ``ahead`` frames on (or at ``frame``), confirm.
 

@@ -4,13 +4,13 @@ Starts a simulated rig with `elphel-sim up` and drives it only through what a us
 the `elphel` CLI and the REST API. Steps: detect the sensor and capture a frame; home and
 calibrate the stage and check it against the simulator's truth; capture a sub-pixel burst
 and fuse it, and the same burst again through a blurred lens (`elphel-sim up
---lens-blur`; both in `elphel_sim.demo_burst`); capture one trigger-synchronised set
+--lens-blur`; both in `elphel_sim.demo.burst`); capture one trigger-synchronised set
 from the simulated quad camera (`elphel-sim up --scenario quad`) and compute its
 disparity map; read a recording of a simulated stock NC393; and last, put the quad on
 the stage carriage, capture a quad burst and turn it into super-resolved depth
-(`elphel_sim.demo_depth`). Everything goes under ``out/`` with a summary a person can
+(`elphel_sim.demo.depth`). Everything goes under ``out/`` with a summary a person can
 read (``summary.json`` and the printed lines).
-The rig and the user's tools the steps go through are in `elphel_sim.demo_rig`.
+The rig and the user's tools the steps go through are in `elphel_sim.demo.rig`.
 """
 
 from __future__ import annotations
@@ -25,14 +25,15 @@ from typing import Any
 
 import httpx
 import numpy as np
+from numpy.typing import NDArray
 
 from elphel_host.camera import CameraClient
 from elphel_host.preview import save_map_picture, save_preview
-from elphel_sim.demo_burst import COMMANDS as BURST_COMMANDS
-from elphel_sim.demo_burst import burst_step, lens_blur_step
-from elphel_sim.demo_depth import COMMANDS as DEPTH_COMMANDS
-from elphel_sim.demo_depth import depth_step
-from elphel_sim.demo_rig import (
+from elphel_sim.demo.burst import COMMANDS as BURST_COMMANDS
+from elphel_sim.demo.burst import burst_step, lens_blur_step
+from elphel_sim.demo.depth import COMMANDS as DEPTH_COMMANDS
+from elphel_sim.demo.depth import depth_step
+from elphel_sim.demo.rig import (
     DEMO_PROGRESS,
     DemoError,
     elphel,
@@ -137,36 +138,34 @@ STRENGTH_SHOWN = 0.15  # DSI tiles weaker than this are shown as having no textu
 MIN_DEPTH_DISPARITY_PX = 0.25
 
 
-def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
-    """The quad camera of the simulator: one synchronised set captured, then its DSI."""
-    from elphel_host.tp.io import read_dsi
+def capture_quad(rig: dict[str, Any], out: Path) -> tuple[dict[str, Any], Path, dict[str, Any]]:
+    """One trigger-synchronised quad set; returns the scene, the quad directory, the truth."""
+    scene = httpx.get(f"{rig['sim_url']}/quad", timeout=30).json()
+    geometry = out / "quad-geometry.json"
+    geometry.write_text(json.dumps(scene, indent=1) + "\n")
+    step("quad: capturing four 2592x1944 Bayer frames of one trigger (elphel tp capture)")
+    quad_dir = out / "quad"
+    camera = ["--camera", rig["camera_url"], "--token", rig["token"]]
+    capture = elphel(
+        "tp", "capture", *camera, "--geometry", str(geometry), "--out", str(quad_dir), "--force"
+    )
+    frames = ", ".join(f"port {p} #{f}" for p, f in capture["frames"].items())
+    step(
+        f"quad: one trigger at t={capture['timestamp_ns']} ns ({frames}) in "
+        f"{capture['seconds']:.1f} s -> {quad_dir}"
+    )
+    truth = httpx.get(f"{rig['sim_url']}/quad/truth", timeout=120).json()
+    return scene, quad_dir, truth
 
-    step("starting the simulated quad camera (elphel-sim up --scenario quad)")
-    with simulated_rig(seed=seed, scenario="quad") as rig:
-        scene = httpx.get(f"{rig['sim_url']}/quad", timeout=30).json()
-        geometry = out / "quad-geometry.json"
-        geometry.write_text(json.dumps(scene, indent=1) + "\n")
-        step("quad: capturing four 2592x1944 Bayer frames of one trigger (elphel tp capture)")
-        quad_dir = out / "quad"
-        camera = ["--camera", rig["camera_url"], "--token", rig["token"]]
-        capture = elphel(
-            "tp", "capture", *camera, "--geometry", str(geometry), "--out", str(quad_dir), "--force"
-        )
-        frames = ", ".join(f"port {p} #{f}" for p, f in capture["frames"].items())
-        step(
-            f"quad: one trigger at t={capture['timestamp_ns']} ns ({frames}) in "
-            f"{capture['seconds']:.1f} s -> {quad_dir}"
-        )
-        truth = httpx.get(f"{rig['sim_url']}/quad/truth", timeout=120).json()
-    dsi_path = out / "dsi.tif"
-    result = elphel("tp", str(quad_dir), "--out", str(dsi_path))
-    layers, _ = read_dsi(dsi_path)
-    disparity, strength = layers["disparity"], layers["strength"]
+
+def region_errors(
+    err: NDArray[np.float64], truth: dict[str, Any], scene: dict[str, Any]
+) -> dict[str, Any]:
+    """Per named region of the scene: its textured interior tiles and their RMS error."""
     true_disparity = np.asarray(truth["disparity"], dtype=np.float64)
     label = np.asarray(truth["label"])
     interior, textured_tiles = np.asarray(truth["interior"]), np.asarray(truth["textured"])
     depth_mm = {r["name"]: r["depth_mm"] for r in scene["regions"]}
-    err = disparity - true_disparity
     regions: dict[str, Any] = {}
     for index, name in enumerate(truth["names"]):
         mask = (label == index) & interior & textured_tiles
@@ -178,8 +177,17 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
                 "depth_m": round(depth_mm[name] / 1000, 1) if name in depth_mm else None,
                 "rms_error_px": round(float(np.sqrt(np.mean(err[mask] ** 2))), 4),
             }
-    textured = interior & textured_tiles
-    rms_all = float(np.sqrt(np.mean(err[textured] ** 2)))
+    return regions
+
+
+def save_quad_pictures(
+    out: Path,
+    disparity: NDArray[np.floating[Any]],
+    strength: NDArray[np.floating[Any]],
+    true_disparity: NDArray[np.float64],
+    optics: dict[str, float],
+) -> None:
+    """disparity.png, disparity-truth.png and depth.png of the quad's DSI."""
     shown = np.where(strength > STRENGTH_SHOWN, disparity, np.nan)
     weak = f"no texture (strength < {STRENGTH_SHOWN})"
     bar = {"lo": -0.5, "hi": 6.0, "unit": "px", "cell": 2}
@@ -189,7 +197,6 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
     )
     # Depth of a tile: Z = f * B / (D * pitch), B the square's side (optics of quad.json).
     # Below MIN_DEPTH_DISPARITY_PX the depth is beyond a km and dominated by the error.
-    optics = scene["optics"]
     near = np.where(shown > MIN_DEPTH_DISPARITY_PX, shown, np.nan)
     depth_m = (
         optics["focal_length_mm"]
@@ -209,6 +216,25 @@ def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
         no_value=f"{weak} or disparity < {MIN_DEPTH_DISPARITY_PX} px (too far)",
         cell=2,
     )
+
+
+def quad_step(out: Path, *, seed: int) -> dict[str, Any]:
+    """The quad camera of the simulator: one synchronised set captured, then its DSI."""
+    from elphel_host.tp.dsi import read_dsi
+
+    step("starting the simulated quad camera (elphel-sim up --scenario quad)")
+    with simulated_rig(seed=seed, scenario="quad") as rig:
+        scene, quad_dir, truth = capture_quad(rig, out)
+    dsi_path = out / "dsi.tif"
+    result = elphel("tp", str(quad_dir), "--out", str(dsi_path))
+    layers, _ = read_dsi(dsi_path)
+    disparity = layers["disparity"]
+    true_disparity = np.asarray(truth["disparity"], dtype=np.float64)
+    err = disparity - true_disparity
+    regions = region_errors(err, truth, scene)
+    textured = np.asarray(truth["interior"]) & np.asarray(truth["textured"])
+    rms_all = float(np.sqrt(np.mean(err[textured] ** 2)))
+    save_quad_pictures(out, disparity, layers["strength"], true_disparity, scene["optics"])
     step(
         f"quad: DSI {result['tiles_x']}x{result['tiles_y']} tiles in {result['seconds']:.2f} s; "
         f"RMS error {rms_all:.3f} px over {int(textured.sum())} textured tiles -> {dsi_path}"
@@ -261,7 +287,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"demo: {e}", file=sys.stderr)
         return 1
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -18,11 +18,11 @@ import numpy as np
 import tifffile
 
 from elphel_camd.frame_metadata import bayer_after_flips
-from elphel_host.camera import imgsrv
 from elphel_host.camera.exif import read_exif
 from elphel_host.camera.frames import CapturedBurst, CapturedFrame
 from elphel_host.camera.jp4 import decode_frame
 from elphel_host.camera.jp4 import frame_metadata as exif_metadata
+from elphel_host.camera.nc393 import imgsrv
 from elphel_host.errors import CameraClientError, InputFormatError
 
 _FIRST = ("frame", "timestamp_ns", "port", "sensor", "bayer")

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from PIL import Image
 
 from elphel_host.preview import map_picture
-from elphel_sim.demo_rig import elphel, simulated_rig, step
+from elphel_sim.demo.rig import elphel, rig_env, simulated_rig, step
 
 # `elphel` commands of this step: 4 windows, home, plan, capture, tp, depth, 2 compares.
 COMMANDS = 11
@@ -42,53 +42,23 @@ def depth_step(out: Path, *, seed: int) -> dict[str, Any]:
     qb = out / "quad-burst"
     shutil.rmtree(qb, ignore_errors=True)  # a new burst from a new simulated rig
     with simulated_rig(seed=seed, scenario="quad-rig-small") as rig:
-        env = {
-            "ELPHEL_CAMERA_URL": rig["camera_url"],
-            "ELPHEL_CAMERA_TOKEN": rig["token"],
-            "ELPHEL_STAGE_URL": rig["stage_url"],
-        }
-        scene = httpx.get(f"{rig['sim_url']}/quad", timeout=30).json()
-        geometry = out / "quad-rig-geometry.json"
-        geometry.write_text(json.dumps(scene, indent=1) + "\n")
-        window = [f"{k}={v}" for k, v in scene["window"].items()]
-        for port in range(4):
-            elphel("camera", "set", "--sensor-port", str(port), *window, env=env)
-        elphel("stage", "home", env=env)
-        plan_path = out / "quad-burst-plan.json"
-        plan = elphel(
-            "burst", "plan", "--scale", str(SCALE), "--bayer", "--frames", str(FRAMES),
-            *OPTICS, "--distance-mm", str(PLAN_DISTANCE_MM), "--out", str(plan_path), env=env,
-        )  # fmt: skip
-        step(
-            f"depth: {plan['frames']} carriage positions over {plan['travel_mm']:.1f} mm; "
-            f"capturing a quad burst of {scene['window']['WOI_WIDTH']}x"
-            f"{scene['window']['WOI_HEIGHT']} windows (elphel burst capture --quad)"
-        )
-        captured = elphel(
-            "burst", "capture", "--plan", str(plan_path), "--quad", "--geometry", str(geometry),
-            "--start-mm", str(START_MM), "--out", str(qb), env=env,
-        )  # fmt: skip
-        sets = len(captured["captured"])
-        step(f"depth: {sets} quad sets captured in {captured['seconds']:.0f} s -> {qb}")
-        manifest = json.loads((qb / "cam0" / "manifest.json").read_text())
-        carriage = manifest["frames"][0]["caliper_mm"]
-        reference = out / "depth-reference.ply"
-        r = httpx.get(
-            f"{rig['sim_url']}/quad/reference.ply",
-            params={"carriage_mm": carriage, "step_px": 0.5},
-            timeout=120,
-        )
-        r.raise_for_status()
-        reference.write_bytes(r.content)
-        truth = httpx.get(f"{rig['sim_url']}/quad/truth", timeout=120).json()
+        scene, captured = capture_quad_burst(rig, out, qb)
+        reference, truth = fetch_truth(rig, qb, out / "depth-reference.ply")
     lr_quad = first_set(qb, out / "quad-burst-set0")
-    lr = elphel("tp", str(lr_quad), "--out", str(out / "lr-dsi.tif"), "--ply",
-                str(out / "lr-cloud.ply"))  # fmt: skip
+    lr = elphel(
+        "tp", str(lr_quad), "--out", str(out / "lr-dsi.tif"), "--ply", str(out / "lr-cloud.ply")
+    )
     sr = elphel("depth", str(qb), "--scale", str(SCALE), "--out", str(out / "depth"))
     scores = {}
     for name, cloud in (("lr", out / "lr-cloud.ply"), ("mfsr", Path(sr["ply"]))):
-        c = elphel("cloud", "compare", str(cloud), str(reference), "--out-dir",
-                   str(out / f"depth-compare-{name}"))  # fmt: skip
+        c = elphel(
+            "cloud",
+            "compare",
+            str(cloud),
+            str(reference),
+            "--out-dir",
+            str(out / f"depth-compare-{name}"),
+        )
         scores[name] = c["compared_to_reference"]
     lr_s, sr_s = scores["lr"], scores["mfsr"]
     picture = depth_picture(
@@ -115,6 +85,79 @@ def depth_step(out: Path, *, seed: int) -> dict[str, Any]:
         "mfsr_cloud_to_truth": sr_s,
         "picture": str(picture),
     }
+
+
+def capture_quad_burst(
+    rig: dict[str, Any], out: Path, qb: Path
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Window the four sensors, home, plan and capture the quad burst ``qb``.
+
+    Returns the simulator's quad scene and `elphel burst capture`'s result.
+    """
+    env = rig_env(rig)
+    scene = httpx.get(f"{rig['sim_url']}/quad", timeout=30).json()
+    geometry = out / "quad-rig-geometry.json"
+    geometry.write_text(json.dumps(scene, indent=1) + "\n")
+    window = [f"{k}={v}" for k, v in scene["window"].items()]
+    for port in range(4):
+        elphel("camera", "set", "--sensor-port", str(port), *window, env=env)
+    elphel("stage", "home", env=env)
+    plan_path = out / "quad-burst-plan.json"
+    plan = elphel(
+        "burst",
+        "plan",
+        "--scale",
+        str(SCALE),
+        "--bayer",
+        "--frames",
+        str(FRAMES),
+        *OPTICS,
+        "--distance-mm",
+        str(PLAN_DISTANCE_MM),
+        "--out",
+        str(plan_path),
+        env=env,
+    )
+    step(
+        f"depth: {plan['frames']} carriage positions over {plan['travel_mm']:.1f} mm; "
+        f"capturing a quad burst of {scene['window']['WOI_WIDTH']}x"
+        f"{scene['window']['WOI_HEIGHT']} windows (elphel burst capture --quad)"
+    )
+    captured = elphel(
+        "burst",
+        "capture",
+        "--plan",
+        str(plan_path),
+        "--quad",
+        "--geometry",
+        str(geometry),
+        "--start-mm",
+        str(START_MM),
+        "--out",
+        str(qb),
+        env=env,
+    )
+    sets = len(captured["captured"])
+    step(f"depth: {sets} quad sets captured in {captured['seconds']:.0f} s -> {qb}")
+    return scene, captured
+
+
+def fetch_truth(rig: dict[str, Any], qb: Path, reference: Path) -> tuple[Path, dict[str, Any]]:
+    """The simulator's true surface seen from the burst's first carriage position.
+
+    Writes the reference cloud to ``reference``; returns it and the true disparity maps.
+    """
+    manifest = json.loads((qb / "cam0" / "manifest.json").read_text())
+    carriage = manifest["frames"][0]["caliper_mm"]
+    r = httpx.get(
+        f"{rig['sim_url']}/quad/reference.ply",
+        params={"carriage_mm": carriage, "step_px": 0.5},
+        timeout=120,
+    )
+    r.raise_for_status()
+    reference.write_bytes(r.content)
+    truth = httpx.get(f"{rig['sim_url']}/quad/truth", timeout=120).json()
+    return reference, truth
 
 
 def first_set(qb: Path, path: Path) -> Path:
