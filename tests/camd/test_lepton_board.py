@@ -131,7 +131,7 @@ def test_the_daemon_serves_a_recording_given_with_vospi(recording, tmp_path):
     """elphel-camd --board lepton --vospi FILE, as a process, answered over HTTP."""
     path, stream = recording
     config = tmp_path / "config.json"
-    config.write_text(json.dumps({"replay_fps": 20}))
+    config.write_text(json.dumps({"replay_fps": 2}))  # 10 s: time to start
     args = ["--board", "lepton", "--vospi", str(path), "--port", "0", "--token", TOKEN]
     args += ["--state-dir", str(tmp_path), "--config", str(config)]
     proc = subprocess.Popen(
