@@ -145,15 +145,20 @@ def test_invalid_repeats_are_counted_and_dropped():
     assert a.counts.out_of_order == 0
 
 
-def test_the_packet_count_is_learnt_and_a_change_drops_the_frame_in_progress():
-    with_t = segments_of(synthetic_frame(1, telemetry=True))
+def test_the_packet_count_is_learnt_and_follows_telemetry_off_and_on():
     a = FrameAssembler()  # unknown: learnt from the first segment
-    outcomes = [o for seg in with_t for o in pushes(a, seg)]
-    assert outcomes.count(Outcome.FRAME) == 1 and a.packets_per_segment == 61
+
+    def frames(segments):
+        return [o for seg in segments for o in pushes(a, seg)].count(Outcome.FRAME)
+
+    with_t = segments_of(synthetic_frame(1, telemetry=True))
     without = segments_of(synthetic_frame(2, telemetry=False))
-    outcomes = [o for seg in without + without for o in pushes(a, seg)]
-    assert a.packets_per_segment == 60 and outcomes.count(Outcome.FRAME) == 1
-    assert a.counts.telemetry_switches == 1
+    assert frames(with_t) == 1 and a.packets_per_segment == 61
+    # Off: the segment that shows it is complete with 60 packets; no frame is lost.
+    assert frames(without + without) == 2 and a.packets_per_segment == 60
+    # On: the first 61-packet segment was taken as 60 packets: its frame is dropped.
+    assert frames(with_t + with_t) == 1 and a.packets_per_segment == 61
+    assert a.counts.telemetry_switches == 2
 
 
 # -- the reader -----------------------------------------------------------------------------
@@ -343,3 +348,8 @@ def test_the_frame_source_reads_frames_and_recent_ones(tmp_path):
     assert [f.number for f in got] == [1, 2, 3, 4, 5]
     assert source.health()["state"] == "ended"
     source.close()
+
+
+def test_frame_numbers_keep_rising_when_telemetry_is_turned_off():
+    data = frame_bytes(500, telemetry=True) + frame_bytes(501) + frame_bytes(502)
+    assert [f.number for f in read_all(data)] == [500, 501, 502]

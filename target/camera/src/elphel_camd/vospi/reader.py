@@ -64,7 +64,8 @@ class VoSPIFrame:
     image
         The 120 x 160 pixels as sent (TLinear counts, or 14-bit raw counts).
     number
-        The Lepton's frame counter (telemetry on), else the reader's count of frames.
+        The Lepton's frame counter (telemetry on), else the previous frame's number + 1
+        (so numbers keep rising when telemetry is turned off).
     timestamp_ns
         When its last packet was read (the source's clock).
     telemetry
@@ -122,6 +123,7 @@ class VoSPIReader:
         self.assembler = FrameAssembler()
         self.counts = ReaderCounts()
         self.frames = 0
+        self.number = 0  # of the last frame: frames without telemetry count on from it
         self.last_segment_ns: int | None = None
         self.ended = False
         self._buf = bytearray()
@@ -254,7 +256,8 @@ class VoSPIReader:
         image, telemetry_rows = tm.split(rows, location=self.telemetry_location)
         telemetry = None if telemetry_rows is None else tm.decode(telemetry_rows)
         self.frames += 1
-        number = self.frames if telemetry is None else telemetry.frame_counter
+        number = self.number + 1 if telemetry is None else telemetry.frame_counter
+        self.number = number
         return VoSPIFrame(
             image=np.ascontiguousarray(image),
             number=number,

@@ -10,9 +10,10 @@ are counted and dropped.
 The packet count is learnt from the stream. Until it is known, a segment that reached
 packet 59 is complete at the next video packet: packet 60 makes it 61 packets long, a
 packet 0 makes it 60. From then on a segment is complete at its last packet under the
-count in use; a packet 60 after a 60-packet segment (telemetry switched
-on), or a packet 0 after packet 59 of a 61-packet segment (telemetry switched off), changes
-the count and drops the frame being assembled.
+count in use. A packet 60 after a 60-packet segment (telemetry switched on) changes the
+count and drops the frame being assembled. A packet 0 after packet 59 of a 61-packet
+segment (telemetry switched off) changes the count too: that segment is complete with 60
+packets, and only the segments before it are dropped.
 """
 
 from __future__ import annotations
@@ -96,15 +97,13 @@ class FrameAssembler:
         if number != self._expect:
             if number != 0:
                 return Outcome.NONE if self._expect < 0 else self._broken(wait=True)
-            if self._expect == PACKETS_PER_SEGMENT and self.packets_per_segment is None:
+            if self._expect == PACKETS_PER_SEGMENT:  # packet 0 after 59: 60 a segment
+                if self.packets_per_segment == PACKETS_PER_SEGMENT_TELEMETRY:
+                    self._switch(PACKETS_PER_SEGMENT)
+                    self._drop_frame()  # its segments had 61 packets
                 self.packets_per_segment = PACKETS_PER_SEGMENT
                 outcome = self._segment_done()
             elif self._expect > 0:
-                if (
-                    self._expect == PACKETS_PER_SEGMENT
-                    and self.packets_per_segment == PACKETS_PER_SEGMENT_TELEMETRY
-                ):
-                    self._switch(PACKETS_PER_SEGMENT)
                 outcome = self._broken(wait=False)
             self._segment, self._expect = [], 0
         self._segment.append(payload)
@@ -130,6 +129,11 @@ class FrameAssembler:
         self._segment, self._frame, self._segments = [], [], 0
         self._expect = -1 if wait else 0
         return Outcome.BROKEN
+
+    def _drop_frame(self) -> None:
+        if self._segments:
+            self.counts.frames_dropped += 1
+        self._frame, self._segments = [], 0
 
     def _dropped(self) -> Outcome:
         """A whole segment out of order: drop the frame in progress (sync is fine)."""
