@@ -127,7 +127,11 @@ class LeptonBoard:
             replay_fps=replay_fps,
         )
         self.capture_timeout_s = capture_timeout_s
-        self.frames.open()
+        try:
+            self.frames.open()
+        except BaseException:
+            self._close_bus()
+            raise
 
     def _unit_from_cci(self) -> str | None:
         """The pixel unit the CCI says (None without a CCI, or if it does not answer)."""
@@ -197,6 +201,9 @@ class LeptonBoard:
 
     def close(self) -> None:
         self.frames.close()
+        self._close_bus()
+
+    def _close_bus(self) -> None:
         close = getattr(self._bus, "close", None)
         if close is not None:
             close()
