@@ -5,6 +5,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 
 import httpx
 import numpy as np
@@ -102,18 +103,23 @@ def test_with_the_cci_the_pixel_unit_comes_from_the_camera(recording):
 
 def test_a_lepton_that_stops_sending_is_504_and_the_port_says_so():
     stream = SimVoSPIStream()
-    stream.sim_stall(0.3, 1e9)
     spidev = SimSpidev(stream, time_scale=1.0)
     board = LeptonBoard("/dev/spidev0.0", byte_source=SpidevSource(spidev, bufsiz=4096))
-    board.capture_timeout_s = 0.5
+    board.capture_timeout_s = 2.0
     with client_of(board) as c:
         capture(c)
-        while stream.t < 1.5:
-            c.get("/api/v1/info")
+        stream.sim_stall(stream.t, 1e9)  # from now on: discard packets only
+        deadline = time.monotonic() + 30
+        while board.port_health(0)["state"] != "stalled":
+            assert time.monotonic() < deadline, "the stream was never reported stalled"
+            time.sleep(0.1)
+        board.capture_timeout_s = 0.5
         r = c.post("/api/v1/ports/0/capture", headers=AUTH)
         assert r.status_code == 504
         assert "/dev/spidev0.0: no frame from the Lepton" in r.json()["detail"]
-        health = c.get("/api/v1/health").json()
+        r = c.get("/api/v1/health")
+        assert r.status_code == 503
+        health = r.json()
         assert health["status"] == "degraded" and health["error"] == "stream"
         assert health["ports"][0]["stream"]["state"] == "stalled"
         assert health["ports"][0]["stream"]["resyncs"] >= 1
