@@ -52,7 +52,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--bus",
         action="append",
         default=[],
-        help="I2C bus URL per port (i2c board); the Lepton's CCI bus (lepton board)",
+        help="I2C bus URL per port (i2c board; v4l2 board: the bus of the k-th --video's "
+        "sensor when the project's own driver programs it; lepton board: its CCI bus)",
+    )
+    p.add_argument(
+        "--video",
+        action="append",
+        default=[],
+        help="V4L2 capture node per port (v4l2 board), e.g. /dev/video0",
+    )
+    p.add_argument(
+        "--sensor",
+        help="v4l2 board: the kernel driver of the sensor (e.g. imx219), for its gain laws",
     )
     p.add_argument(
         "--vospi",
@@ -95,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 # Options named as the setting they override (an option left out is None: not given).
 _SETTING_OPTIONS = (
     "board",
+    "sensor",
     "host",
     "port",
     "token",
@@ -157,7 +169,9 @@ def token_main(argv: Sequence[str]) -> int:
 
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
     given = {name: getattr(args, name) for name in _SETTING_OPTIONS}
-    settings = load_settings(args.config, bus_urls=args.bus or None, **given)
+    settings = load_settings(
+        args.config, bus_urls=args.bus or None, video=args.video or None, **given
+    )
     if args.vospi is not None:
         settings.board_options["vospi"] = args.vospi
     return settings
@@ -168,6 +182,10 @@ def build_service(settings: DaemonSettings) -> CameraService:
     options: dict[str, Any] = dict(settings.board_options)
     if settings.bus_urls:
         options["bus_urls"] = list(settings.bus_urls)
+    if settings.video:
+        options["video"] = list(settings.video)
+    if settings.sensor:
+        options["sensor"] = settings.sensor
     name = settings.board or "i2c"
     factory = board_factories()[name]
     try:

@@ -172,8 +172,8 @@ class PortHealth(BaseModel):
     detail: str | None = None
     stream: dict[str, Any] | None = Field(
         None,
-        description="the port's frame stream where the board reports one (a Lepton's "
-        "VoSPI): state streaming, stalled, ended or failed, with its counts",
+        description="the port's frame stream where the board has one (v4l2, lepton): "
+        "its state (streaming when frames come) and counts",
     )
 
 

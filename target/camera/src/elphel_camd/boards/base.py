@@ -35,8 +35,8 @@ class Board(Protocol):
 
     ``capabilities`` may hold ``"frames"`` (frame syncs: changes can be scheduled on
     frames), ``"capture"`` (an image path), ``"trigger"`` (a common trigger generator) and
-    ``"photofinish"``. A board may also have ``drivers()`` (port -> driver, for ports whose
-    sensor is not found on an I2C bus) and ``port_health(port)`` (its frame stream's
+    ``"photofinish"``. A board may also have ``sensors()`` (port -> driver, for ports whose
+    sensor is not found on an I2C bus) and ``port_status(port)`` (its frame stream's
     state, a dict with at least ``state``: ``streaming`` when frames come).
     """
 

@@ -153,7 +153,7 @@ class LeptonBoard:
     def buses(self) -> Mapping[int, I2CBus]:
         return {} if self._bus is None else {PORT: self._bus}
 
-    def drivers(self) -> Mapping[int, SensorDriver]:
+    def sensors(self) -> Mapping[int, SensorDriver]:
         """Ports whose driver is not found on a bus: the Lepton without its CCI."""
         return {} if self._bus is not None else {PORT: LeptonWithoutCCI()}
 
@@ -195,7 +195,7 @@ class LeptonBoard:
             image=got.image, frame=got.number, timestamp_ns=got.timestamp_ns, metadata=extra
         )
 
-    def port_health(self, port: int) -> dict[str, Any]:
+    def port_status(self, port: int) -> dict[str, Any]:
         """The VoSPI stream's state (`LeptonFrameSource.health`)."""
         return self.frames.health()
 

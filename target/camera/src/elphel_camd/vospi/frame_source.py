@@ -225,4 +225,7 @@ class LeptonFrameSource:
         }
         if self._error is not None:
             out["detail"] = str(self._error)
+        elif state != "streaming":
+            since = "no frame yet" if age is None else f"no frame for {age:.1f} s"
+            out["detail"] = f"{self.path}: {since} ({out['resyncs']} resyncs)"
         return out
