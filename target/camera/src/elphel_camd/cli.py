@@ -2,7 +2,8 @@
 
 ``elphel-camd --board B ...`` serves the board; ``elphel-camd token rotate`` writes a new
 random token to the token file (0600), which a running daemon reads at its next request
-(the old token is refused from then on). Settings come from the command line, then
+(the old token is refused from then on); ``elphel-camd vospi-record`` records a Lepton's
+VoSPI stream for replay (`elphel_camd.cli_vospi`). Settings come from the command line, then
 ``ELPHEL_CAMD_*`` environment variables, then the JSON config file (see
 `elphel_camd.config`); what the daemon keeps on disk is `elphel_camd.store`'s.
 """
@@ -52,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         help="I2C bus URL per port (i2c board; v4l2 board: the bus of the k-th --video's "
-        "sensor when the project's own driver programs it)",
+        "sensor when the project's own driver programs it; lepton board: its CCI bus)",
     )
     p.add_argument(
         "--video",
@@ -63,6 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--sensor",
         help="v4l2 board: the kernel driver of the sensor (e.g. imx219), for its gain laws",
+    )
+    p.add_argument(
+        "--vospi",
+        help="lepton board: the Lepton's spidev node (/dev/spidevB.C), or a file or FIFO "
+        "with its VoSPI bytes (a recording)",
     )
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="TCP port (default 8000; 0 = any free port)")
@@ -163,7 +169,12 @@ def token_main(argv: Sequence[str]) -> int:
 
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
     given = {name: getattr(args, name) for name in _SETTING_OPTIONS}
-    return load_settings(args.config, bus_urls=args.bus or None, video=args.video or None, **given)
+    settings = load_settings(
+        args.config, bus_urls=args.bus or None, video=args.video or None, **given
+    )
+    if args.vospi is not None:
+        settings.board_options["vospi"] = args.vospi
+    return settings
 
 
 def build_service(settings: DaemonSettings) -> CameraService:
@@ -207,6 +218,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["token"]:
         return token_main(argv[1:])
+    if argv[:1] == ["vospi-record"]:
+        from elphel_camd.cli_vospi import record_main
+
+        return record_main(argv[1:])
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"

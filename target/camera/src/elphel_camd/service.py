@@ -73,7 +73,8 @@ class CameraService:
         self.sensors: dict[int, SensorDriver | None] = {
             port: detect(bus, bus_name=f"port {port}") for port, bus in board.buses().items()
         }
-        # Sensors the board drives itself (a kernel driver's, through V4L2 controls).
+        # Sensors the board drives itself (a kernel driver's, through V4L2 controls; a
+        # Lepton without its CCI).
         board_sensors = getattr(board, "sensors", None)
         if board_sensors is not None:
             self.sensors.update(board_sensors())
@@ -419,7 +420,7 @@ class CameraService:
         }
 
     def _stream_health(self, entry: dict[str, Any]) -> bool:
-        """Add the port's stream (boards that stream: v4l2) to its entry; False if not streaming."""
+        """Add the port's stream (v4l2, lepton boards) to its entry; False if not streaming."""
         status = getattr(self.board, "port_status", None)
         if status is None:
             return True

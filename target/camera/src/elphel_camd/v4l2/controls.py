@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from elphel_camd.errors import ControlRefusedError
+from elphel_camd.sensors import imx219
 from elphel_camd.v4l2.source import ControlInfo
 
 CID_EXPOSURE = 0x00980911
@@ -47,12 +48,12 @@ class GainLaw:
 
     def gain(self, value: int, info: ControlInfo) -> float:
         if self.kind == "imx219_analogue":
-            return 256 / (256 - value)
+            return imx219.analogue_gain(value)
         return value / (self.unity or info.default or 1)
 
     def value(self, gain: float, info: ControlInfo) -> int:
         if self.kind == "imx219_analogue":
-            return round(256 - 256 / gain)
+            return imx219.analogue_gain_code(gain)
         return round(gain * (self.unity or info.default or 1))
 
 
