@@ -26,6 +26,7 @@ AREAS = (
     "elphel_host.cloud.cli",
     "elphel_host.depth.cli",
     "elphel_host.recordings.cli",
+    "elphel_host.calibrate.cli",
 )
 
 
