@@ -30,7 +30,7 @@ class HostLimits:
         Largest JSON (or XML) answer of a device, and largest JSON file read.
     frame_pixels
         Largest frame, in pixels (a frame's bytes are at most this times 2, its sample
-        width). The largest supported sensor, MT9F002, has 14.4 Mpx.
+        width). The largest supported sensor, MT9F002, has 4384 x 3288 = 14.4 Mpx.
     burst_frames
         Most frames one multi-frame capture may bring.
     deadline_s
@@ -48,7 +48,7 @@ class HostLimits:
     """
 
     json_bytes: int = 8 * MIB
-    frame_pixels: int = 64_000_000
+    frame_pixels: int = 1 << 24
     burst_frames: int = 4096
     deadline_s: float = 120.0
     frame_deadline_s: float = 5.0

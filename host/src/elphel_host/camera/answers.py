@@ -29,6 +29,9 @@ class SensorAnswer(_Answer):
     model: str
     bits: StrictInt = Field(ge=1, le=32)
     bayer: str | None = None
+    chip_id: StrictInt | None = None
+    i2c_address: StrictInt | None = None
+    sensor_code: StrictInt | None = None
 
 
 class PortAnswer(_Answer):
