@@ -45,6 +45,8 @@ class HostLimits:
         Largest event (its data lines together).
     manifest_frames
         Most frames a burst manifest may list.
+    jpeg_head_bytes
+        Most bytes of a JPEG frame's segments before its Exif block (imgsrv writes it first).
     """
 
     json_bytes: int = 8 * MIB
@@ -56,6 +58,7 @@ class HostLimits:
     event_line_bytes: int = 64 * 1024
     event_bytes: int = 1 * MIB
     manifest_frames: int = 10_000
+    jpeg_head_bytes: int = 256 * 1024
 
     @property
     def frame_bytes(self) -> int:
