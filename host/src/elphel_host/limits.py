@@ -45,6 +45,8 @@ class HostLimits:
         Largest event (its data lines together).
     manifest_frames
         Most frames a burst manifest may list.
+    stage_line_bytes
+        Longest line a stage board may send.
     jpeg_head_bytes
         Most bytes of a JPEG frame's segments before its Exif block (imgsrv writes it first).
     """
@@ -59,6 +61,7 @@ class HostLimits:
     event_bytes: int = 1 * MIB
     manifest_frames: int = 10_000
     jpeg_head_bytes: int = 256 * 1024
+    stage_line_bytes: int = 4096
 
     @property
     def frame_bytes(self) -> int:
