@@ -9,6 +9,7 @@ size limit; `dumps` refuses non-finite values at the door.
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from elphel_host.errors import DeviceAnswerError, DeviceLimitError
@@ -19,6 +20,13 @@ def _refuse_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
 
 
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text[:40]} overflows a double; allowed: finite numbers")
+    return value
+
+
 def loads(data: bytes | str, *, what: str, limit_bytes: int) -> Any:
     """Parse strict JSON from ``what`` (a device or file, for messages).
 
@@ -27,7 +35,7 @@ def loads(data: bytes | str, *, what: str, limit_bytes: int) -> Any:
     DeviceLimitError
         More than ``limit_bytes``, or nested deeper than the parser's recursion limit.
     DeviceAnswerError
-        Not JSON, or with ``NaN``/``Infinity``.
+        Not JSON, or with ``NaN``/``Infinity`` or a number too large for a double.
     """
     if len(data) > limit_bytes:
         raise DeviceLimitError(
@@ -39,7 +47,7 @@ def loads(data: bytes | str, *, what: str, limit_bytes: int) -> Any:
     except UnicodeDecodeError as e:
         raise DeviceAnswerError(f"{what}: not UTF-8 JSON ({e.reason} at byte {e.start})") from e
     try:
-        return json.loads(text, parse_constant=_refuse_constant)
+        return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite)
     except RecursionError as e:
         raise DeviceLimitError(f"{what}: JSON nested deeper than the parser allows") from e
     except ValueError as e:

@@ -40,6 +40,7 @@ from elphel_host.errors import (
     CameraClientError,
     DeviceAnswerError,
     DeviceLimitError,
+    DeviceTimeout,
 )
 from elphel_host.limits import Deadline, HostLimits, bounded_lines, check_declared, read_bounded
 from elphel_host.shown import shown
@@ -164,7 +165,7 @@ class CameraClient(Staging, Closing):
         self, response: httpx.Response, deadline: Deadline, limit_bytes: int, limit_name: str
     ) -> bytes:
         """The whole body of ``response`` within ``limit_bytes`` and ``deadline``."""
-        what = f"the camera at {self.url} ({deadline.what})"
+        what = deadline.what
         check_declared(
             response.headers.get("content-length"),
             limit_bytes=limit_bytes,
@@ -193,7 +194,7 @@ class CameraClient(Staging, Closing):
         limit = self.limits.json_bytes if limit_bytes is None else limit_bytes
         backoff = Backoff(self.retry_s)
         while True:
-            deadline = Deadline(deadline_s or self.limits.deadline_s, what=f"{method} {path}")
+            deadline = Deadline(deadline_s or self.limits.deadline_s, what=self._what(method, path))
             timeout = min(self.timeout_s, deadline.seconds)
             try:
                 with self._http.stream(method, path, timeout=timeout, **kwargs) as response:
@@ -337,7 +338,8 @@ class CameraClient(Staging, Closing):
         """The bytes of a multi-frame capture and, if it broke off, why."""
         limits = self.limits
         deadline = Deadline(
-            limits.deadline_s + count * limits.frame_deadline_s, what=f"POST {path}?count={count}"
+            limits.deadline_s + count * limits.frame_deadline_s,
+            what=self._what("POST", f"{path}?count={count}"),
         )
         limit = count * limits.frame_bytes + limits.json_bytes
         data = bytearray()
@@ -422,7 +424,9 @@ class CameraClient(Staging, Closing):
                     "GET", "/events", params=query, headers=headers, timeout=timeout
                 ) as response:
                     if response.status_code >= 400:
-                        deadline = Deadline(self.limits.deadline_s, what="GET /events")
+                        deadline = Deadline(
+                            self.limits.deadline_s, what=self._what("GET", "/events")
+                        )
                         content = self._read(
                             response, deadline, self.limits.json_bytes, "json_bytes"
                         )
@@ -438,6 +442,14 @@ class CameraClient(Staging, Closing):
                             remaining -= 1
                             if remaining == 0:
                                 return
+            except httpx.ReadTimeout as e:
+                # A daemon that restarts closes the stream; one that stays silent past its
+                # keepalives is broken, and reconnecting would only wait again.
+                raise DeviceTimeout(
+                    f"the event stream of the camera at {self.url} was silent for "
+                    f"{self.limits.event_read_timeout_s:g} s (3 keepalive periods; "
+                    "ELPHEL_LIMIT_KEEPALIVE_S sets the period)"
+                ) from e
             except httpx.TransportError as e:
                 if not (reconnect and backoff.wait()):
                     raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
