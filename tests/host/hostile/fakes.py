@@ -31,10 +31,15 @@ Responder = Callable[[str, str, bytes, socket.socket], None]
 
 
 class FakeDevice:
-    """A loopback TCP server answering each connection with ``respond`` in a thread."""
+    """A loopback TCP server answering each connection with ``respond`` in a thread.
 
-    def __init__(self, respond: Responder) -> None:
+    ``raw``: ``respond(conn)`` gets the connection as it is (a stage's line protocol)
+    instead of a parsed HTTP request.
+    """
+
+    def __init__(self, respond: Callable[..., None], *, raw: bool = False) -> None:
         self.respond = respond
+        self.raw = raw
         self.requests: list[tuple[str, str]] = []
         self.sock = socket.create_server(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
@@ -56,6 +61,9 @@ class FakeDevice:
     def _one(self, conn: socket.socket) -> None:
         with conn:
             try:
+                if self.raw:
+                    self.respond(conn)
+                    return
                 method, path, body = _read_request(conn)
                 self.requests.append((method, path))
                 self.respond(method, path, body, conn)
