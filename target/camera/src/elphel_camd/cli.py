@@ -47,7 +47,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="JSON settings file (default /etc/elphel-camd/config.json if it exists), e.g. "
         '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "public_reads": true}',
     )
-    p.add_argument("--bus", action="append", default=[], help="I2C bus URL per port (i2c board)")
+    p.add_argument(
+        "--bus",
+        action="append",
+        default=[],
+        help="I2C bus URL per port (i2c board; v4l2 board: the bus of the k-th --video's "
+        "sensor when the project's own driver programs it)",
+    )
+    p.add_argument(
+        "--video",
+        action="append",
+        default=[],
+        help="V4L2 capture node per port (v4l2 board), e.g. /dev/video0",
+    )
+    p.add_argument(
+        "--sensor",
+        help="v4l2 board: the kernel driver of the sensor (e.g. imx219), for its gain laws",
+    )
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="TCP port (default 8000; 0 = any free port)")
     p.add_argument(
@@ -84,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
 # Options named as the setting they override (an option left out is None: not given).
 _SETTING_OPTIONS = (
     "board",
+    "sensor",
     "host",
     "port",
     "token",
@@ -146,7 +163,7 @@ def token_main(argv: Sequence[str]) -> int:
 
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
     given = {name: getattr(args, name) for name in _SETTING_OPTIONS}
-    return load_settings(args.config, bus_urls=args.bus or None, **given)
+    return load_settings(args.config, bus_urls=args.bus or None, video=args.video or None, **given)
 
 
 def build_service(settings: DaemonSettings) -> CameraService:
@@ -154,6 +171,10 @@ def build_service(settings: DaemonSettings) -> CameraService:
     options: dict[str, Any] = dict(settings.board_options)
     if settings.bus_urls:
         options["bus_urls"] = list(settings.bus_urls)
+    if settings.video:
+        options["video"] = list(settings.video)
+    if settings.sensor:
+        options["sensor"] = settings.sensor
     name = settings.board or "i2c"
     factory = board_factories()[name]
     try:

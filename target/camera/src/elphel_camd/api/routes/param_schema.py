@@ -21,6 +21,7 @@ from elphel_camd.sensors import lepton35
 from elphel_camd.sensors.aptina import AptinaSensor, exposure_max_us
 from elphel_camd.sensors.base import SensorDriver
 from elphel_camd.sensors.lepton35 import Lepton35
+from elphel_camd.v4l2.sensor import V4L2Sensor
 
 router = APIRouter()
 
@@ -59,6 +60,9 @@ def _limits(driver: SensorDriver, state: dict[str, int]) -> dict[str, tuple[int,
     elif isinstance(driver, Lepton35):
         out.update(WOI_LEFT=(0, 0), WOI_TOP=(0, 0), WOI_WIDTH=(lepton35.WIDTH, lepton35.WIDTH))
         out["WOI_HEIGHT"] = (lepton35.HEIGHT, lepton35.HEIGHT_TELEMETRY)
+        out["TRIG"] = (0, 0)
+    elif isinstance(driver, V4L2Sensor):
+        out.update(driver.limits())
         out["TRIG"] = (0, 0)
     return out
 
