@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from elphel_host import strict_json
 from elphel_host.confined import check_relative, inside
 from elphel_host.errors import InputFormatError
-from elphel_host.fileio import write_atomic
+from elphel_host.fileio import replacing, write_atomic
 from elphel_host.limits import HostLimits
 from elphel_host.tp.bayer import BAYER_PATTERNS
 from elphel_host.tp.dsi import DAMAGED_TIFF_ERRORS
@@ -317,9 +317,10 @@ def write_quad_dir(
     out.mkdir(parents=True, exist_ok=True)
     for cam, image in zip(manifest.cameras, images, strict=True):
         if isinstance(image, bytes):
-            (out / cam.file).write_bytes(image)
+            write_atomic(out / cam.file, image)
         else:
-            tifffile.imwrite(out / cam.file, image)
+            with replacing(out / cam.file, keep_suffix=True) as tmp:
+                tifffile.imwrite(tmp, image)
     if kernels is not None and manifest.kernels is not None:
         np.save(out / manifest.kernels.file, kernels)
     manifest.write(out)
