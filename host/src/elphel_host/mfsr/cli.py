@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,7 +21,6 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
-from elphel_host import strict_json
 from elphel_host.burst.io import read_burst
 from elphel_host.cli_common import add_json_option, emit
 from elphel_host.errors import InputFormatError
@@ -311,7 +311,8 @@ def run_compare(args: argparse.Namespace) -> int:
         "crops_png": str(png),
         "crops_order": ["bicubic", "baseline", "robust"],
     }
-    text = strict_json.dumps(summary, what=str(out / "compare.json"), indent=1, sort_keys=True)
+    # An identical image's PSNR is infinite, which strict JSON cannot hold.
+    text = json.dumps(summary, indent=1, sort_keys=True)
     write_atomic(out / "compare.json", (text + "\n").encode())
     lines = [
         f"{m}: {e.get('psnr_db', '-')} dB, SSIM {e.get('ssim', '-')}, {e['seconds']} s"
