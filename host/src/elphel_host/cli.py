@@ -61,8 +61,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         code: int = args.func(args)
-    except KeyboardInterrupt:
-        print("elphel: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        said = f": {e}" if str(e) else ""  # what was kept and how to resume, when known
+        print(f"elphel: interrupted{said}", file=sys.stderr)
         return 130
     except _FAILURES as e:
         print(f"elphel: {_one_line(e)}", file=sys.stderr)

@@ -83,7 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             public_reads=args.public_reads,
             lens_blur=args.lens_blur,
         )
-    except OSError as e:
+    except (OSError, ValueError) as e:
         print(f"elphel-sim: {e}", file=sys.stderr)
         return 1
 
