@@ -205,7 +205,6 @@ def cmd_info(args: argparse.Namespace) -> int:
         if sensor is None:
             lines.append(f"  port {port['port']}: no sensor")
         else:
-            # A stock NC393 names its sensors by SENSOR code: no chip id, no I2C address.
             lines.append(f"  port {port['port']}: {_sensor_line(sensor)}")
     emit(args, info, "\n".join(lines))
     return 0
