@@ -184,12 +184,16 @@ def run_elphel(
 
 
 def assert_one_line_failure(run: Run, *needles: str) -> None:
-    """Exit 1, one terminal-safe line on stderr holding each of ``needles``, no traceback."""
+    """Exit 1, one terminal-safe error line last on stderr holding each of ``needles``.
+
+    Lines before it are the command's progress (long commands report it on stderr).
+    """
     lines = run.stderr.splitlines()
     assert run.code == 1, (run.code, run.stderr[-2000:])
-    assert len(lines) == 1, run.stderr[-2000:]
+    errors = [line for line in lines if line.startswith("elphel: ")]
+    assert len(errors) == 1 and lines[-1] == errors[0], run.stderr[-2000:]
     assert "Traceback" not in run.stderr
     assert "\x1b" not in run.stderr and "\x07" not in run.stderr
-    assert len(lines[0]) <= 600, len(lines[0])
+    assert len(errors[0]) <= 600, len(errors[0])
     for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
+        assert needle in errors[0], (needle, errors[0])
