@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from elphel_host.burst.io import read_burst
 from elphel_host.cli_common import add_json_option, emit
 from elphel_host.errors import InputFormatError
+from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.output import fused_meta, write_image
@@ -325,7 +326,9 @@ def run_compare(args: argparse.Namespace) -> int:
         "crops_png": str(png),
         "crops_order": ["bicubic", "baseline", "robust"],
     }
-    (out / "compare.json").write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
+    # An identical image's PSNR is infinite, which strict JSON cannot hold.
+    text = json.dumps(summary, indent=1, sort_keys=True)
+    write_atomic(out / "compare.json", (text + "\n").encode())
     lines = [
         f"{m}: {e.get('psnr_db', '-')} dB, SSIM {e.get('ssim', '-')}, {e['seconds']} s"
         for m, e in results.items()
