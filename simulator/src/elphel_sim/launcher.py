@@ -357,8 +357,11 @@ def up(
     try:
         stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     except OSError:
-        camera.close()
-        for s in cameras:
+        for camera in cameras:
+            camera.close()
+        if board.daemon_per_port:
+            board.close()
+        for s in served:
             s.sock.close()
         raise
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))

@@ -56,14 +56,14 @@ class StageModel:
                 raise InputFormatError(f"{path}: {key}={value!r}; allowed: {allowed}")
             return float(value)  # type: ignore[arg-type]
 
-        offset = data.get("offset_mm")
+        offset, spread = data.get("offset_mm"), data.get("spread_mm_per_step")
         return cls(
             mm_per_step=number("mm_per_step", data.get("mm_per_step"), positive=True),
             offset_mm=None if offset is None else number("offset_mm", offset),
             backlash_mm=number("backlash_mm", data.get("backlash_mm", 0.0)),
             calibrated=True,
-            spread_mm_per_step=number(
-                "spread_mm_per_step", data.get("spread_mm_per_step", math.nan)
+            spread_mm_per_step=(
+                math.nan if spread is None else number("spread_mm_per_step", spread)
             ),
         )
 
@@ -74,7 +74,10 @@ class StageModel:
             "mm_per_step": self.mm_per_step,
             "offset_mm": self.offset_mm,
             "backlash_mm": self.backlash_mm,
-            "spread_mm_per_step": self.spread_mm_per_step,
+            # not measured yet (a model written by hand): null, JSON has no NaN
+            "spread_mm_per_step": (
+                self.spread_mm_per_step if math.isfinite(self.spread_mm_per_step) else None
+            ),
         }
         text = strict_json.dumps(data, what=str(path), indent=1)
         write_atomic(path, text.encode())
