@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import socket
+
 import pytest
 
 from elphel_sim.cli import main
@@ -18,3 +20,14 @@ def test_bad_port_is_one_usage_line(
     err = capsys.readouterr().err
     assert f"argument {flag}: '{value}'; allowed: 0 (a free port) to 65535" in err
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("flag", ["--camera-port", "--stage-port"])
+def test_busy_port_is_named(flag: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        assert main(["up", flag, str(port)]) == 1
+    err = capsys.readouterr().err
+    assert f"cannot listen on 127.0.0.1:{port}" in err and "Traceback" not in err

@@ -19,7 +19,6 @@ from elphel_host.shown import shown
 CAMERA_URL_ENV = "ELPHEL_CAMERA_URL"
 CAMERA_TOKEN_ENV = "ELPHEL_CAMERA_TOKEN"
 STAGE_URL_ENV = "ELPHEL_STAGE_URL"
-DEFAULT_STAGE_MODEL = Path.home() / ".config" / "elphel" / "stage-model.json"
 
 
 def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
@@ -67,14 +66,34 @@ def add_camera_options(parser: Any) -> None:
     )
 
 
+def fusion_scale(text: str) -> int:
+    """An argparse ``type`` for a fusion's ``--scale``: a bad one is a usage error (exit 2)."""
+    from elphel_host.mfsr.scale import allowed_scales, check_scale
+
+    try:
+        return check_scale(int(text))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"scale={text!r}; allowed: {allowed_scales()}") from e
+
+
 def add_stage_option(parser: Any) -> None:
     """``--stage URL`` (a pyserial URL), defaulting to ELPHEL_STAGE_URL."""
     _add_url_option(parser, "--stage", STAGE_URL_ENV, "pyserial URL of the stage")
 
 
 def add_stage_model_option(parser: Any, *, help: str = "stage calibration file") -> None:
-    """``--model PATH``: the stage calibration (``elphel stage calibrate`` writes it)."""
-    parser.add_argument("--model", type=Path, default=DEFAULT_STAGE_MODEL, help=help)
+    """``--model PATH``: the stage calibration (``elphel stage calibrate`` writes it).
+
+    Without it, the stage's own file is used: named by the serial the stage reports.
+    """
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help=f"{help} (default: $XDG_CONFIG_HOME/elphel/stages/SERIAL.json, "
+        "XDG_CONFIG_HOME defaulting to ~/.config, SERIAL the one the stage reports)",
+    )
 
 
 def add_sensor_port_option(parser: Any, *, default: int | None = 0, help: str = "") -> None:

@@ -19,6 +19,10 @@ class UnsupportedError(CameraClientError, NotImplementedError):
     """The camera's backend cannot do what was asked; the message names the feature and why."""
 
 
+class FrameGoneError(UnsupportedError):
+    """The frame asked for was overwritten in the camera's buffer before it was fetched."""
+
+
 class CameraParameterError(CameraClientError, ValueError):
     """A parameter value the camera's parameter model refuses; nothing was written.
 

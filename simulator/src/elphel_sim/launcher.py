@@ -213,9 +213,9 @@ def bind_loopback(port: int, host: str = "127.0.0.1") -> socket.socket:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))
-    except OSError:
+    except OSError as e:
         sock.close()
-        raise
+        raise OSError(e.errno, f"cannot listen on {host}:{port}: {e.strerror}") from e
     sock.listen(128)
     sock.setblocking(False)
     return sock
@@ -287,7 +287,9 @@ def print_announcement(announce: dict[str, Any], *, scenario: str, seed: int) ->
     """What `elphel-sim up` serves, for a person, with a first command to try."""
     print(f"simulated rig up (scenario {scenario}, seed {seed}); Ctrl-C stops it", flush=True)
     for key, value in announce.items():
-        print(f"  {key:11s} {value}", flush=True)
+        if value is None:
+            continue  # not served (no token, no pty) or not in effect (a uniform lens blur)
+        print(f"  {key:17s} {value}", flush=True)
     hint = f"elphel camera info --camera {announce['camera_url']}"
     if announce["token"] is not None:
         hint += f" --token {announce['token']}"
@@ -352,7 +354,16 @@ def up(
         board, firmware=firmware, port=camera_port, public_reads=public_reads
     )
     board.start_clock()
-    stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
+    try:
+        stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
+    except OSError:
+        for camera in cameras:
+            camera.close()
+        if board.daemon_per_port:
+            board.close()
+        for s in served:
+            s.sock.close()
+        raise
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
     announce: dict[str, Any] = {"camera_url": urls[0], "token": tokens[0]}
     if board.daemon_per_port:

@@ -52,7 +52,7 @@ def test_nc393_services_are_where_the_url_says():
     ("url", "why"),
     [
         ("ftp://cam", "scheme 'ftp' names no camera backend"),
-        ("cam:8000", "scheme 'cam' names no camera backend"),
+        ("cam:camd", "scheme 'cam' names no camera backend"),
         ("/dev/ttyUSB0", "scheme 'none' names no camera backend"),
         ("http://", "no host"),
         ("nc393://", "no host"),
@@ -72,3 +72,17 @@ def test_bad_urls_are_one_line_naming_the_url_and_the_allowed_forms(url, why):
     text = str(err.value)
     assert text.startswith(f"camera url {url!r}: {why}") and "\n" not in text
     assert text.endswith("nc393://HOST[:HTTP_PORT][?imgsrv=BASE]")
+
+
+@pytest.mark.parametrize(
+    ("given", "base"),
+    [
+        ("cam:8000", "http://cam:8000"),
+        ("10.0.0.5:8000/", "http://10.0.0.5:8000"),
+        ("http://cam:8000/api/v1", "http://cam:8000"),
+        ("https://cam/api/v1/", "https://cam"),
+    ],
+)
+def test_other_spellings_of_a_daemon_url_are_taken(given, base):
+    with connect(given) as cam:
+        assert isinstance(cam, CameraClient) and cam.url == base

@@ -32,10 +32,10 @@ def test_an_unreachable_stock_camera_is_one_line_naming_its_url(command, capsys,
 
 
 def test_a_url_of_no_backend_is_refused_in_one_line(capsys):
-    assert main(["camera", "info", "--camera", "cam.lab:8000"]) == 1
+    assert main(["camera", "info", "--camera", "ftp://cam.lab:8000"]) == 1
     err = capsys.readouterr().err
     assert err == (
-        "elphel: camera url 'cam.lab:8000': scheme 'cam.lab' names no camera backend; allowed: "
+        "elphel: camera url 'ftp://cam.lab:8000': scheme 'ftp' names no camera backend; allowed: "
         "http://HOST:PORT or https://HOST:PORT (elphel-camd), "
         "nc393://HOST[:HTTP_PORT][?imgsrv=BASE]\n"
     )

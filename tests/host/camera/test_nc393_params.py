@@ -34,6 +34,7 @@ def test_info_names_each_ports_sensor_from_its_code():
         info = cam.info()
     t.done()
     assert info["board"] == "nc393" and "trigger" in info["capabilities"]
+    assert info["version"] is None  # the stock firmware reports none (not "unknown")
     ports = info["ports"]
     assert ports[0]["sensor"] == {
         "model": "MT9P006",

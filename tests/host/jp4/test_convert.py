@@ -23,8 +23,10 @@ from elphel_sim.jp4 import encode_jp4
 SEC = 1_700_000_000
 
 
-def record(root: Path, instants: int, channels: tuple[int, ...] = (0, 1, 2, 3)) -> list[Path]:
-    """Frames as Elphel's recorder names them: <sec>_<usec>_<channel>.jp4."""
+def record(
+    root: Path, instants: int, channels: tuple[int, ...] = (0, 1, 2, 3), prefix: str = ""
+) -> list[Path]:
+    """Frames as Elphel's recorder names them: <sec>_<usec>_<channel>.jp4 (imgsrv: a prefix)."""
     root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(11)
     paths = []
@@ -33,7 +35,7 @@ def record(root: Path, instants: int, channels: tuple[int, ...] = (0, 1, 2, 3)) 
             mosaic = rng.integers(0, 4096, (32, 64)).astype(np.uint16)
             data = encode_jp4(mosaic, bits=12, frame=500 + t, port=ch, exposure_us=800,
                               timestamp_ns=(SEC + t) * 10**9 + 250_000_000, gamma=0.57)  # fmt: skip
-            path = root / f"{SEC + t}_250000_{ch}.jp4"
+            path = root / f"{prefix}{SEC + t}_250000_{ch}.jp4"
             path.write_bytes(data)
             paths.append(path)
     return paths
@@ -44,6 +46,10 @@ def test_recorder_names() -> None:
     assert name is not None and (name.seconds, name.microseconds, name.channel) == (SEC, 123, 2)
     assert name.timestamp_ns == SEC * 10**9 + 123_000 and name.instant == "1700000000_000123"
     assert recorded_name(Path("frame.jp4")) is None
+    # imgsrv's own download name (curl -OJ ".../towp/wait/bimg")
+    name = recorded_name(Path("elphelimg_39_835773_0.jp4"))
+    assert name is not None and (name.seconds, name.microseconds, name.channel) == (39, 835773, 0)
+    assert recorded_name(Path("otherprefix_39_835773_0.jp4")) is None
 
 
 def test_find_inputs(tmp_path: Path) -> None:
@@ -138,8 +144,9 @@ def test_two_inputs_with_one_output_name(tmp_path: Path) -> None:
     )
 
 
-def test_quad_directories_for_the_tile_processor(tmp_path: Path) -> None:
-    record(tmp_path / "rec", 2)
+@pytest.mark.parametrize("prefix", ["", "elphelimg_"])
+def test_quad_directories_for_the_tile_processor(tmp_path: Path, prefix: str) -> None:
+    record(tmp_path / "rec", 2, prefix=prefix)
     result = convert([tmp_path / "rec"], tmp_path / "out", layout="quad")
     assert not result.failed
     assert [d.name for d in result.directories] == [f"{SEC}_250000", f"{SEC + 1}_250000"]
@@ -161,7 +168,9 @@ def test_quad_sets_that_cannot_be_made(tmp_path: Path) -> None:
     result = convert([tmp_path / "rec"], tmp_path / "out", layout="quad")
     assert not result.converted and not result.directories
     reasons = {f.source.name: f.reason.split(": ", 1)[1] for f in result.failed}
-    assert reasons["frame.jp4"].startswith("not named <seconds>_<microseconds>_<channel>")
+    assert reasons["frame.jp4"].startswith(
+        "not named [elphelimg_]<seconds>_<microseconds>_<channel>"
+    )
     assert reasons[paths[0].name] == (
         f"quad {SEC}_250000 has channels [0, 1, 3]; a quad set needs 0, 1, 2, 3"
     )

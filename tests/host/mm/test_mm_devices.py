@@ -13,6 +13,7 @@ import useq
 from pymmcore_plus.experimental.unicore import UniMMCore
 
 from elphel_host.camera.client import CameraClient, CameraHTTPError
+from elphel_host.errors import CameraAuthError
 from elphel_host.mm import CAMERA_LABEL, STAGE_LABEL, load_elphel_devices
 
 pytestmark = pytest.mark.slow
@@ -162,3 +163,11 @@ def test_mda_over_stage_positions(elphel_rig, core):
         assert z == targets[index["p"]]
         assert abs(meta["position"]["z"] - z) <= TOLERANCE_UM
         assert abs(truth - z) <= TOLERANCE_UM
+
+
+def test_a_wrong_token_fails_at_load_time(elphel_rig, core):
+    with pytest.raises(CameraAuthError, match=r"wrong token: the camera at .* refused it"):
+        load_elphel_devices(core, camera_url=elphel_rig.camera_url, token="wrong")
+    assert CAMERA_LABEL not in core.getLoadedDevices()
+    with pytest.raises(CameraAuthError, match="needs its token"):
+        load_elphel_devices(core, camera_url=elphel_rig.camera_url, token=None)

@@ -27,12 +27,12 @@ from elphel_host.cli_common import (
     emit,
     fail,
 )
-from elphel_host.errors import FusionError, InputFormatError, ScaleError
+from elphel_host.errors import FusionError, InputFormatError, ScaleError, StageLimitError
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE, check_scale
 from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
-from elphel_host.stage.model import StageModel
-from elphel_host.stage.positioning import Positioner
+from elphel_host.stage.model import load_stage_model
+from elphel_host.stage.positioning import Positioner, mm_text
 
 if TYPE_CHECKING:
     from elphel_host.mfsr.stream import FusionStream
@@ -312,7 +312,7 @@ def run_capture(args: argparse.Namespace) -> int:
                 FusionStream(frames=len(plan.positions_mm), scale=fuse[0], method=fuse[1])
             )
         with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
-            positioner = Positioner(stage, StageModel.load(args.model))
+            positioner = Positioner(stage, load_stage_model(args.model, stage.identify().serial)[0])
             so_far = load_progress(args.out)
             start_mm = _start_and_stage(args, positioner, plan, top, so_far)
             line.restart(len(so_far.frames) if so_far is not None else 0)  # resumed: count anew
@@ -393,7 +393,7 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     top = _manifest_top(args, plan)
     line = ProgressLine()
     with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
-        positioner = Positioner(stage, StageModel.load(args.model))
+        positioner = Positioner(stage, load_stage_model(args.model, stage.identify().serial)[0])
         so_far = load_progress(args.out / "cam0")
         start_mm = _start_and_stage(args, positioner, plan, top, so_far)
         line.restart(len(so_far.frames) if so_far is not None else 0)  # resumed: count anew
@@ -417,6 +417,25 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     )
     emit(args, summary, human)
     return 0
+
+
+HOME_CLEARANCE_MM = 0.25  # room below the default start for backlash and the approach
+
+
+def _check_plan_fits(positioner: Positioner, plan: BurstPlan, start_mm: float) -> None:
+    """Refuse, before anything is written, a plan that leaves the stage's travel."""
+    first_mm, last_mm = min(plan.positions_mm), max(plan.positions_mm)
+    try:
+        positioner.check_travel(start_mm + first_mm, start_mm + last_mm)
+    except StageLimitError as e:
+        lo_mm, hi_mm = positioner.travel_mm()
+        raise StageLimitError(
+            f"{e}: the plan runs {mm_text(first_mm)}..{mm_text(last_mm)} mm from the start "
+            f"at {mm_text(start_mm)} mm; give --start-mm between "
+            f"{mm_text(lo_mm - first_mm)} and {mm_text(hi_mm - last_mm)}",
+            code=e.code,
+            keyword=e.keyword,
+        ) from e
 
 
 def interrupted(out: Path, total: int, what: str) -> KeyboardInterrupt:
@@ -446,7 +465,7 @@ def run_multi_capture(
     with ExitStack() as stack:
         stage = stack.enter_context(StageClient(args.stage))
         clients = [stack.enter_context(connect(u, t)) for u, t in zip(cameras, tokens, strict=True)]
-        positioner = Positioner(stage, StageModel.load(args.model))
+        positioner = Positioner(stage, load_stage_model(args.model, stage.identify().serial)[0])
         start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out / "cam0"))
         engine = MultiCameraEngine(
             positioner, clients, port=args.sensor_port, settle_s=args.settle_s
@@ -479,14 +498,18 @@ def _start_and_stage(
     """Where the plan starts; also sets the stage's entry of the manifest in ``top``.
 
     The start is kept from an interrupted run, else ``--start-mm``, else where the
-    carriage is now.
+    carriage is now, but at least `HOME_CLEARANCE_MM` above the bottom of the travel
+    (right after ``elphel stage home`` the carriage sits there, and the first frame must
+    be approached from below).
     """
     if so_far is not None:
         start_mm = float(so_far.extra["capture"]["start_mm"])
     elif args.start_mm is not None:
         start_mm = args.start_mm
     else:
-        start_mm = round(positioner.read_mm(), 2)
+        lowest_mm = positioner.travel_mm()[0] + HOME_CLEARANCE_MM
+        start_mm = round(max(positioner.read_mm(), lowest_mm), 2)
+    _check_plan_fits(positioner, plan, start_mm)
     top["stage"] = {"mm_per_step": positioner.model.mm_per_step}
     if plan.tilt_deg is not None:
         top["stage"]["axis_angle_deg"] = plan.tilt_deg

@@ -212,6 +212,11 @@ class QuadBurst:
         return int(self.bursts[0].frames.shape[0])
 
 
+QUAD_BURST_IS = (
+    "a quad burst: quad.json + one burst directory per camera (elphel burst capture --quad)"
+)
+
+
 def read_quad_burst(path: str | Path) -> QuadBurst:
     """Load a quad-burst directory and check that its four bursts belong together.
 
@@ -223,11 +228,18 @@ def read_quad_burst(path: str | Path) -> QuadBurst:
         cameras carries different ``timestamp_ns`` (not one trigger).
     """
     root = Path(path)
+    if not (root / QUAD_MANIFEST).is_file():
+        raise InputFormatError(f"{root}: no {QUAD_MANIFEST}; expected {QUAD_BURST_IS}")
     manifest = QuadManifest.read(root)
     source = root / QUAD_MANIFEST
     bursts = []
     for i, cam in enumerate(manifest.cameras):
         d = manifest.file_of(root, i)
+        if d.is_file():
+            raise InputFormatError(
+                f"{root} is a quad directory (one image per camera: {cam.file}); this needs "
+                f"{QUAD_BURST_IS}. For one quad set use `elphel tp`."
+            )
         if not d.is_dir():
             raise InputFormatError(
                 f"{source}: cameras[{i}].file={cam.file!r} is not a burst directory in {root}"

@@ -21,13 +21,19 @@ from elphel_host.camera.client import (
 )
 from elphel_host.camera.events import CameraEvent
 from elphel_host.camera.protocol import CameraInterface
+from elphel_host.camera.unsupported import NoEventsNoRegisters
 from elphel_host.cli_common import (
     add_camera_options,
     add_json_option,
     add_sensor_port_option,
     emit,
 )
-from elphel_host.errors import CameraAuthError, CameraClientError, CameraParameterError
+from elphel_host.errors import (
+    CameraAuthError,
+    CameraClientError,
+    CameraParameterError,
+    UnsupportedError,
+)
 from elphel_host.fileio import replacing, write_atomic
 from elphel_host.shown import shown
 
@@ -198,7 +204,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     with _client(args) as client:
         info = client.info()
-    head = f"{info['board']} board, {info['daemon']} {info['version']}"
+    version = f" {info['version']}" if info.get("version") else ""
+    head = f"{info['board']} board, {info['daemon']}{version}"
     lines = [shown(head, limit_chars=120)]
     for port in info["ports"]:
         sensor = port["sensor"]
@@ -237,13 +244,16 @@ def cmd_params(args: argparse.Namespace) -> int:
         values = client.params(args.sensor_port)
     schema = daemon_schema(args.camera) if info.get("daemon") == "elphel-camd" else table_schema()
     rows = param_rows(schema, values, sensor_code=sensor.get("sensor_code"), port=args.sensor_port)
-    width = max(len(r.name) for r in rows)
-    lines = [
-        f"{r.name:<{width}}  {'' if r.value is None else r.value:>10}  {r.unit:<8} "
-        f"{r.range:<22} {r.description}"
+    table = [("NAME", "VALUE", "UNIT", "RANGE", "MEANING")] + [
+        (r.name, "" if r.value is None else str(r.value), r.unit, r.range, r.description)
         for r in rows
     ]
-    header = f"port {args.sensor_port}: {sensor.get('model', 'no sensor')}; NAME VALUE UNIT RANGE"
+    widths = [max(len(row[i]) for row in table) for i in range(4)]
+    lines = [
+        f"{n:<{widths[0]}}  {v:>{widths[1]}}  {u:<{widths[2]}}  {a:<{widths[3]}}  {d}".rstrip()
+        for n, v, u, a, d in table
+    ]
+    header = f"port {args.sensor_port}: {sensor.get('model', 'no sensor')}"
     result = {
         "port": args.sensor_port,
         "sensor": sensor.get("model"),
@@ -343,7 +353,8 @@ def cmd_capture(args: argparse.Namespace) -> int:
     what = f"frame {first}" if len(frames) == 1 else f"frames {frames[0]}..{frames[-1]}"
     if args.join:
         what = f"photo-finish {what} joined"
-    emit(args, result, f"{what} from port {args.sensor_port}: {w}x{h} {image.dtype} -> {out}")
+    png = f"; preview {result['png']}" if "png" in result else ""
+    emit(args, result, f"{what} from port {args.sensor_port}: {w}x{h} {image.dtype} -> {out}{png}")
     return 0
 
 
@@ -398,6 +409,11 @@ def cmd_watch(args: argparse.Namespace) -> int:
                 raise CameraClientError(
                     f"port {args.sensor_port} does not exist; ports: " + ", ".join(map(str, ports))
                 )
+        if isinstance(client, NoEventsNoRegisters):
+            raise UnsupportedError(
+                "camera watch: a stock NC393 has no event stream; follow its frames with "
+                "`elphel camera get FRAME` or take them with `elphel camera capture`"
+            )
         try:
             for event in client.events(types, port=args.sensor_port, count=args.count):
                 entry = {"type": event.type, "id": event.id, **event.data}

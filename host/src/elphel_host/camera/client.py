@@ -46,6 +46,7 @@ from elphel_host.limits import Deadline, HostLimits, bounded_lines, check_declar
 from elphel_host.shown import shown
 
 API = "/api/v1"
+INFO_TIMEOUT_S = 5.0  # GET /info answers at once; longer means no HTTP server there
 _NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
 
 
@@ -222,9 +223,32 @@ class CameraClient(Staging, Closing):
     # -- board -----------------------------------------------------------------------------
 
     def info(self) -> dict[str, Any]:
-        """Board, daemon version and ports with their sensors."""
-        what = self._what("GET", "/info")
-        return checked_dict(InfoAnswer, self._json("GET", "/info"), what=what)
+        """Board, daemon version and ports with their sensors.
+
+        The first thing a command asks, so it also tells a wrong URL apart: a server
+        without the API (HTTP 404), or a port that does not answer HTTP within
+        `INFO_TIMEOUT_S`, raises `CameraClientError` saying which URL to give.
+        """
+        try:
+            answer = self._json("GET", "/info", deadline_s=INFO_TIMEOUT_S)
+            result: dict[str, Any] = checked_dict(
+                InfoAnswer, answer, what=self._what("GET", "/info")
+            )
+        except CameraHTTPError as e:
+            if e.status != 404:
+                raise
+            raise CameraClientError(
+                f"{self.url} is not elphel-camd (GET {API}/info: HTTP 404): give the daemon's "
+                "http://HOST:PORT (elphel-sim up prints it as camera_url, not sim_url)"
+            ) from e
+        except CameraClientError as e:
+            if not isinstance(e.__cause__, httpx.ReadTimeout):
+                raise
+            raise CameraClientError(
+                f"{self.url} gave no HTTP answer within {INFO_TIMEOUT_S:g} s: is it "
+                "elphel-camd's port (not the stage's, nor another service's)?"
+            ) from e
+        return result
 
     def health(self) -> dict[str, Any]:
         """The daemon's health report; ``status`` is ``degraded`` when a bus fails (503)."""

@@ -10,6 +10,7 @@ for a value beyond the fixed maximum is the one it would refuse with.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -80,6 +81,21 @@ def _sensor_range(model: StockModel | None, now: Mapping[str, int], name: str, t
     return ""
 
 
+_RANGE = re.compile(r"-?\d+\.\.-?\d+( \(even\))?")
+
+
+def _column_range(sensor: str, fixed: str, low: int, value: int | None) -> str:
+    """The range column: the sensor's range when it is one, else the fixed one.
+
+    A sensor's refusal that is a sentence (a rule between parameters) is not a range;
+    the fixed minimum stays allowed beside a narrower sensor range when it is the value
+    in effect (PF_HEIGHT 0: photo-finish off).
+    """
+    if not _RANGE.fullmatch(sensor):
+        return fixed
+    return f"{low} or {sensor}" if value == low and not sensor.startswith(f"{low}..") else sensor
+
+
 def param_rows(
     schema: Mapping[str, Mapping[str, Any]],
     values: Mapping[str, int],
@@ -99,7 +115,13 @@ def param_rows(
         read_only = bool(prop.get("readOnly", False))
         low, high = int(prop.get("minimum", 0)), int(prop.get("maximum", 0))
         fixed = f"{low}..{high}"
-        allowed = "read-only" if read_only else _sensor_range(model, values, name, high) or fixed
+        allowed = (
+            "read-only"
+            if read_only
+            else _column_range(
+                _sensor_range(model, values, name, high), fixed, low, values.get(name)
+            )
+        )
         rows.append(
             ParamRow(
                 name=name,

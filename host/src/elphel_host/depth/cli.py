@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from elphel_host.cli_common import add_json_option, emit
+from elphel_host.cli_common import add_json_option, emit, fusion_scale
 from elphel_host.depth.pipeline import MOTIONS, DepthConfig, read_and_run, write_fused_quad
 from elphel_host.depth.products import (
     DEFAULT_MAX_DISAGREEMENT,
@@ -33,7 +33,9 @@ def register(subparsers: Any) -> None:
         "processor on the fused quad, and write its DSI, a depth map in mm and a point cloud.",
     )
     p.add_argument("quad_burst", metavar="QUAD_BURST", type=Path, help="quad-burst directory")
-    p.add_argument("--scale", type=int, default=2, metavar="S", help="up-sampling (default 2)")
+    p.add_argument(
+        "--scale", type=fusion_scale, default=2, metavar="S", help="up-sampling (default 2)"
+    )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     p.add_argument(
         "--motion",

@@ -23,7 +23,7 @@ import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.burst.io import read_burst
-from elphel_host.cli_common import add_json_option, emit
+from elphel_host.cli_common import add_json_option, emit, fusion_scale
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
@@ -56,7 +56,11 @@ def register(subparsers: Any) -> None:
         help="burst directories (or 'compare' followed by one burst directory)",
     )
     p.add_argument(
-        "--scale", type=int, required=True, metavar="S", help=f"integer {MIN_SCALE}..{MAX_SCALE}"
+        "--scale",
+        type=fusion_scale,
+        required=True,
+        metavar="S",
+        help=f"integer {MIN_SCALE}..{MAX_SCALE}",
     )
     p.add_argument(
         "--method",

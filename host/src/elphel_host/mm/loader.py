@@ -6,6 +6,8 @@ from pathlib import Path
 
 from pymmcore_plus.experimental.unicore import UniMMCore
 
+from elphel_host.camera.client import CameraClient, CameraUnauthorizedError
+from elphel_host.errors import CameraAuthError
 from elphel_host.mm.camera import ElphelCameraDevice
 from elphel_host.mm.stage import ElphelStageDevice
 
@@ -48,11 +50,15 @@ def load_elphel_devices(
     ------
     ValueError
         Neither a camera nor a stage was given.
+    CameraAuthError
+        The camera refused the token (or needs one): raised here, before anything is
+        loaded, rather than at the first image.
     """
     if camera_url is None and stage_url is None:
         raise ValueError("load_elphel_devices: give camera_url, stage_url or both")
     labels = []
     if camera_url is not None:
+        check_camera_token(camera_url, token, port)
         camera = ElphelCameraDevice(camera_url, token, port=port)
         core.loadPyDevice(CAMERA_LABEL, camera)
         core.initializeDevice(CAMERA_LABEL)
@@ -73,3 +79,24 @@ def load_elphel_devices(
     if core.getTimeoutMs() < timeout_ms:
         core.setTimeoutMs(timeout_ms)
     return labels
+
+
+def check_camera_token(url: str, token: str | None, port: int) -> None:
+    """Read the port's parameters once, so that a refused token fails at load time.
+
+    Raises
+    ------
+    CameraAuthError
+        "wrong token" when one was given and refused, else that the camera needs one.
+    """
+    try:
+        with CameraClient(url, token) as client:
+            client.params(port)
+    except CameraUnauthorizedError as e:
+        if token:
+            raise CameraAuthError(
+                f"wrong token: the camera at {url} refused it (HTTP {e.status})"
+            ) from e
+        raise CameraAuthError(
+            f"the camera at {url} needs its token (HTTP {e.status}): pass token=..."
+        ) from e

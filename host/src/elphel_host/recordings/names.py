@@ -1,7 +1,8 @@
 """Elphel recordings on disk: which files to convert and what their names say.
 
 The camera's recorder names each frame ``<seconds>_<microseconds>_<channel>.jp4`` (the
-frame's timestamp and its sensor port); imgsrv's downloads are named the same way.
+frame's timestamp and its sensor port); imgsrv's downloads are named the same way, with
+an ``elphelimg_`` prefix unless asked for ``timestamp_name``.
 `find_inputs` expands files and directories into the frames to convert; `recorded_name`
 reads a name; `quad_groups` and `burst_groups` group named frames into quad sets (one
 timestamp, channels 0..3) and per-channel sequences.
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 SUFFIXES = (".jp4", ".jp46", ".jpg", ".jpeg")
-_NAME = re.compile(r"(\d+)_(\d{1,6})_(\d+)")
+_NAME = re.compile(r"(?:elphelimg_)?(\d+)_(\d{1,6})_(\d+)")
 QUAD_CHANNELS = (0, 1, 2, 3)
 
 
@@ -38,7 +39,7 @@ class RecordedName:
 
 
 def recorded_name(path: Path) -> RecordedName | None:
-    """The timestamp and channel in ``<sec>_<usec>_<channel>.<ext>``; None for other names."""
+    """The timestamp and channel in ``[elphelimg_]<sec>_<usec>_<channel>.<ext>``, else None."""
     match = _NAME.fullmatch(path.stem)
     if match is None:
         return None
@@ -93,7 +94,10 @@ class Group:
     files: tuple[Path, ...]
 
 
-NOT_NAMED = "not named <seconds>_<microseconds>_<channel> as Elphel's recorder names frames"
+NOT_NAMED = (
+    "not named [elphelimg_]<seconds>_<microseconds>_<channel> as Elphel's recorder and "
+    "imgsrv name frames"
+)
 
 
 def _named(

@@ -24,7 +24,7 @@ from elphel_host.errors import StageConnectionError
 from elphel_host.progress import ProgressLine
 from elphel_host.stage.client import StageClient
 from elphel_host.stage.discovery import find_stage_boards
-from elphel_host.stage.model import StageModel
+from elphel_host.stage.model import StageModel, default_model_path, load_stage_model
 from elphel_host.stage.positioning import Positioner
 
 
@@ -92,11 +92,11 @@ class _ReportingClient:
 
 
 def _move(args: argparse.Namespace) -> int:
-    model_path = Path(args.model)
     line = ProgressLine()
     with StageClient(_url(args)) as client:
+        model, _path = load_stage_model(args.model, client.identify().serial)
         reporting = _ReportingClient(client, line)
-        pos = Positioner(reporting, StageModel.load(model_path))  # type: ignore[arg-type]
+        pos = Positioner(reporting, model)  # type: ignore[arg-type]
         target = args.position_mm
         if args.relative:
             target += pos.read_mm()
@@ -155,8 +155,8 @@ def _stop(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    model_path = Path(args.model)
     with StageClient(_url(args)) as client:
+        model_path: Path = args.model or default_model_path(client.identify().serial)
         line = ProgressLine()
         pos = Positioner(client, StageModel(), log=line.say("calibrate: "))
         cal = pos.calibrate(
@@ -187,9 +187,9 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _backlash(args: argparse.Namespace) -> int:
-    model_path = Path(args.model)
     with StageClient(_url(args)) as client:
-        pos = Positioner(client, StageModel.load(model_path))
+        model, model_path = load_stage_model(args.model, client.identify().serial)
+        pos = Positioner(client, model)
         backlash_mm = pos.measure_backlash(at_mm=args.at_mm, repeats=args.repeats)
     pos.model.save(model_path)
     emit(

@@ -4,12 +4,16 @@
 +steps (approaching from the other side adds ``backlash_mm``). `StageModel.save` and
 `StageModel.load` keep it in a JSON file (``elphel stage ... --model PATH``) so a later
 command moves in the calibrated frame; `elphel_host.stage.positioning` measures it.
+Without ``--model`` each stage has its own file, named by the serial its identification
+query answers (`default_model_path`), so calibrating one stage never changes another's.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,9 +34,12 @@ class StageModel:
 
     @classmethod
     def load(cls, path: Path) -> StageModel:
-        """A calibration saved by `save` (a default model if the file does not exist)."""
-        if not path.exists():
-            return cls()
+        """A calibration saved by `save`; a missing file is an `InputFormatError`."""
+        if not path.is_file():
+            raise InputFormatError(
+                f"stage calibration {path} does not exist: run `elphel stage calibrate "
+                "--model PATH` first, or leave out --model to use this stage's own file"
+            )
         try:
             data = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -49,14 +56,14 @@ class StageModel:
                 raise InputFormatError(f"{path}: {key}={value!r}; allowed: {allowed}")
             return float(value)  # type: ignore[arg-type]
 
-        offset = data.get("offset_mm")
+        offset, spread = data.get("offset_mm"), data.get("spread_mm_per_step")
         return cls(
             mm_per_step=number("mm_per_step", data.get("mm_per_step"), positive=True),
             offset_mm=None if offset is None else number("offset_mm", offset),
             backlash_mm=number("backlash_mm", data.get("backlash_mm", 0.0)),
             calibrated=True,
-            spread_mm_per_step=number(
-                "spread_mm_per_step", data.get("spread_mm_per_step", math.nan)
+            spread_mm_per_step=(
+                math.nan if spread is None else number("spread_mm_per_step", spread)
             ),
         )
 
@@ -67,7 +74,10 @@ class StageModel:
             "mm_per_step": self.mm_per_step,
             "offset_mm": self.offset_mm,
             "backlash_mm": self.backlash_mm,
-            "spread_mm_per_step": self.spread_mm_per_step,
+            # not measured yet (a model written by hand): null, JSON has no NaN
+            "spread_mm_per_step": (
+                self.spread_mm_per_step if math.isfinite(self.spread_mm_per_step) else None
+            ),
         }
         text = strict_json.dumps(data, what=str(path), indent=1)
         write_atomic(path, text.encode())
@@ -83,3 +93,29 @@ class StageModel:
         if self.offset_mm is None:
             raise StageNotHomedError("no caliper reference yet")
         return self.offset_mm + steps * self.mm_per_step
+
+
+def config_dir() -> Path:
+    """Where elphel keeps its settings: ``$XDG_CONFIG_HOME/elphel`` (``~/.config/elphel``)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "elphel"
+
+
+def default_model_path(serial: str) -> Path:
+    """The calibration file of the stage whose identification query answers ``serial``."""
+    if not serial.strip():
+        raise InputFormatError("the stage reports an empty serial: pass --model PATH")
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", serial.strip())
+    return config_dir() / "stages" / f"{safe}.json"
+
+
+def load_stage_model(path: Path | None, serial: str) -> tuple[StageModel, Path]:
+    """The calibration to use and where it lives.
+
+    An explicit ``path`` must exist. Without one, the stage's own file
+    (`default_model_path`) is used when present, else the nominal model.
+    """
+    if path is not None:
+        return StageModel.load(path), path
+    own = default_model_path(serial)
+    return (StageModel.load(own) if own.is_file() else StageModel()), own

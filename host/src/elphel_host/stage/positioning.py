@@ -209,9 +209,27 @@ class Positioner:
             self.model.offset_mm = self.read_mm() - st.steps * self.model.mm_per_step
 
     # ---- moves in mm -------------------------------------------------------------------
+    def travel_mm(self) -> tuple[float, float]:
+        """The soft limits in the caliper's millimetres, by the model (needs a reference)."""
+        self._require_reference()
+        lo, hi = self.client.limits_steps()
+        return self.model.mm_at(lo), self.model.mm_at(hi)
+
+    def check_travel(self, *targets_mm: float, slack_mm: float = CALIPER_LSB_MM) -> None:
+        """Raise `StageLimitError` in millimetres if a target lies beyond the travel."""
+        lo_mm, hi_mm = self.travel_mm()
+        for target in targets_mm:
+            if not lo_mm - slack_mm <= target <= hi_mm + slack_mm:
+                raise StageLimitError(
+                    f"{mm_text(target)} mm is beyond the travel "
+                    f"{mm_text(lo_mm)}..{mm_text(hi_mm)} mm",
+                    code=15,
+                    keyword="MOVE",
+                )
+
     def move_open_loop(self, target_mm: float) -> MoveResult:
         """Move by the model only (one move from wherever the carriage is)."""
-        self._require_reference()
+        self.check_travel(target_mm)
         steps = round(self.model.steps_for(target_mm))
         caliper = self._goto(steps)
         return MoveResult(target_mm, caliper, steps, 1, self.model.mm_at(steps))
@@ -249,27 +267,21 @@ class Positioner:
                 f"fit_steps {fit_steps}, verify_readings {verify_readings}; "
                 "need fit_steps >= 2 and verify_readings >= 1"
             )
-        self._require_reference()
+        self.check_travel(target_mm, slack_mm=CALIPER_LSB_MM / 2 + tolerance_mm)
         m = self.model
         assert m.offset_mm is not None
         overshoot = max(10, round((approach_mm + m.backlash_mm) / m.mm_per_step))
         fit = _StepFit(target_mm, m.mm_per_step)
+        lo, hi = self.client.limits_steps()
 
         def start_window(goal: int) -> int:
-            fit.by_step.clear()
-            first = goal - fit_steps + 1
-            fit.record(first, self._approach(first, overshoot), moved=True)
-            return first
+            return self._start_window(fit, goal, (lo, hi), fit_steps, overshoot)
 
         steps = start_window(fit.nearest(m.offset_mm))
         needed = verify_readings
         iterations = 0
         while True:
-            best = fit.nearest(fit.offset())
-            while len(fit.by_step) < fit_steps or steps < best <= steps + fit_steps:
-                steps += 1
-                fit.record(steps, self._goto(steps), moved=True)
-                best = fit.nearest(fit.offset())
+            steps, best = self._creep(fit, steps, hi, fit_steps)
             iterations += 1
             if iterations > max_iterations:
                 raise fit.failed(steps, max_iterations, tolerance_mm)
@@ -277,22 +289,42 @@ class Positioner:
                 # The model was far off here: fit again next to the target.
                 steps = start_window(best)
                 continue
-            if best < steps:
+            if max(lo, best) < steps:
                 # The fit puts the target lower: come up to it again from below.
-                steps = best
+                steps = max(lo, best)
                 fit.record(steps, self._approach(steps, overshoot), moved=True)
                 continue
             while len(fit.arrived) < needed:
                 fit.record(steps, self.read_mm(), moved=False)
             offset = fit.offset()
             caliper_mm = statistics.fmean(fit.arrived)
-            if fit.nearest(offset) == steps and (
+            if steps == lo:
+                fit.check_reachable(caliper_mm, CALIPER_LSB_MM / 2 + tolerance_mm)
+            if min(max(lo, fit.nearest(offset)), hi) == steps and (
                 abs(caliper_mm - target_mm) <= CALIPER_LSB_MM / 2 + tolerance_mm
             ):
                 self.last_dir = 1
                 at_mm = offset + steps * m.mm_per_step
                 return MoveResult(target_mm, caliper_mm, steps, iterations, at_mm)
             needed = len(fit.arrived) + verify_readings
+
+    def _start_window(
+        self, fit: _StepFit, goal: int, limits: tuple[int, int], fit_steps: int, overshoot: int
+    ) -> int:
+        """Come up from below to the first step of a fit window ending at ``goal``."""
+        fit.by_step.clear()
+        first = min(max(limits[0], goal - fit_steps + 1), limits[1] - fit_steps)
+        fit.record(first, self._approach(first, overshoot), moved=True)
+        return first
+
+    def _creep(self, fit: _StepFit, steps: int, hi: int, fit_steps: int) -> tuple[int, int]:
+        """Step up one at a time, reading each, while the fit wants it: (steps, best step)."""
+        best = fit.nearest(fit.offset())
+        while steps < hi and (len(fit.by_step) < fit_steps or steps < best <= steps + fit_steps):
+            steps += 1
+            fit.record(steps, self._goto(steps), moved=True)
+            best = fit.nearest(fit.offset())
+        return steps, best
 
     # ---- recovery -------------------------------------------------------------------------
     def resync_from_caliper(self) -> int:
@@ -330,6 +362,16 @@ class _StepFit:
         self.arrived.append(reading)
         self.by_step.setdefault(at, []).append(reading)
 
+    def check_reachable(self, lowest_mm: float, slack_mm: float) -> None:
+        """Refuse a target below ``lowest_mm``, where the lowest step puts the carriage."""
+        if self.target_mm < lowest_mm - slack_mm:
+            raise StageLimitError(
+                f"{mm_text(self.target_mm)} mm is beyond the travel: at the end of the "
+                f"travel the caliper reads {mm_text(lowest_mm)} mm",
+                code=15,
+                keyword="MOVE",
+            )
+
     def failed(self, steps: int, max_iterations: int, tolerance_mm: float) -> StageClosedLoopError:
         return StageClosedLoopError(
             f"closed-loop move to {self.target_mm:.4f} mm: caliper reads "
@@ -337,3 +379,9 @@ class _StepFit:
             f"{max_iterations} corrections (tolerance ±{tolerance_mm} mm beyond half "
             f"the {CALIPER_LSB_MM} mm caliper LSB)"
         )
+
+
+def mm_text(mm: float) -> str:
+    """A position for people: to 0.01 mm, without trailing zeros (``118``, ``42.5``)."""
+    text = f"{round(mm, 2):.2f}".rstrip("0").rstrip(".")
+    return "0" if text == "-0" else text

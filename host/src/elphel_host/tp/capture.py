@@ -30,7 +30,7 @@ from typing import Any
 
 from elphel_host.camera.client import CameraHTTPError, CapturedFrame
 from elphel_host.camera.protocol import CameraInterface
-from elphel_host.errors import QuadCaptureError, QuadCaptureTimeout
+from elphel_host.errors import FrameGoneError, QuadCaptureError, QuadCaptureTimeout
 from elphel_host.fileio import replacing_directory
 from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
 from elphel_host.tp.layout import QuadLayout
@@ -42,6 +42,7 @@ from elphel_host.tp.trigger import (
 )
 
 AHEAD_FRAMES = 2  # the set is taken this many triggers after every port is synchronised
+SLOWER = 4  # a set lost from the buffer is taken again at this many times the period
 
 # Metadata keys that are not frame parameters (kept per camera in quad.json anyway).
 _FRAME_KEYS = ("frame", "timestamp_ns", "port", "sensor", "bayer")
@@ -121,8 +122,9 @@ def capture_quad(
     master, period = choose_trigger(before, layout.ports, trigger_period_ms)
     total = 4 + len(layout.ports)
     step = progress or (lambda _done, _total, _message: None)
-    deadline = time.monotonic() + timeout_s
-    captured = _take_set(camera, before, layout, (master, period), deadline, step)
+    captured, period = _take_set_patiently(
+        camera, before, layout, (master, period), timeout_s, step, fixed=trigger_period_ms
+    )
     timestamp_ns, (height, width), bayer = _check_set(captured, layout.ports)
     bits = max(int(sensors[p].get("bits", 16)) for p in layout.ports)
     manifest = _manifest(
@@ -159,6 +161,40 @@ def _settings_before(
                 "allowed for a quad set: PF_HEIGHT=0"
             )
     return before
+
+
+def _take_set_patiently(
+    camera: CameraInterface,
+    before: dict[int, dict[str, Any]],
+    layout: QuadLayout,
+    trigger: tuple[int, int],
+    timeout_s: float,
+    step: CaptureProgress,
+    *,
+    fixed: float | None,
+) -> tuple[dict[int, CapturedFrame], int]:
+    """`_take_set`; the set and the period used.
+
+    When the frames were overwritten in the camera's buffer before they were all
+    fetched (a busy host, a slow link) and the period was not given (``fixed``), the set
+    is taken once more at `SLOWER` times the period; otherwise the error names the option.
+    """
+    master, period = trigger
+    for last in (fixed is not None, True):
+        started = time.monotonic()
+        try:
+            taken = _take_set(camera, before, layout, (master, period), started + timeout_s, step)
+        except FrameGoneError as e:
+            if last:
+                raise QuadCaptureError(
+                    f"{e}: fetching the set took {time.monotonic() - started:.1f} s at a "
+                    f"{period / TICKS_PER_MS:g} ms trigger period; give a longer one "
+                    f"(--trigger-period-ms {SLOWER * period / TICKS_PER_MS:g})"
+                ) from e
+            period *= SLOWER
+            continue
+        return taken, period
+    raise QuadCaptureError("no attempt left")  # not reached: the last attempt returns or raises
 
 
 def _take_set(

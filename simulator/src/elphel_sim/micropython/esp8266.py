@@ -82,7 +82,12 @@ class SimEsp8266:
         if self.listener is None:
             s = _socket.socket(_socket.AF_INET, _socket.SOCK_STREAM)
             s.setsockopt(_socket.SOL_SOCKET, _socket.SO_REUSEADDR, 1)
-            s.bind(("127.0.0.1", self.requested_tcp_port))
+            try:
+                s.bind(("127.0.0.1", self.requested_tcp_port))
+            except OSError as e:
+                s.close()
+                where = f"127.0.0.1:{self.requested_tcp_port}"
+                raise OSError(e.errno, f"stage: cannot listen on {where}: {e.strerror}") from e
             s.listen(4)
             s.setblocking(False)
             self.listener = s

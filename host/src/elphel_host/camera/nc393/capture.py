@@ -21,7 +21,7 @@ from elphel_host.camera.nc393.address import check_port
 from elphel_host.camera.nc393.frames import decoded_frame, newest_stamp, tiff_pages
 from elphel_host.camera.nc393.http import http_get
 from elphel_host.camera.nc393.model import StockModel
-from elphel_host.errors import CameraParameterError, UnsupportedError
+from elphel_host.errors import CameraParameterError, FrameGoneError
 from elphel_host.limits import HostLimits
 
 # A capture waits for at most this many frames beyond the newest (elphel-camd's limit).
@@ -140,7 +140,7 @@ class StockFrames(ABC):
             got = self._fetch(port, imgsrv.read_pointer_path(frame - got.frame), params)
         if got.frame == frame:
             return got
-        raise UnsupportedError(
+        raise FrameGoneError(
             f"port {port}: frame {frame} is no longer in imgsrv's buffer (the oldest reached "
             f"was frame {got.frame}); fetch frames sooner, or more slowly triggered"
         )

@@ -134,7 +134,7 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
         return {
             "board": "nc393",
             "daemon": "Elphel stock firmware (parsedit.php, imgsrv)",
-            "version": "unknown",
+            "version": None,  # parsedit.php and imgsrv do not report one
             "capabilities": ["capture", "frames", "trigger"],
             "ports": ports,
         }

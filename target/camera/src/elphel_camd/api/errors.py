@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -122,8 +123,14 @@ def _allowed(name: str, kind: str) -> str:
     return "see the OpenAPI schema"
 
 
-def validation_problem(exc: RequestValidationError) -> dict[str, Any]:
-    """A 422 body in the API's own form from FastAPI's validation errors."""
+def validation_problem(
+    exc: RequestValidationError, narrower: Callable[[str], str | None] = lambda name: None
+) -> dict[str, Any]:
+    """A 422 body in the API's own form from FastAPI's validation errors.
+
+    ``narrower(name)`` gives the range the port's sensor allows, when narrower than the
+    schema's (`sensor_allowed`).
+    """
     errors = list(exc.errors())
     first = errors[0] if errors else {"loc": ("body",), "msg": "invalid", "type": "invalid"}
     loc = [str(part) for part in first.get("loc", ())]
@@ -142,6 +149,8 @@ def validation_problem(exc: RequestValidationError) -> dict[str, Any]:
         }
     if loc and loc[0] == "body":
         allowed = _allowed(name, kind)
+        if kind != "extra_forbidden":
+            allowed = narrower(name) or allowed
     else:
         allowed = str(first.get("msg", "see the OpenAPI schema"))
     value = json_safe(jsonable_encoder(first.get("input"), custom_encoder={bytes: repr}))
@@ -157,9 +166,32 @@ def validation_problem(exc: RequestValidationError) -> dict[str, Any]:
     }
 
 
+def sensor_allowed(request: Request, name: str) -> str | None:
+    """What the sensor on the request's port allows for ``name`` (None: nothing narrower).
+
+    The schema's fixed limits are the widest any sensor takes; the range a user can act
+    on is the sensor's, as its driver names it when refusing the schema's maximum.
+    """
+    spec = PARAMS.get(name)
+    port = request.path_params.get("port")
+    service = getattr(request.app.state, "service", None)
+    if spec is None or spec.read_only or port is None or service is None:
+        return None
+    try:
+        driver = service.sensor(int(port))
+        state = service.params(int(port))
+        driver.normalize({**state, name: spec.maximum}, frozenset({name}))
+    except camd.ParameterRangeError as e:
+        return e.allowed if e.name == name else None
+    except (camd.CameraError, ValueError, KeyError):
+        return None
+    return None
+
+
 def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    return JSONResponse(status_code=422, content=validation_problem(exc))
+    problem = validation_problem(exc, lambda name: sensor_allowed(request, name))
+    return JSONResponse(status_code=422, content=problem)
 
 
 def allowed_methods(request: Request) -> list[str]:
