@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Any
 
-from elphel_host.errors import DeviceAnswerError, DeviceLimitError
+from elphel_host.errors import DeviceAnswerError, DeviceLimitError, InputFormatError
+from elphel_host.limits import HostLimits
 from elphel_host.shown import shown
 
 
@@ -62,3 +64,21 @@ def dumps(value: Any, *, what: str, **options: Any) -> str:
         raise DeviceAnswerError(
             f"{what}: holds a non-finite number (NaN or infinity); allowed: finite numbers"
         ) from e
+
+
+def load_file(path: Path) -> Any:
+    """The strict JSON document in ``path``; `InputFormatError` when it is not JSON.
+
+    A file over the ``json_bytes`` limit (`HostLimits`) is refused before it is read.
+    """
+    limits = HostLimits.from_env()
+    size = path.stat().st_size
+    if size > limits.json_bytes:
+        raise InputFormatError(
+            f"{path}: {size} bytes; limit json_bytes = {limits.json_bytes} "
+            "(raise ELPHEL_LIMIT_JSON_BYTES)"
+        )
+    try:
+        return loads(path.read_bytes(), what=str(path), limit_bytes=limits.json_bytes)
+    except ValueError as e:
+        raise InputFormatError(str(e)) from e

@@ -89,6 +89,50 @@ class CaptureResult:
     cancelled: bool = False
 
 
+class Mover(Protocol):
+    """What `capture_positions` needs of an engine: moves, and a stop after an error."""
+
+    def move(self, target_mm: float) -> MoveResult: ...
+
+    def stop(self) -> None: ...
+
+
+def capture_positions(
+    engine: Mover,
+    positions_mm: Sequence[float],
+    start_mm: float,
+    result: CaptureResult,
+    take: Callable[[int, float, MoveResult], None],
+    *,
+    progress: ProgressCallback | None = None,
+    label: str = "position",
+) -> CaptureResult:
+    """Move to each position not in ``result.skipped`` and ``take(index, target, moved)`` there.
+
+    The engine is stopped when anything fails or Ctrl-C arrives; ``result`` says what was
+    captured and how long it took either way.
+    """
+    done = set(result.skipped)
+    t0 = time.monotonic()
+    try:
+        for i, rel in enumerate(positions_mm):
+            if i in done:
+                continue
+            target = start_mm + rel
+            moved = engine.move(target)
+            take(i, target, moved)
+            result.captured.append(i)
+            if progress is not None:
+                message = f"{label} {i} at {moved.caliper_mm:.3f} mm"
+                progress(len(done) + len(result.captured), len(positions_mm), message)
+    except BaseException:
+        engine.stop()
+        raise
+    finally:
+        result.seconds = time.monotonic() - t0
+    return result
+
+
 @dataclass(frozen=True)
 class CaptureProgress:
     """A snapshot of a running capture.

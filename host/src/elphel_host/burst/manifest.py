@@ -247,16 +247,7 @@ def read_manifest(directory: str | Path) -> Manifest | None:
     if not path.is_file():
         return None
     limits = HostLimits.from_env()
-    size = path.stat().st_size
-    if size > limits.json_bytes:
-        raise InputFormatError(
-            f"{path}: {size} bytes; limit json_bytes = {limits.json_bytes} "
-            "(raise ELPHEL_LIMIT_JSON_BYTES)"
-        )
-    try:
-        obj = strict_json.loads(path.read_bytes(), what=str(path), limit_bytes=limits.json_bytes)
-    except ValueError as e:
-        raise InputFormatError(str(e)) from e
+    obj = strict_json.load_file(path)
     entries = obj.get("frames") if isinstance(obj, dict) else None
     if isinstance(entries, list) and len(entries) > limits.manifest_frames:
         raise InputFormatError(

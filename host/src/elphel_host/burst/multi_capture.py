@@ -21,7 +21,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
-from elphel_host.burst.capture import CaptureResult, ProgressCallback, load_progress
+from elphel_host.burst.capture import (
+    CaptureResult,
+    ProgressCallback,
+    capture_positions,
+    load_progress,
+)
 from elphel_host.burst.manifest import MANIFEST, VERSION, FrameEntry, Manifest, write_manifest
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import InputFormatError
@@ -99,32 +104,19 @@ def capture_multi_burst(
     ]
     done = sorted(set.intersection(*held))
     result = CaptureResult(root, skipped=list(done))
-    t0 = time.monotonic()
-    try:
-        for i, rel in enumerate(positions_mm):
-            if i in done:
-                continue
-            target = start_mm + rel
-            moved = engine.move(target)
-            frames = engine.acquire_all()
-            entry = FrameEntry(
-                file=f"frames/{i:04d}.tif",
-                index=i,
-                stage_mm=round(target, 6),
-                caliper_mm=moved.caliper_mm,
-            )
-            for c, (name, (tiff, meta)) in enumerate(zip(names, frames, strict=True)):
-                manifests[c] = _record(root / name, manifests[c], entry, tiff, meta)
-            result.captured.append(i)
-            if progress is not None:
-                message = f"position {i} at {moved.caliper_mm:.3f} mm"
-                progress(len(done) + len(result.captured), len(positions_mm), message)
-    except BaseException:
-        engine.stop()
-        raise
-    finally:
-        result.seconds = time.monotonic() - t0
-    return result
+
+    def take(i: int, target: float, moved: MoveResult) -> None:
+        frames = engine.acquire_all()
+        entry = FrameEntry(
+            file=f"frames/{i:04d}.tif",
+            index=i,
+            stage_mm=round(target, 6),
+            caliper_mm=moved.caliper_mm,
+        )
+        for c, (name, (tiff, meta)) in enumerate(zip(names, frames, strict=True)):
+            manifests[c] = _record(root / name, manifests[c], entry, tiff, meta)
+
+    return capture_positions(engine, positions_mm, start_mm, result, take, progress=progress)
 
 
 def _camera_progress(

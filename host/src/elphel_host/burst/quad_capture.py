@@ -16,7 +16,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
-from elphel_host.burst.capture import CaptureResult, ProgressCallback, load_progress
+from elphel_host.burst.capture import (
+    CaptureResult,
+    ProgressCallback,
+    capture_positions,
+    load_progress,
+)
 from elphel_host.burst.manifest import MANIFEST, VERSION, FrameEntry, Manifest, write_manifest
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import InputFormatError
@@ -107,38 +112,22 @@ def capture_quad_burst(
     ]
     done = sorted(set.intersection(*held))
     result = CaptureResult(root, skipped=list(done))
-    total = len(positions_mm)
-    t0 = time.monotonic()
-    try:
-        for i, rel in enumerate(positions_mm):
-            if i in done:
-                continue
-            target = start_mm + rel
-            moved = engine.move(target)
-            tiffs, quad = engine.acquire_quad()
-            name = f"frames/{i:04d}.tif"
-            for cam, data in zip(QUAD_CAMERAS, tiffs, strict=True):
-                write_atomic(root / cam / name, data, sync=True)
-            if not (root / QUAD_MANIFEST).exists():
-                _quad_manifest(quad, optics).write(root)
-            _record_set(
-                root,
-                manifests,
-                quad,
-                FrameEntry(
-                    file=name, index=i, stage_mm=round(target, 6), caliper_mm=moved.caliper_mm
-                ),
-            )
-            result.captured.append(i)
-            if progress is not None:
-                message = f"set {i} at {moved.caliper_mm:.3f} mm"
-                progress(len(done) + len(result.captured), total, message)
-    except BaseException:
-        engine.stop()
-        raise
-    finally:
-        result.seconds = time.monotonic() - t0
-    return result
+
+    def take(i: int, target: float, moved: MoveResult) -> None:
+        tiffs, quad = engine.acquire_quad()
+        name = f"frames/{i:04d}.tif"
+        for cam, data in zip(QUAD_CAMERAS, tiffs, strict=True):
+            write_atomic(root / cam / name, data, sync=True)
+        if not (root / QUAD_MANIFEST).exists():
+            _quad_manifest(quad, optics).write(root)
+        entry = FrameEntry(
+            file=name, index=i, stage_mm=round(target, 6), caliper_mm=moved.caliper_mm
+        )
+        _record_set(root, manifests, quad, entry)
+
+    return capture_positions(
+        engine, positions_mm, start_mm, result, take, progress=progress, label="set"
+    )
 
 
 def _camera_progress(

@@ -227,10 +227,12 @@ class CameraClient(Staging, Closing):
 
         The first thing a command asks, so it also tells a wrong URL apart: a server
         without the API (HTTP 404), or a port that does not answer HTTP within
-        `INFO_TIMEOUT_S`, raises `CameraClientError` saying which URL to give.
+        `INFO_TIMEOUT_S` (or the deadline, when shorter), raises `CameraClientError` saying
+        which URL to give.
         """
+        probe_s = min(INFO_TIMEOUT_S, self.limits.deadline_s)
         try:
-            answer = self._json("GET", "/info", deadline_s=INFO_TIMEOUT_S)
+            answer = self._json("GET", "/info", deadline_s=probe_s)
             result: dict[str, Any] = checked_dict(
                 InfoAnswer, answer, what=self._what("GET", "/info")
             )
@@ -245,7 +247,7 @@ class CameraClient(Staging, Closing):
             if not isinstance(e.__cause__, httpx.ReadTimeout):
                 raise
             raise CameraClientError(
-                f"{self.url} gave no HTTP answer within {INFO_TIMEOUT_S:g} s: is it "
+                f"{self.url} gave no HTTP answer within {probe_s:g} s: is it "
                 "elphel-camd's port (not the stage's, nor another service's)?"
             ) from e
         return result

@@ -27,7 +27,6 @@ from elphel_host import strict_json
 from elphel_host.confined import check_relative, inside
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import replacing, write_atomic
-from elphel_host.limits import HostLimits
 from elphel_host.tp.bayer import BAYER_PATTERNS
 from elphel_host.tp.dsi import DAMAGED_TIFF_ERRORS
 from elphel_host.tp.geometry import QuadGeometry
@@ -37,24 +36,6 @@ from elphel_host.tp.kernel_file import KernelFile, kernel_file, load_kernels
 F32 = NDArray[np.float32]
 
 MANIFEST = "quad.json"
-
-
-def load_json(path: Path) -> Any:
-    """The strict JSON document in ``path``; `InputFormatError` when it is not JSON.
-
-    A file over the ``json_bytes`` limit (`HostLimits`) is refused before it is read.
-    """
-    limits = HostLimits.from_env()
-    size = path.stat().st_size
-    if size > limits.json_bytes:
-        raise InputFormatError(
-            f"{path}: {size} bytes; limit json_bytes = {limits.json_bytes} "
-            "(raise ELPHEL_LIMIT_JSON_BYTES)"
-        )
-    try:
-        return strict_json.loads(path.read_bytes(), what=str(path), limit_bytes=limits.json_bytes)
-    except ValueError as e:
-        raise InputFormatError(str(e)) from e
 
 
 def camera_list(doc: Any, where: str) -> list[Any]:
@@ -281,7 +262,7 @@ class QuadManifest:
             raise InputFormatError(
                 f"{root}: no {MANIFEST} (expected a quad directory: {MANIFEST} + cam0..3.tif)"
             )
-        return cls.from_json(load_json(path), source=str(path))
+        return cls.from_json(strict_json.load_file(path), source=str(path))
 
     def write(self, root: str | Path) -> Path:
         """Write ``root/quad.json`` (atomically, strict JSON)."""

@@ -11,9 +11,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from elphel_host import strict_json
 from elphel_host.errors import InputFormatError
 from elphel_host.tp.geometry import IDEAL_POSITIONS, QuadGeometry
-from elphel_host.tp.io import camera_list, load_json, parse_position
+from elphel_host.tp.io import camera_list, parse_position
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,7 @@ def read_layout(path: str | Path) -> QuadLayout:
         When the file is not JSON or does not have this form.
     """
     file = Path(path)
-    doc = load_json(file)
+    doc = strict_json.load_file(file)
     ports: list[int] = []
     positions: list[tuple[float, float]] = []
     for i, cam in enumerate(camera_list(doc, str(file))):

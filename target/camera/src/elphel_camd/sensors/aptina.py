@@ -27,7 +27,7 @@ from elphel_camd.params import (
     WINDOW,
     check_range,
 )
-from elphel_camd.sensors.base import State
+from elphel_camd.sensors.base import IMAGE_PARAMS, State
 from elphel_camd.sensors.register_file import RegisterFileSensor
 from elphel_camd.sensors.registers import FieldRules
 
@@ -47,14 +47,7 @@ GAIN_REGISTERS = {
 
 WRITABLE = frozenset(
     {
-        "WOI_LEFT",
-        "WOI_TOP",
-        "WOI_WIDTH",
-        "WOI_HEIGHT",
-        "FLIPH",
-        "FLIPV",
-        "EXPOS",
-        "VEXPOS",
+        *IMAGE_PARAMS,
         *GAIN_REGISTERS,
         "TRIG",
         "TRIG_PERIOD",

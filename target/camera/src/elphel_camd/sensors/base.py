@@ -22,6 +22,19 @@ from elphel_camd.params import TRIG_SNAPSHOT
 State = dict[str, int]
 
 
+#: The window, orientation and exposure parameters every image sensor's driver writes.
+IMAGE_PARAMS = (
+    "WOI_LEFT",
+    "WOI_TOP",
+    "WOI_WIDTH",
+    "WOI_HEIGHT",
+    "FLIPH",
+    "FLIPV",
+    "EXPOS",
+    "VEXPOS",
+)
+
+
 class SensorDriver(ABC):
     """What the sequencer and the service use of a driver: identity and parameter model.
 

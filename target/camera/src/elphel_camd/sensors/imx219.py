@@ -35,7 +35,7 @@ from elphel_camd.params import (
     WINDOW,
     check_range,
 )
-from elphel_camd.sensors.base import State
+from elphel_camd.sensors.base import IMAGE_PARAMS, State
 from elphel_camd.sensors.imx219_registers import (
     ACTIVE_HEIGHT,
     ACTIVE_WIDTH,
@@ -72,14 +72,7 @@ _BAYER_AFTER_FLIPS = {(0, 0): "RGGB", (1, 0): "GRBG", (0, 1): "GBRG", (1, 1): "B
 
 WRITABLE = frozenset(
     {
-        "WOI_LEFT",
-        "WOI_TOP",
-        "WOI_WIDTH",
-        "WOI_HEIGHT",
-        "FLIPH",
-        "FLIPV",
-        "EXPOS",
-        "VEXPOS",
+        *IMAGE_PARAMS,
         *GAIN_PARAMS,
         "FP1000SLIM",
         "FPSFLAGS",
