@@ -1,11 +1,20 @@
 // The page: ports, live view (MJPEG over fetch, so the token can be sent), window drawn on
 // the picture, the parameter form, capture, the event log and the quad overview.
 
-import { ApiError, NeedsToken, events, json, multipart, request, setToken, token } from "./api.js";
+import { API, NeedsToken, events, json, multipart, request, setToken, token } from "./api.js";
 import { ParamForm, loadSchema } from "./controls.js";
 
 const $ = (id) => document.getElementById(id);
-const state = { port: 0, info: null, schema: null, params: {}, stream: null, quad: null };
+const state = {
+  port: 0,
+  info: null,
+  schema: null,
+  params: {},
+  stream: null,
+  quad: null,
+  readsPublic: false,
+  token: "none",
+};
 
 const form = new ParamForm($("param-form"), $("readonly"), async (changes) => {
   const query = {};
@@ -17,18 +26,89 @@ const form = new ParamForm($("param-form"), $("readonly"), async (changes) => {
   return answer;
 });
 
+// A 401 while a token is set: the camera no longer takes it (its token changed).
 function showError(where, e) {
-  where.textContent = e instanceof NeedsToken ? "needs the token" : e.message;
+  if (e instanceof NeedsToken && token()) refuseToken();
+  if (e instanceof NeedsToken) where.textContent = state.token === "refused" ? "token refused" : "needs the token";
+  else where.textContent = e.message;
 }
 
 // -- token --------------------------------------------------------------------------------
+// Whether reads need the token comes from the daemon's OpenAPI contract (open, and its
+// read operations carry no security when reads are public). A token is checked before it
+// is trusted, and reads that would answer 401 are not sent at all.
 
-function tokenChanged() {
-  const have = Boolean(token());
-  $("token-state").textContent = have ? "token set" : "no token";
-  $("needs-token").hidden = have;
-  $("param-form").disabled = !have;
-  $("capture-form").disabled = !have;
+const TOKEN_STATE = {
+  none: "no token",
+  checking: "checking the token…",
+  accepted: "token accepted",
+  refused: "token refused",
+  unchecked: "token not checked",
+};
+const TOKEN_PANEL = {
+  none: "needs the token: enter it above to change parameters",
+  checking: "checking the token…",
+  refused: "token refused: the camera does not accept it; enter the right one above",
+};
+
+function showToken(name, detail) {
+  state.token = name;
+  const ok = name === "accepted";
+  $("token-state").textContent = TOKEN_STATE[name];
+  $("token-state").dataset.state = name;
+  $("needs-token").hidden = ok;
+  $("needs-token").textContent = detail || TOKEN_PANEL[name] || "";
+  $("param-form").disabled = !ok;
+  $("capture-form").disabled = !ok;
+}
+
+function refuseToken() {
+  setToken(""); // a refused token is not sent again
+  showToken("refused");
+}
+
+const canRead = () => state.readsPublic || state.token === "accepted";
+
+async function readsArePublic() {
+  try {
+    const contract = await (await fetch("/openapi.json")).json();
+    return !contract.paths[`${API}/info`].get.security;
+  } catch {
+    return false; // not known: ask for the token rather than send reads that need it
+  }
+}
+
+// Reads that need the token prove it when reads are protected; otherwise a change that
+// changes nothing (an empty PATCH of a port's parameters) does. Answers [state, detail].
+async function checkToken() {
+  try {
+    state.info = await json("/info");
+    if (state.readsPublic) {
+      const ports = sensorPorts();
+      const port = ports.includes(state.port) ? state.port : ports[0];
+      await json(`/ports/${port}/params`, { method: "PATCH", body: {} });
+    }
+    return ["accepted"];
+  } catch (e) {
+    if (e instanceof NeedsToken) return ["refused"];
+    return ["unchecked", `token not checked: ${e.message}`];
+  }
+}
+
+// The newest token wins: a check that a newer one overtook shows nothing.
+const readsLearned = readsArePublic().then((open) => (state.readsPublic = open));
+let checks = 0;
+
+async function tokenChanged() {
+  const mine = ++checks;
+  await readsLearned;
+  if (token()) showToken("checking");
+  const [name, detail] = token() ? await checkToken() : ["none"];
+  if (mine !== checks) return;
+  if (name === "refused") refuseToken();
+  else showToken(name, detail);
+  if (canRead()) reconnect();
+  else shutOut();
 }
 
 $("token-form").addEventListener("submit", (ev) => {
@@ -36,12 +116,10 @@ $("token-form").addEventListener("submit", (ev) => {
   setToken($("token").value.trim());
   $("token").value = "";
   tokenChanged();
-  reconnect();
 });
 $("token-clear").addEventListener("click", () => {
   setToken("");
   tokenChanged();
-  reconnect();
 });
 
 // A new token: reads that needed one may work now. The form stays as it is (a message
@@ -53,6 +131,14 @@ function reconnect() {
   }
   if (!state.quad) liveView(state.port);
   eventLog();
+}
+
+// Reads need a token the page does not have: nothing is read until one is accepted.
+function shutOut() {
+  stopStream();
+  if (eventsAbort) eventsAbort.abort();
+  state.quad = null;
+  $("view-error").textContent = state.token === "refused" ? "token refused" : "needs the token";
 }
 
 // -- live view ----------------------------------------------------------------------------
@@ -145,7 +231,7 @@ function thermal(headers) {
 async function histogramLoop() {
   for (;;) {
     await new Promise((r) => setTimeout(r, 1500));
-    if (state.quad || state.frame === undefined) continue;
+    if (state.quad || state.frame === undefined || !canRead()) continue;
     try {
       // the newest frame's (its number is in the caption): the one on view may have left
       // the ring buffer by the time this asks, when the view lags behind the sensor
@@ -211,7 +297,7 @@ function setupDrag() {
     return [Math.max(0, Math.min(ev.clientX - r.left, r.width)), Math.max(0, Math.min(ev.clientY - r.top, r.height))];
   };
   view.addEventListener("pointerdown", (ev) => {
-    if (!state.schema || !state.schema.window || !token()) return;
+    if (!state.schema || !state.schema.window || state.token !== "accepted") return;
     ev.preventDefault();
     view.setPointerCapture(ev.pointerId);
     start = local(ev);
@@ -308,6 +394,7 @@ async function eventLog() {
         lastFrameLine[d.port] = now;
         add(`port ${d.port} frame ${d.frame}`, "frame");
       } else if (ev.type === "params") {
+        if (d.changes && !Object.keys(d.changes).length) continue; // a token check
         add(`port ${d.port} frame ${d.frame}: ${JSON.stringify(d.changes || d.register)}`, "params");
       } else if (ev.type === "error") {
         add(`port ${d.port} error: ${d.detail}`, "error");
@@ -377,6 +464,7 @@ async function quadLoop() {
       $("quad-sync").dataset.sync = String(stamps.size === 1);
     } catch (e) {
       showError($("quad-sync"), e);
+      if (e instanceof NeedsToken) return;
       await new Promise((r) => setTimeout(r, 2000));
     }
     await new Promise((r) => setTimeout(r, 200));
@@ -439,7 +527,7 @@ async function restart() {
   eventLog();
 }
 
-tokenChanged();
+showToken(token() ? "checking" : "none");
 setupDrag();
 histogramLoop();
-restart();
+tokenChanged();
