@@ -6,12 +6,15 @@ from __future__ import annotations
 import base64
 import hashlib
 import json
+import logging
 import re
+import time
 
 import pytest
 from fastapi.testclient import TestClient
 
 from elphel_camd.api import create_app
+from elphel_camd.api.deps import FailedAuth, LogLimit
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import build
@@ -102,3 +105,52 @@ def test_every_answer_says_nosniff_and_no_referrer(client, method, path, headers
     assert r.status_code == status, r.text
     assert r.headers["x-content-type-options"] == "nosniff"
     assert r.headers["referrer-policy"] == "no-referrer"
+
+
+@pytest.mark.parametrize("public_reads", [False, True])
+@pytest.mark.parametrize("order", ["wrong-right", "right-wrong", "right-right"])
+def test_two_authorization_headers_are_refused_on_every_path(camera, public_reads, order):
+    app = create_app(camera, token=TOKEN, public_reads=public_reads)
+    app.state.options.failed = FailedAuth(base_s=0.0, max_s=0.0)
+    values = {"wrong": b"Bearer not-the-token", "right": f"Bearer {TOKEN}".encode()}
+    twice = [(b"authorization", values[name]) for name in order.split("-")]
+    body = json.dumps({"EXPOS": 1000}).encode()
+    with TestClient(app) as c:
+        # PATCH goes through the fast path, the others through the routes: one rule.
+        for method, path, content in (
+            ("GET", "/api/v1/info", None),
+            ("GET", "/api/v1/ports/0/params", None),
+            ("PATCH", "/api/v1/ports/0/params", body),
+            ("POST", "/api/v1/ports/0/capture", None),
+        ):
+            headers = [(b"content-type", b"application/json"), *twice]
+            r = c.request(method, path, content=content, headers=headers)
+            expected = 200 if public_reads and method == "GET" else 401
+            assert r.status_code == expected, (method, path, r.text)
+            if expected == 401:
+                assert "2 Authorization headers" in r.json()["detail"]
+        assert c.patch("/api/v1/ports/0/params", content=body, headers=JSON_AUTH).status_code == 200
+
+
+def test_failed_token_lines_are_rate_limited_and_say_how_many_were_left_out(camera, caplog):
+    app = create_app(camera, token=TOKEN)
+    app.state.options.failed = FailedAuth(base_s=0.0, max_s=0.0)
+    app.state.options.auth_log = LogLimit(lines=3, window_s=0.5)
+    wrong = {"Authorization": "Bearer guess"}
+    with TestClient(app) as c, caplog.at_level(logging.INFO, "elphel_camd.auth"):
+        for _ in range(50):
+            assert c.get("/api/v1/info", headers=wrong).status_code == 401
+            assert c.get("/api/v1/info").status_code == 401  # no token: info lines, same limit
+        assert len(caplog.records) == 3
+        time.sleep(0.6)
+        assert c.get("/api/v1/info", headers=wrong).status_code == 401
+    assert len(caplog.records) == 4
+    assert "97 similar lines left out" in caplog.records[-1].getMessage()
+    assert "wrong token" in caplog.records[-1].getMessage()
+
+
+def test_the_log_limit_admits_its_lines_per_window():
+    limit = LogLimit(lines=2, window_s=60.0)
+    assert [limit.allow() for _ in range(5)] == [0, 0, None, None, None]
+    limit._times.clear()  # the window passed
+    assert limit.allow() == 3
