@@ -48,6 +48,7 @@ def create_app(
     public_reads: bool = False,
     max_body_bytes: int = 65536,
     keepalive_s: float = 15.0,
+    stream_idle_s: float = 300.0,
     allowed_hosts: Sequence[str] | None = None,
     cors_origins: Sequence[str] = (),
     fast_path: bool = True,
@@ -67,6 +68,8 @@ def create_app(
         Largest request body; larger ones get 413.
     keepalive_s
         Idle time after which the event stream sends a comment line.
+    stream_idle_s
+        An event stream with no event of its types for this long ends.
     allowed_hosts
         Host names (besides IP addresses and ``localhost``) the ``Host`` header may
         carry; None checks nothing (in-process clients), ``["*"]`` allows any.
@@ -90,7 +93,12 @@ def create_app(
         redoc_url=None,
     )
     app.state.service = service
-    app.state.options = ApiOptions(token=source, public_reads=public_reads, keepalive_s=keepalive_s)
+    app.state.options = ApiOptions(
+        token=source,
+        public_reads=public_reads,
+        keepalive_s=keepalive_s,
+        stream_idle_s=stream_idle_s,
+    )
     if fast_path:
         app.add_middleware(ParamsFastPath)  # added first: the innermost, under every limit
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)

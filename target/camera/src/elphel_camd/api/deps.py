@@ -160,6 +160,9 @@ class ApiOptions:
         Reads are answered without the token (writes still need it).
     keepalive_s
         Idle time after which the event stream sends a comment line.
+    stream_idle_s
+        An event stream with no event of its types for this long ends (keepalive comments
+        do not count).
     failed
         The per-peer back-off of failed tokens.
     auth_log
@@ -169,6 +172,7 @@ class ApiOptions:
     token: TokenSource
     public_reads: bool = False
     keepalive_s: float = 15.0
+    stream_idle_s: float = 300.0
     failed: FailedAuth = field(default_factory=FailedAuth)
     auth_log: LogLimit = field(default_factory=LogLimit)
 
