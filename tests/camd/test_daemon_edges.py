@@ -5,16 +5,20 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
 import json
 import logging
 import re
 import time
 
+import numpy as np
 import pytest
+import tifffile
 from fastapi.testclient import TestClient
 
-from elphel_camd.api import create_app
+from elphel_camd.api import create_app, tiff
 from elphel_camd.api.deps import FailedAuth, LogLimit
+from elphel_camd.sequencer import MAX_AHEAD
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import build
@@ -154,3 +158,47 @@ def test_the_log_limit_admits_its_lines_per_window():
     assert [limit.allow() for _ in range(5)] == [0, 0, None, None, None]
     limit._times.clear()  # the window passed
     assert limit.allow() == 3
+
+
+FULL = {"WOI_WIDTH": 2592, "WOI_HEIGHT": 1944, "WOI_LEFT": 0, "WOI_TOP": 0}
+
+
+def test_the_largest_count_is_the_last_page_that_ends_within_4_gib():
+    image = np.zeros((1944, 2592), dtype=np.uint16)
+    metadata = {"pad": "x" * (tiff.DESCRIPTION_BOUND_BYTES - 20)}
+    largest = tiff.largest_count(2592, 1944)
+    offset = 8
+    for _ in range(largest):
+        _, offset = tiff.page_chunks(image, metadata, offset=offset, last=False)
+    assert offset <= 2**32 - 1
+    with pytest.raises(ValueError, match="4 GiB"):
+        tiff.page_chunks(image, metadata, offset=offset, last=True)
+
+
+@pytest.mark.parametrize("scheduled", [False, True])
+def test_a_burst_past_4_gib_is_422_naming_the_largest_count_before_any_byte(
+    camera, client, scheduled
+):
+    largest = tiff.largest_count(2592, 1944)
+    assert 400 < largest < 489  # 489 full frames broke off at 4 GiB before this refusal
+    if scheduled:  # a larger window scheduled ahead counts as well as the one in effect
+        r = client.patch("/api/v1/ports/0/params?ahead=5", json=FULL, headers=AUTH)
+    else:
+        r = client.patch("/api/v1/ports/0/params", json=FULL, headers=AUTH)
+    assert r.status_code == 200, r.text
+    frame_before = camera.sequencer(0).this_frame
+    r = client.post(f"/api/v1/ports/0/capture?count={largest + 1}", headers=AUTH)
+    assert r.status_code == 422, r.text
+    body = r.json()
+    assert body["parameter"] == "count" and body["value"] == largest + 1
+    assert f"1..{largest} frames of the window 2592x1944" in body["allowed"]
+    assert camera.sequencer(0).this_frame == frame_before  # nothing was captured
+    # The same count of small frames fits (asked for and refused by the schema's 1..1024
+    # only): here 2 small frames are captured and end as a whole TIFF.
+    r = client.patch("/api/v1/ports/0/params?ahead=6", json=SMALL, headers=AUTH)  # after FULL
+    assert r.status_code == 200, r.text
+    camera.board.sim_advance(frames=MAX_AHEAD + 2)
+    r = client.post("/api/v1/ports/0/capture?count=2", headers=AUTH)
+    assert r.status_code == 200
+    with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
+        assert len(tif.pages) == 2 and tif.pages[0].shape == (48, 64)
