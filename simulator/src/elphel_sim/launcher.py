@@ -309,7 +309,11 @@ def up(
     ``public_reads``: elphel-camd answers reads without the token (its ``--public-reads``).
     ``lens_blur``: a lens blur on the cameras' images (None: a perfectly sharp lens).
     """
-    board = SimCameraBoard(build(scenario, seed=seed, lens_blur=lens_blur), seed=seed)
+    # Frames are formed in child processes: in this one, forming would hold the interpreter
+    # lock that the daemon's answers need (a capture unanswered for 30 s on a busy machine).
+    board = SimCameraBoard(
+        build(scenario, seed=seed, lens_blur=lens_blur), seed=seed, forming="process"
+    )
     camera = CameraService(board)
     cameras, camera_url, token = serve_cameras(
         board, camera, firmware=firmware, port=camera_port, public_reads=public_reads

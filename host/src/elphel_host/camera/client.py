@@ -206,11 +206,44 @@ class CameraClient(Staging, Closing):
     # -- frames ----------------------------------------------------------------------------
 
     def capture(self, port: int = 0, *, frame: int | None = None) -> CapturedFrame:
-        """The next frame of a port, or frame ``frame`` from the daemon's ring buffer."""
+        """The next frame of a port, or frame ``frame`` from the daemon's ring buffer.
+
+        A capture may take longer than ``timeout_s`` on a busy machine (the frame's image
+        is still being formed): its wait follows the daemon's progress (`_capture_answer`).
+        """
         query = {} if frame is None else {"frame": frame}
-        response = self._request("POST", f"/ports/{port}/capture", params=query)
+        response = self._capture_answer(port, query)
         image, metadata = read_tiff_metadata(response.content)
         return CapturedFrame(tiff=response.content, image=image, metadata=metadata)
+
+    def _capture_answer(self, port: int, query: dict[str, Any]) -> httpx.Response:
+        """The answer to a capture, waited for while the daemon shows progress.
+
+        A capture that brings no byte within ``timeout_s`` is asked again as long as the
+        daemon answers ``GET /ports/{port}/frame`` with a frame number past the one it
+        gave before the try (it runs and its frames come: the image is being formed, not
+        lost), at most `CAPTURE_TRIES` times. A daemon that does not answer, or whose
+        frames stand still, ends the wait with the read timeout's error.
+        """
+        path = f"/ports/{port}/capture"
+        for _ in range(CAPTURE_TRIES - 1):
+            before = self._frame_number(port)
+            try:
+                return self._request("POST", path, params=query)
+            except CameraClientError as e:
+                if not isinstance(e.__cause__, httpx.ReadTimeout) or before is None:
+                    raise
+                after = self._frame_number(port)
+                if after is None or after <= before:
+                    raise
+        return self._request("POST", path, params=query)
+
+    def _frame_number(self, port: int) -> int | None:
+        """The port's current frame number, or None if the daemon does not answer it."""
+        try:
+            return int(self._http.get(f"/ports/{port}/frame").json()["frame"])
+        except (httpx.HTTPError, ValueError, KeyError, TypeError):
+            return None
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
         """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF.
@@ -337,6 +370,10 @@ class CameraClient(Staging, Closing):
                     f"event stream from {self.url} ended and could not be reopened "
                     f"in {self.retry_s} s"
                 )
+
+
+#: How many times a single-frame capture is sent while the daemon shows progress.
+CAPTURE_TRIES = 8
 
 
 def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:
