@@ -158,3 +158,10 @@ def test_a_capture_gives_up_when_frames_stand_still_or_after_its_tries(slow, stu
     with camera(daemon) as cam, pytest.raises(CameraClientError, match="timed out"):
         cam.capture(0)
     assert daemon.captures == (1 if stuck else CAPTURE_TRIES)
+
+
+def test_a_burst_waits_on_for_its_first_bytes_while_the_frames_move_on():
+    daemon = SlowFormingDaemon(slow=2)
+    with camera(daemon) as cam:
+        got = cam.burst(1)
+    assert daemon.captures == 3 and got.complete and len(got.metadata) == 1

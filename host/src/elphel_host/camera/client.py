@@ -231,12 +231,16 @@ class CameraClient(Staging, Closing):
             try:
                 return self._request("POST", path, params=query)
             except CameraClientError as e:
-                if not isinstance(e.__cause__, httpx.ReadTimeout) or before is None:
-                    raise
-                after = self._frame_number(port)
-                if after is None or after <= before:
+                if not self._still_forming(e.__cause__, port, before):
                     raise
         return self._request("POST", path, params=query)
+
+    def _still_forming(self, error: BaseException | None, port: int, before: int | None) -> bool:
+        """Whether a capture that timed out is worth asking again: the daemon's frames moved."""
+        if not isinstance(error, httpx.ReadTimeout) or before is None:
+            return False
+        after = self._frame_number(port)
+        return after is not None and after > before
 
     def _frame_number(self, port: int) -> int | None:
         """The port's current frame number, or None if the daemon does not answer it."""
@@ -250,6 +254,8 @@ class CameraClient(Staging, Closing):
 
         The daemon sends every frame or breaks the connection off; a burst that ends
         early raises `PartialBurstError`, whose ``partial`` keeps the frames received.
+        A burst whose first bytes do not come within ``timeout_s`` is waited for as a
+        single capture is (`_capture_answer`).
         """
         query: dict[str, Any] = {"count": count}
         if frame is not None:
@@ -258,7 +264,9 @@ class CameraClient(Staging, Closing):
         data = bytearray()
         broken: str | None = None
         backoff = Backoff(self.retry_s)
+        tries = 1
         while True:
+            before = self._frame_number(port)
             try:
                 with self._http.stream("POST", path, params=query) as response:
                     if response.status_code >= 400:
@@ -268,6 +276,9 @@ class CameraClient(Staging, Closing):
                         data += chunk
             except httpx.TransportError as e:
                 if not data and retryable("POST", e) and backoff.wait():
+                    continue
+                if not data and tries < CAPTURE_TRIES and self._still_forming(e, port, before):
+                    tries += 1
                     continue
                 if not data:
                     raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
