@@ -10,7 +10,7 @@ SETUP := host/pyproject.toml target/camera/pyproject.toml simulator/pyproject.to
 $(STAMP): $(SETUP)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e 'target/camera[fast]' -e host -e simulator -r requirements-dev.txt
+	$(BIN)/python -m pip install -q -e 'target/camera[fast,v4l2]' -e host -e simulator -r requirements-dev.txt
 	touch $@
 
 demo: $(STAMP)
@@ -23,8 +23,9 @@ lint: $(STAMP)
 # pytest exits 5 when it collected no tests; make treats that as a failure, as it should.
 # Four pytest-xdist workers on two cores: most of the suite's wall time is tests waiting on
 # real time (daemons starting, frame clocks, stage moves), and four workers halve it.
+# loadgroup keeps the tests of one xdist_group on one worker (the kernel tier boots once).
 test: $(STAMP) lint
-	$(BIN)/pytest -n 4
+	$(BIN)/pytest -n 4 --dist loadgroup
 
 bench: $(STAMP)
 	@for b in bench/*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done

@@ -35,6 +35,8 @@ import numpy as np
 
 from elphel_host.parallel import parallel_map, single_threaded_blas
 from elphel_host.tp import io, processor, tile_pass
+from elphel_host.tp.config import TpConfig
+from elphel_host.tp.images import QuadImages
 from elphel_sim import quad as simquad
 
 ORTHO_PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3))  # top, bottom (horizontal); left, right (vertical)
@@ -153,7 +155,7 @@ def matmul_peak(prep: tile_pass.PreparedQuad, threads: int, seconds: float = 1.0
     """GFLOP/s of batched float32 products of the transform's shapes on ``threads`` threads."""
     rng = np.random.default_rng(0)
     mats = [m for _, m in prep.transform.blocks]
-    chunk = processor.TpConfig().chunk_tiles
+    chunk = TpConfig().chunk_tiles
     data = [rng.random((chunk, m.shape[0]), dtype=np.float32) for m in mats]
     flops_one = sum(2 * chunk * m.shape[0] * m.shape[1] for m in mats)
 
@@ -176,9 +178,7 @@ def matmul_peak(prep: tile_pass.PreparedQuad, threads: int, seconds: float = 1.0
     return best
 
 
-def traced_tp(
-    quad: processor.QuadImages, config: processor.TpConfig
-) -> tuple[dict[str, np.ndarray], int]:
+def traced_tp(quad: QuadImages, config: TpConfig) -> tuple[dict[str, np.ndarray], int]:
     """DSI and peak traced memory of one run under tracemalloc (slower: not timed)."""
     tracemalloc.start()
     try:
@@ -188,9 +188,7 @@ def traced_tp(
         tracemalloc.stop()
 
 
-def timed_tp(
-    quad: processor.QuadImages, config: processor.TpConfig
-) -> tuple[float, dict[str, float]]:
+def timed_tp(quad: QuadImages, config: TpConfig) -> tuple[float, dict[str, float]]:
     """Seconds of one DSI and its stage times (summed over threads)."""
     with tile_pass.stage_times() as st:
         t = time.perf_counter()
@@ -226,7 +224,7 @@ def main() -> int:
         simquad.write_quad_dir(tmp, raw, rig)
         qs = io.read_quad_dir(tmp)
     quad = qs.quad
-    config = processor.TpConfig(threads=args.threads, refine_passes=1)
+    config = TpConfig(threads=args.threads, refine_passes=1)
 
     load_before = os.getloadavg()[0]
     # the first run is traced (tracemalloc); then the TP and SGBM take turns, so that

@@ -68,14 +68,14 @@ def test_detect_mt9p006_by_chip_version():
 
 
 def test_detect_reports_nothing_when_no_device_answers():
-    # Each known sensor is probed twice (one retry): MT9P006, MT9F002, Lepton 3.5.
-    bus = ScriptedBus([errno.EREMOTEIO] * 6)
+    # Each known sensor is probed twice (one retry): MT9P006, MT9F002, Lepton 3.5, IMX219.
+    bus = ScriptedBus([errno.EREMOTEIO] * 8)
     assert detect(bus, bus_name="port 1") is None
     bus.done()
 
 
 def test_detect_rejects_other_chip_id():
-    bus = ScriptedBus([[("w", 0x48, b"\x00"), ("r", 0x48, b"\x84\x11")], *[errno.EREMOTEIO] * 4])
+    bus = ScriptedBus([[("w", 0x48, b"\x00"), ("r", 0x48, b"\x84\x11")], *[errno.EREMOTEIO] * 6])
     assert detect(bus, bus_name="port 0") is None
     bus.done()
 

@@ -6,7 +6,15 @@ CCI registers.
 
 import pytest
 
-from elphel_camd.sensors import DRIVERS, MT9F002, MT9P006, Lepton35, RegisterFileSensor, cci
+from elphel_camd.sensors import (
+    DRIVERS,
+    IMX219,
+    MT9F002,
+    MT9P006,
+    Lepton35,
+    RegisterFileSensor,
+    cci,
+)
 from elphel_camd.sensors import mt9f002 as f002
 from elphel_camd.sensors import mt9p006 as p006
 from elphel_camd.sensors.registers import Access, Register, RegisterTable
@@ -18,7 +26,7 @@ REGISTER_FILE_DRIVERS = [d for d in DRIVERS if issubclass(d, RegisterFileSensor)
 
 
 def test_detection_order():
-    assert (MT9P006, MT9F002, Lepton35) == DRIVERS
+    assert (MT9P006, MT9F002, Lepton35, IMX219) == DRIVERS
 
 
 def test_overlapping_addresses_are_rejected():

@@ -64,8 +64,9 @@ def test_camera_commands_say_what_a_newcomer_needs(elphel_rig, capsys) -> None:
     assert code == 0
     read = json.loads(out)
     assert read["sensor"] == {"model": "MT9P006", "pixel_pitch_um": 2.2, "bayer": "GRBG", "port": 0}
-    code, out, _ = run(capsys, "burst", "plan", *optics, "--pixel-pitch-um", "2.2", "--bayer",
-                       "--json")
+    code, out, _ = run(
+        capsys, "burst", "plan", *optics, "--pixel-pitch-um", "2.2", "--bayer", "--json"
+    )
     assert code == 0
     by_hand = json.loads(out)
     assert read["bayer"] is True and read["tilt_deg"] == by_hand["tilt_deg"]

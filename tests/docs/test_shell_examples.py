@@ -21,6 +21,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
 QUICKSTART = (ROOT / "docs" / "quickstart.md", "## 5. Set, capture and follow from the host")
+
+
 def sh_block(page: Path, heading: str) -> list[str]:
     """The command lines of the first ``sh`` block after ``heading`` (comments dropped)."""
     text = page.read_text()

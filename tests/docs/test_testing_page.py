@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -24,18 +26,27 @@ def _blocks(lang: str) -> dict[str, str]:
 def _pytest_in(folder: Path, *, timeout: float) -> subprocess.CompletedProcess[str]:
     """Run pytest over ``folder`` as a fresh project: no conftest or rootdir of this repository.
 
-    The fixture comes from the installed elphel-sim's pytest11 entry point only.
+    The fixture comes from the installed elphel-sim's pytest11 entry point only. The run
+    has a process group of its own, so a timeout also ends the rig it started.
     """
     env = {k: v for k, v in os.environ.items() if not k.startswith("ELPHEL_")}
     env.pop("PYTEST_ADDOPTS", None)
-    return subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(folder)],
+    args = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(folder)]
+    with subprocess.Popen(
+        args,
         cwd=folder,
-        capture_output=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
-        timeout=timeout,
         env=env,
-    )
+        start_new_session=True,
+    ) as run:
+        try:
+            out, err = run.communicate(timeout=timeout)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(run.pid, signal.SIGKILL)  # whatever the run left behind
+    return subprocess.CompletedProcess(args, run.returncode, out, err)
 
 
 def test_the_pages_capture_script_and_its_test_pass_in_a_project_of_their_own(

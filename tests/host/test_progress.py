@@ -5,12 +5,13 @@ from __future__ import annotations
 import io
 import json
 import re
+import time
 from pathlib import Path
 
 import pytest
 
 from elphel_host.cli import main
-from elphel_host.progress import ProgressLine
+from elphel_host.progress import ProgressLine, format_rate
 from tests.host.jp4.test_convert import record
 
 ANSI = re.compile(r"\x1b\[[0-9;]*m")
@@ -56,10 +57,58 @@ def test_a_pipe_gets_plain_lines_with_rate_and_time_left() -> None:
     line = ProgressLine(pipe, clock=clock)
     line.update("converting 1/100: a", done=1, total=100)
     clock.t += 2.0
-    line.update("converting 5/100: b", done=5, total=100)  # 2/s, 95 left: 48 s
+    line.update("converting 5/100: b", done=5, total=100)  # 2.5/s since the start: 38 s
     line.end()
-    assert pipe.getvalue() == "converting 1/100: a\nconverting 5/100: b (2/s, 0:48 left)\n"
+    assert pipe.getvalue() == "converting 1/100: a\nconverting 5/100: b (2.5/s, 0:38 left)\n"
     assert "\r" not in pipe.getvalue() and "#" not in pipe.getvalue()
+
+
+def test_the_rate_counts_from_the_start_of_the_work() -> None:
+    # two quads done 8.7 s and 8.8 s after the start were once reported as 9.07/s
+    pipe, clock = io.StringIO(), Clock()
+    line = ProgressLine(pipe, clock=clock)
+    clock.t += 8.7
+    line.update("1/2 quads", done=1, total=2)
+    clock.t += 0.1
+    line.update("2/2 quads", done=2, total=2)
+    assert pipe.getvalue().splitlines() == [
+        "1/2 quads (0.11/s, 0:09 left)",
+        "2/2 quads (0.23/s, 0:00 left)",
+    ]
+    # resumed work: the rate counts what was done since the restart only
+    line.restart(2)
+    clock.t += 1.0
+    line.update("3/4 quads", done=3, total=4)
+    assert pipe.getvalue().splitlines()[-1] == "3/4 quads (1/s, 0:01 left)"
+
+
+def test_rates_read_like_numbers_with_their_unit() -> None:
+    assert format_rate(1470.4) == "1,470/s" and format_rate(36512.0) == "36,512/s"
+    assert format_rate(14.66) == "14.7/s" and format_rate(9.074) == "9.07/s"
+    assert format_rate(0.5) == "0.5/s" and format_rate(2.0) == "2/s"
+    assert format_rate(0.0042) == "0.0042/s"
+    assert format_rate(0.417, "mm") == "0.42 mm/s"
+    pipe, clock = io.StringIO(), Clock()
+    line = ProgressLine(pipe, clock=clock)
+    clock.t += 2.0
+    line.update("stage: 1.2 of 4.8 mm", done=1.2, total=4.8, unit="mm")
+    assert pipe.getvalue() == "stage: 1.2 of 4.8 mm (0.6 mm/s, 0:06 left)\n"
+
+
+def test_a_silent_step_ticks_on_a_terminal_and_says_itself_once_on_a_pipe() -> None:
+    tty = Tty()
+    line = ProgressLine(tty)
+    with line.ticking("mfsr: fusing b (robust x2)", every_s=0.01):
+        time.sleep(0.2)
+    line.end()
+    shown = tty.getvalue().split("\x1b[K")
+    assert shown[0] == "\rmfsr: fusing b (robust x2)"
+    assert re.fullmatch(r"\rmfsr: fusing b \(robust x2\) \(0 s\)", shown[1]), shown[1]
+    pipe = io.StringIO()
+    line = ProgressLine(pipe)
+    with line.ticking("mfsr compare: 1/3 bicubic x2", every_s=0.01):
+        time.sleep(0.05)
+    assert pipe.getvalue() == "mfsr compare: 1/3 bicubic x2\n"
 
 
 def test_hours_in_the_time_left() -> None:

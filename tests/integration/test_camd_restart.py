@@ -59,9 +59,7 @@ def stop(proc: subprocess.Popen[str]) -> None:
         proc.wait()
 
 
-def open_streams(
-    url: str, n: int, token: str | None
-) -> tuple[list[threading.Thread], list[float]]:
+def open_streams(url: str, n: int, token: str | None) -> tuple[list[threading.Thread], list[float]]:
     """``n`` event streams read in threads; the time each one ended."""
     ended: list[float] = []
     headers = {"Authorization": f"Bearer {token}"} if token else {}

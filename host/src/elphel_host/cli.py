@@ -13,8 +13,11 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from PIL import Image
+
 from elphel_host import __version__
 from elphel_host.errors import ElphelError
+from elphel_host.shown import shown
 
 # Area modules, each with register(subparsers). Add a module here to add a subcommand.
 AREAS = (
@@ -26,6 +29,7 @@ AREAS = (
     "elphel_host.cloud.cli",
     "elphel_host.depth.cli",
     "elphel_host.recordings.cli",
+    "elphel_host.calibrate.cli",
 )
 
 
@@ -41,18 +45,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Errors that bad input (a device's answer, a file) raises inside libraries: what a
+# user can do about them is in the message, and a traceback would only hide it.
+_FAILURES: tuple[type[BaseException], ...] = (
+    ElphelError,
+    OSError,
+    ValueError,
+    Image.DecompressionBombError,
+    MemoryError,
+    RecursionError,
+)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         code: int = args.func(args)
-    except KeyboardInterrupt:
-        print("elphel: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        said = f": {e}" if str(e) else ""  # what was kept and how to resume, when known
+        print(f"elphel: interrupted{said}", file=sys.stderr)
         return 130
-    except (ElphelError, OSError, ValueError) as e:
-        print(f"elphel: {e}", file=sys.stderr)
+    except _FAILURES as e:
+        print(f"elphel: {_one_line(e)}", file=sys.stderr)
         return 1
     return code
+
+
+def _one_line(error: BaseException) -> str:
+    """The error's message, terminal-safe and on one line (its type when it has none)."""
+    text = str(error) or type(error).__name__
+    if isinstance(error, Image.DecompressionBombError | MemoryError | RecursionError):
+        text = f"{type(error).__name__}: {text}"
+    return shown(text, limit_chars=500)
 
 
 if __name__ == "__main__":

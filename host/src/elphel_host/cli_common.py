@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from elphel_host.shown import shown
+
 CAMERA_URL_ENV = "ELPHEL_CAMERA_URL"
 CAMERA_TOKEN_ENV = "ELPHEL_CAMERA_TOKEN"
 STAGE_URL_ENV = "ELPHEL_STAGE_URL"
@@ -30,7 +32,7 @@ def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
 
 def fail(message: str) -> int:
     """Print the one-line error of a failed command on stderr; its exit code, 1."""
-    print(f"elphel: {message}", file=sys.stderr)
+    print(f"elphel: {shown(message, limit_chars=500)}", file=sys.stderr)
     return 1
 
 

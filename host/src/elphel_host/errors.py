@@ -54,6 +54,22 @@ class EventStreamError(CameraClientError, ValueError):
     """An event of the daemon's event stream is malformed: names the event and the field."""
 
 
+class DeviceError(ElphelError):
+    """A device (camera, stage) broke a bound of `elphel_host.limits` or its own protocol."""
+
+
+class DeviceLimitError(DeviceError, ValueError):
+    """An answer or file claims or sends more than a bound allows; names device and bound."""
+
+
+class DeviceTimeout(DeviceError, TimeoutError):  # noqa: N818 - like StageTimeout
+    """A request had no complete answer within its overall deadline."""
+
+
+class DeviceAnswerError(DeviceError, ValueError):
+    """An answer lacks the documented form: names the device, the field and what is allowed."""
+
+
 class InputFormatError(ElphelError, ValueError):
     """A file or directory given as input does not have the documented format."""
 

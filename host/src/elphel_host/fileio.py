@@ -44,9 +44,7 @@ def write_atomic(path: str | Path, data: bytes, *, sync: bool = False) -> Path:
 
 
 @contextlib.contextmanager
-def replacing(
-    path: str | Path, *, sync: bool = False, keep_suffix: bool = False
-) -> Iterator[Path]:
+def replacing(path: str | Path, *, sync: bool = False, keep_suffix: bool = False) -> Iterator[Path]:
     """Yield a temporary name to write ``path``'s content to; rename it into place on success.
 
     On an exception the temporary file is removed and ``path`` is left as it was.

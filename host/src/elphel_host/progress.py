@@ -10,11 +10,25 @@ from __future__ import annotations
 
 import io
 import sys
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import TextIO
 
 BAR_WIDTH = 24
+
+
+def format_rate(per_second: float, unit: str = "") -> str:
+    """A rate for people: ``"1,470/s"``, ``"14.7 mm/s"``, ``"0.52/s"`` (3 digits, no exponent)."""
+    if per_second >= 100:
+        number = f"{per_second:,.0f}"
+    elif per_second >= 10:
+        number = f"{per_second:.1f}"
+    else:
+        number = f"{per_second:.2g}" if per_second < 0.01 else f"{per_second:.2f}".rstrip("0")
+        number = number.rstrip(".")
+    return f"{number} {unit}/s" if unit else f"{number}/s"
 
 
 def _clock(seconds: float) -> str:
@@ -38,20 +52,27 @@ class ProgressLine:
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._open = False
         self._clock = clock
-        self._start: tuple[float, int] | None = None
+        self._start: tuple[float, float] = (clock(), 0.0)
 
-    def rate_text(self, done: int, total: int) -> str:
-        """``"2.0/s, 0:04 left"`` since the first update (empty until something is done)."""
+    def restart(self, done: float = 0.0) -> None:
+        """Count the rate from now and from ``done`` (work resumed with ``done`` already done)."""
+        self._start = (self._clock(), done)
+
+    def rate_text(self, done: float, total: float, unit: str = "") -> str:
+        """``"2/s, 0:04 left"``: the rate since the line was made (or `restart`).
+
+        The time left is at that rate; the text is empty until something is done.
+        """
         now = self._clock()
-        if self._start is None or done < self._start[1]:
+        if done < self._start[1]:
             self._start = (now, done)
         t0, d0 = self._start
         if now <= t0 or done <= d0:
             return ""
         rate = (done - d0) / (now - t0)
-        return f"{rate:.3g}/s, {_clock(max(total - done, 0) / rate)} left"
+        return f"{format_rate(rate, unit)}, {_clock(max(total - done, 0) / rate)} left"
 
-    def _bar(self, done: int, total: int) -> str:
+    def _bar(self, done: float, total: float) -> str:
         """The progress bar of rich, ``BAR_WIDTH`` cells, as terminal text (colours included)."""
         from rich.console import Console
         from rich.progress_bar import ProgressBar
@@ -67,16 +88,23 @@ class ProgressLine:
         return captured.get()
 
     def update(
-        self, text: str, *, done: int | None = None, total: int | None = None, detail: str = ""
+        self,
+        text: str,
+        *,
+        done: float | None = None,
+        total: float | None = None,
+        unit: str = "",
+        detail: str = "",
     ) -> None:
         """Show ``text`` as the current state (replacing the previous one on a terminal).
 
-        With ``done`` of ``total`` (``text`` names the counts), the rate and the time
-        left follow it, and a terminal shows a bar before it. ``detail`` comes last,
-        after the rate (e.g. the progress of one step of the counted whole).
+        With ``done`` of ``total`` (``text`` names the counts, in ``unit`` if they are
+        not a count of things), the rate and the time left follow it, and a terminal
+        shows a bar before it. ``detail`` comes last, after the rate (e.g. the progress
+        of one step of the counted whole).
         """
         if done is not None and total:
-            rate = self.rate_text(done, total)
+            rate = self.rate_text(done, total, unit)
             if rate:
                 text = f"{text} ({rate})"
             if self.tty:
@@ -89,6 +117,32 @@ class ProgressLine:
         else:
             self.stream.write(text + "\n")
         self.stream.flush()
+
+    @contextmanager
+    def ticking(self, text: str, *, every_s: float = 1.0) -> Iterator[None]:
+        """Show ``text`` while the block runs: a step that reports nothing itself.
+
+        A terminal redraws it every ``every_s`` with the seconds elapsed; a pipe gets
+        ``text`` once. The line stays open for what comes next.
+        """
+        t0 = self._clock()
+        self.update(text)
+        if not self.tty:
+            yield
+            return
+        stop = threading.Event()
+
+        def tick() -> None:
+            while not stop.wait(every_s):
+                self.update(f"{text} ({self._clock() - t0:.0f} s)")
+
+        thread = threading.Thread(target=tick, name="progress-tick", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            thread.join()
 
     def end(self) -> None:
         """Finish the updating line (a no-op when not on a terminal)."""

@@ -21,6 +21,7 @@ from elphel_camd.boards import Frame
 from elphel_camd.errors import CaptureUnavailableError, FrameNotAvailableError, PortError
 from elphel_camd.i2c.bus import I2CBus
 from elphel_sim.chips.bus import SimI2CBus
+from elphel_sim.chips.imx219 import SimIMX219
 from elphel_sim.chips.lepton35 import SimLepton35
 from elphel_sim.chips.mt9f002 import SimMT9F002
 from elphel_sim.chips.mt9p006 import SimMT9P006
@@ -42,6 +43,7 @@ SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
     "MT9P006": SimMT9P006,
     "MT9F002": SimMT9F002,
     "LEPTON35": SimLepton35,
+    "IMX219": SimIMX219,
 }
 
 
@@ -74,6 +76,7 @@ class SimCameraBoard:
         self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
         self.quad = scenario.quad
+        self.daemon_per_port = scenario.daemon_per_port
         self._buses: dict[int, SimI2CBus] = {}
         self.chips: dict[int, SimSensor] = {}
         self.fpga: dict[int, PortFPGA] = {}

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 from elphel_sim import __version__
 from elphel_sim.render.optics import MAX_LENS_BLUR_PX, LensBlur
@@ -65,11 +68,55 @@ def build_parser() -> argparse.ArgumentParser:
         f"(0..{MAX_LENS_BLUR_PX:g}; default: a perfectly sharp lens)",
     )
     up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
+    _add_calib_views(sub)
     return p
+
+
+def _add_calib_views(sub: Any) -> None:
+    cv = sub.add_parser(
+        "calib-views",
+        help="write a views directory of a simulated camera or quad looking at a checkerboard",
+        description="Render views of a printed checkerboard through cameras with their own "
+        "lens distortion, rotation, focal length and blur (Bayer, shot and read noise) and "
+        "write them as `elphel calibrate solve` reads them, with truth.json beside them.",
+    )
+    cv.add_argument("out", metavar="VIEWS_DIR", type=Path)
+    cv.add_argument("--cameras", type=int, choices=(1, 4), default=4)
+    cv.add_argument("--views", type=int, default=24, help="board poses (default 24)")
+    cv.add_argument("--width", type=int, default=1296)
+    cv.add_argument("--height", type=int, default=968)
+    cv.add_argument("--pattern", default="checkerboard:9x6:25", metavar="SPEC")
+    cv.add_argument("--seed", type=int, default=0, help="seed of the rig, the poses and the noise")
+    cv.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _calib_views(args: argparse.Namespace) -> int:
+    from elphel_host.calibrate.pattern import Checkerboard
+    from elphel_sim.calib_rig import board_poses, make_rig, truth_json, write_views
+    from elphel_sim.calib_target import PrintedBoard
+
+    board = PrintedBoard(Checkerboard.parse(args.pattern))
+    rig = make_rig(args.width, args.height, cameras=args.cameras, seed=args.seed)
+    need = 1 if args.cameras == 1 else 2
+    poses = board_poses(rig, board, args.views, seed=args.seed + 1, min_cameras=need)
+    paths = write_views(args.out, rig, board, poses, seed=args.seed + 100)
+    truth = args.out / "truth.json"
+    truth.write_text(json.dumps(truth_json(rig, board, poses), indent=1) + "\n")
+    result = {"views_dir": str(args.out), "views": len(paths), "truth": str(truth)}
+    print(
+        json.dumps(result) if args.json else f"{len(paths)} views in {args.out}, truth in {truth}"
+    )
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "calib-views":
+        try:
+            return _calib_views(args)
+        except (OSError, ValueError) as e:
+            print(f"elphel-sim: {e}", file=sys.stderr)
+            return 1
     from elphel_sim.launcher import up
 
     try:
@@ -83,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             public_reads=args.public_reads,
             lens_blur=args.lens_blur,
         )
-    except OSError as e:
+    except (OSError, ValueError) as e:
         print(f"elphel-sim: {e}", file=sys.stderr)
         return 1
 

@@ -30,6 +30,7 @@ from elphel_camd.store import new_token
 from elphel_host.cloud.ply import ply_bytes
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.faults import fault_router
+from elphel_sim.port_view import PortView
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
 from elphel_sim.relief import depth_map, surface_cloud
@@ -293,6 +294,41 @@ def print_announcement(announce: dict[str, Any], *, scenario: str, seed: int) ->
     print(f"  try: {hint}", flush=True)
 
 
+def serve_daemons(
+    board: SimCameraBoard, *, firmware: str, port: int, public_reads: bool
+) -> tuple[list[CameraService], list[Served], list[str], list[str | None]]:
+    """The board's daemons: one for the board, or one per camera (``daemon_per_port``).
+
+    Returns the camera services, their servers, their URLs and their tokens; ``port``
+    is the first daemon's TCP port (the others take free ones).
+    """
+    if not board.daemon_per_port:
+        camera = CameraService(board)
+        one, url, token = serve_cameras(
+            board, camera, firmware=firmware, port=port, public_reads=public_reads
+        )
+        return [camera], one, [url], [token]
+    if firmware != "camd":
+        raise ValueError(
+            f"firmware={firmware!r}: this scenario's cameras are each served by elphel-camd "
+            "(allowed: camd)"
+        )
+    cameras: list[CameraService] = []
+    served: list[Served] = []
+    urls: list[str] = []
+    tokens: list[str | None] = []
+    for n, camera_port in enumerate(sorted(board.fpga)):
+        camera = CameraService(PortView(board, camera_port))
+        servers, url, token = serve_cameras(
+            board, camera, firmware=firmware, port=port if n == 0 else 0, public_reads=public_reads
+        )
+        cameras.append(camera)
+        served += servers
+        urls.append(url)
+        tokens.append(token)
+    return cameras, served, urls, tokens
+
+
 def up(
     *,
     scenario: str,
@@ -308,37 +344,43 @@ def up(
 
     ``public_reads``: elphel-camd answers reads without the token (its ``--public-reads``).
     ``lens_blur``: a lens blur on the cameras' images (None: a perfectly sharp lens).
+    A scenario with a daemon per camera (pi-pair) also announces ``camera_urls`` and
+    ``tokens``, camera i being port i of the inspection endpoint.
     """
     # Frames are formed in child processes: in this one, forming would hold the interpreter
     # lock that the daemon's answers need (a capture unanswered for 30 s on a busy machine).
     board = SimCameraBoard(
         build(scenario, seed=seed, lens_blur=lens_blur), seed=seed, forming="process"
     )
-    camera = CameraService(board)
-    cameras, camera_url, token = serve_cameras(
-        board, camera, firmware=firmware, port=camera_port, public_reads=public_reads
+    cameras, served, urls, tokens = serve_daemons(
+        board, firmware=firmware, port=camera_port, public_reads=public_reads
     )
     board.start_clock()
     stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
-    announce = {
-        "camera_url": camera_url,
-        "token": token,
-        "stage_url": stage.tcp_url,
-        "stage_pty": stage.pty_path,
-        "sim_url": sim_served.url,
+    announce: dict[str, Any] = {"camera_url": urls[0], "token": tokens[0]}
+    if board.daemon_per_port:
+        announce.update(camera_urls=urls, tokens=tokens)
+    announce.update(
+        stage_url=stage.tcp_url,
+        stage_pty=stage.pty_path,
+        sim_url=sim_served.url,
         **(lens_blur or SHARP).to_json(),
-    }
+    )
     if as_json:
         print(json.dumps(announce), flush=True)
     else:
         print_announcement(announce, scenario=scenario, seed=seed)
     try:
-        asyncio.run(serve_all([*cameras, sim_served], on_shutdown=[camera.events.close]))
+        closing = [camera.events.close for camera in cameras]
+        asyncio.run(serve_all([*served, sim_served], on_shutdown=closing))
     finally:
         stage.close()
-        camera.close()
-        for s in (*cameras, sim_served):
+        for camera in cameras:
+            camera.close()  # a single daemon closes its board too
+        if board.daemon_per_port:
+            board.close()
+        for s in (*served, sim_served):
             s.sock.close()
     print("elphel-sim: stopped", file=sys.stderr)
     return 0

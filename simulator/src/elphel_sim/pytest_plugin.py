@@ -51,6 +51,9 @@ class Rig:
         fault hooks (``{sim_url}/faults``: `fault`, `faults`, `clear_faults`).
     scenario, seed, firmware
         What the rig was started with.
+    camera_urls, tokens
+        Every camera's URL and token: one per camera on a rig with a daemon per camera
+        (pi-pair), else ``camera_url`` and ``token`` alone.
     """
 
     camera_url: str
@@ -61,6 +64,8 @@ class Rig:
     scenario: str
     seed: int
     firmware: str
+    camera_urls: tuple[str, ...] = ()
+    tokens: tuple[str | None, ...] = ()
 
     def fault(self, kind: str, **options: int) -> list[dict[str, Any]]:
         """Inject a fault into the running rig; return the faults now in effect.
@@ -168,6 +173,8 @@ def start_rig(
         scenario=scenario,
         seed=int(seed),
         firmware=firmware,
+        camera_urls=tuple(a.get("camera_urls", [a["camera_url"]])),
+        tokens=tuple(a.get("tokens", [a["token"]])),
     )
     return RigProcess(rig=rig, proc=proc)
 

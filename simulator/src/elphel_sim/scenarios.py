@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, replace
 from types import ModuleType
 from typing import Any
 
-from elphel_camd.sensors import mt9f002
+from elphel_camd.sensors import imx219_registers, mt9f002
 from elphel_camd.sensors import mt9p006 as spec
 from elphel_sim.chips.lepton35 import lepton_intrinsics
 from elphel_sim.quad import QuadRig, QuadScene, standard_scene
@@ -38,11 +38,16 @@ class PortSpec:
 
 @dataclass
 class Scenario:
-    """A world and the board's ports; ``quad`` when ports 0..3 form a quad camera."""
+    """A world and the board's ports; ``quad`` when ports 0..3 form a quad camera.
+
+    ``daemon_per_port``: each camera is a board of its own with its own daemon (a rig of
+    Raspberry Pis), rather than a port of one multi-sensor board.
+    """
 
     world: World
     ports: list[PortSpec]
     quad: QuadScene | None = None
+    daemon_per_port: bool = False
 
 
 # A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
@@ -252,11 +257,60 @@ def _quad_on_carriage(
     return Scenario(world, ports, quad=scene)
 
 
+# The IMX219's 1.12 um pixels in the same light: half their well (4500 e-) in 10 ms at
+# radiance 0.5, 10-bit output (simulation values, not sensor facts).
+PI_LIGHT = SensorModel(
+    bits=imx219_registers.BITS,
+    electrons_per_us=0.45,
+    full_well_e=4500.0,
+    dn_per_e=1023 / 4500,
+    read_noise_e=2.5,
+)
+# The dissertation's rig: two Raspberry Pi cameras v2 on the carriage (calibration.md 2).
+PI_PAIR_BASELINE_MM = 89.98
+PI_PAIR_FOCAL_LENGTH_MM = 3.04
+PI_PAIR_DISTANCE_MM = 300.0
+
+
+def imx219_intrinsics(focal_length_mm: float) -> Intrinsics:
+    """The IMX219's native array with the optical centre on the active area's centre."""
+    r = imx219_registers
+    centre = (r.ACTIVE_LEFT + r.ACTIVE_WIDTH / 2, r.ACTIVE_TOP + r.ACTIVE_HEIGHT / 2)
+    return full_array(r, focal_length_mm, centre)
+
+
+def pi_pair(seed: int) -> Scenario:
+    """The dissertation's rig: two IMX219 side by side on the stage carriage.
+
+    Camera 0 (port 0) and camera 1 (port 1) sit 89.98 mm apart along the stage axis
+    behind 3.04 mm lenses, 300 mm in front of a textured wall whose detail reaches about
+    1.6 px, finer than the sensors resolve alone. Each is rolled by atan(1/4), the tilt
+    `elphel burst plan --bayer` asks for at x2, so one linear axis samples the sub-pixel
+    phases of both. `elphel-sim up` serves each camera by its own daemon, as each Pi runs
+    its own.
+    """
+    wall = Plane(
+        Texture.procedural(period_mm=180.0, seed=seed, size=2048, band=0.5),
+        origin=(0.0, 0.0, PI_PAIR_DISTANCE_MM),
+        albedo_rgb=(0.9, 1.0, 0.8),
+    )
+    tilt_deg = math.degrees(math.atan(1 / 4))
+    mounts = {
+        name: replace(tilted_mount(name, tilt_deg), offset_mm=(x_mm, 0.0, 0.0))
+        for name, x_mm in (("cam0", 0.0), ("cam1", PI_PAIR_BASELINE_MM))
+    }
+    world = World(Scene([wall]), Rig(axis=(1.0, 0.0, 0.0), mounts=mounts))
+    intrinsics = imx219_intrinsics(PI_PAIR_FOCAL_LENGTH_MM)
+    ports = [PortSpec("IMX219", name, intrinsics, PI_LIGHT) for name in mounts]
+    return Scenario(world, ports, daemon_per_port=True)
+
+
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
 SCENARIOS["mixed"] = mixed
 SCENARIOS["quad"] = quad
 SCENARIOS["quad-rig"] = quad_rig
 SCENARIOS["quad-rig-small"] = quad_rig_small
+SCENARIOS["pi-pair"] = pi_pair
 
 
 def build(name: str, *, seed: int, lens_blur: LensBlur | None = None) -> Scenario:

@@ -12,8 +12,15 @@ from PIL import Image
 from elphel_host.cli import main
 from elphel_host.cloud.ply import read_ply
 from elphel_host.depth.geometry import DepthOptics
-from elphel_host.depth.products import disagreeing, dsi_depth, read_depth_tiff
+from elphel_host.depth.products import (
+    FAR_DISPARITY_PX,
+    disagreeing,
+    dsi_depth,
+    left_out_swatches,
+    read_depth_tiff,
+)
 from elphel_host.errors import InputFormatError
+from elphel_host.preview import FAR_RGB, NO_VALUE_RGB
 from elphel_host.tp import io
 from elphel_host.tp.images import QuadImages
 from elphel_sim import quad as simquad
@@ -132,6 +139,58 @@ def test_tp_ply_on_a_simulated_quad(
     for key in ("cloud_png", "depth_png"):
         with Image.open(out[key]) as im:
             assert im.format == "PNG"
+    check_depth_png(Path(out["depth_png"]), truth)
+    check_disparity_png(tmp_path / "dsi.png", truth)
+
+
+def _tile_colours(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The colour at each tile's centre in a map picture (title line, 10-px margin)."""
+    with Image.open(path) as im:
+        picture = np.asarray(im.convert("RGB"))
+    cell = int(np.ceil(400 / min(shape)))
+    rows = 24 + np.arange(shape[0]) * cell + cell // 2
+    cols = 10 + np.arange(shape[1]) * cell + cell // 2
+    return picture[np.ix_(rows, cols)]
+
+
+def check_depth_png(path: Path, truth: simquad.TileTruth) -> None:
+    """Each plane in its own colour of the map, the far background in the far colour."""
+    colours = _tile_colours(path, truth.label.shape).astype(int)
+    medians = {}
+    for name in ("fronto_0.37", "fronto_2.5", "fronto_5.2"):
+        sel = (truth.label == truth.names.index(name)) & truth.interior
+        medians[name] = np.median(colours[sel], axis=0)
+    near, mid, far = medians["fronto_5.2"], medians["fronto_2.5"], medians["fronto_0.37"]
+    # the old picture: every plane the same dark purple (a bar up to 2.7e8 mm)
+    assert np.abs(far - near).sum() > 200 and np.abs(mid - near).sum() > 30, medians
+    background = (truth.label == truth.names.index("fronto_0")) & truth.interior
+    assert (colours[background] == FAR_RGB).all(axis=1).mean() > 0.9
+
+
+def check_disparity_png(path: Path, truth: simquad.TileTruth) -> None:
+    """`elphel tp` writes DSI.png: disparity on the map, texture-less tiles named."""
+    colours = _tile_colours(path, truth.label.shape)
+    flat = (truth.label == truth.names.index("flat")) & truth.interior
+    assert (colours[flat] == NO_VALUE_RGB).all(axis=1).mean() > 0.9
+    near = (truth.label == truth.names.index("fronto_5.2")) & truth.interior
+    assert np.median(colours[near].astype(int), axis=0)[0] > 200  # the yellow end
+
+
+def test_depth_legend_names_far_and_texture_less_tiles() -> None:
+    ty, tx = 4, 5
+    disparity = np.full((ty, tx), 2.0, np.float32)
+    disparity[0, 0] = 0.0  # infinity
+    disparity[0, 1] = 0.1  # below FAR_DISPARITY_PX
+    strength = np.full((ty, tx), 0.5, np.float32)
+    strength[3, :] = 0.05
+    quad = QuadImages(np.full((4, 32, 40), 0.25, np.float32), bayer=None)
+    r = dsi_depth({"disparity": disparity, "strength": strength}, quad, OPTICS)
+    far_mm = float(OPTICS.depth_mm(np.array(FAR_DISPARITY_PX)))
+    far, weak, disagree = left_out_swatches(r, far_mm)
+    assert far.label == "far: disparity < 0.25 px, beyond 1227 m (2 tiles)"
+    assert far.mask[0, :2].all() and far.mask.sum() == 2 and far.rgb == FAR_RGB
+    assert weak.label == "no texture: strength < 0.15 (5 tiles)" and weak.mask[3].all()
+    assert disagree.label == "directions disagree (0 tiles)" and not disagree.mask.any()
 
 
 def test_tp_ply_needs_optics(

@@ -7,9 +7,11 @@ import os
 import numpy as np
 import pytest
 import tifffile
+from PIL import Image
 
 from elphel_host.burst.io import write_burst
 from elphel_host.cli import main
+from elphel_host.mfsr.cli import crop_label
 
 
 def _burst(tmp_path, burst2):
@@ -22,7 +24,9 @@ def test_mfsr_json_is_one_object(tmp_path, burst2, capsys):
     b = _burst(tmp_path, burst2)
     out = tmp_path / "o" / "sr.tif"
     assert main(["mfsr", str(b), "--scale", "2", "--out", str(out), "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert captured.err == f"mfsr: fusing {b} (robust x2)\n"  # not silent while it works
     assert result["method"] == "robust" and result["used"] == 8
     assert len(result["registration"]) == 8 and result["excluded"] == []
     assert result["seconds"] > 0 and result["peak_memory_mb"] > 0
@@ -63,10 +67,23 @@ def test_compare_with_reference(tmp_path, burst2, hr, capsys):
         )
         == 0
     )
-    r = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    r = json.loads(captured.out)
+    assert captured.err.splitlines() == [
+        f"mfsr compare: {i}/3 {m} x2" for i, m in enumerate(("bicubic", "baseline", "robust"), 1)
+    ]
     m = r["methods"]
     assert m["robust"]["psnr_db"] > m["baseline"]["psnr_db"] > 0
-    assert (tmp_path / "cmp" / "crops.png").is_file()
+    with Image.open(tmp_path / "cmp" / "crops.png") as im:
+        crops = np.asarray(im.convert("RGB"))
+    assert crops.shape == (256 + 20, 3 * 256 + 2 * 4, 3)
+    for i in range(3):  # a label above each panel: text on a white strip
+        strip = crops[:20, i * 260 : i * 260 + 256]
+        assert (strip == 255).all(axis=2).mean() > 0.5 and (strip < 100).any(), i
+    assert crop_label("robust", m["robust"]).startswith("robust ") and " dB, SSIM " in (
+        crop_label("robust", m["robust"])
+    )
+    assert crop_label("bicubic", {}) == "bicubic"
 
 
 def test_bad_burst_dir_is_exit_1(tmp_path, capsys):

@@ -20,6 +20,7 @@ from elphel_camd.service import CameraService
 from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames
 from elphel_host.mfsr.metrics import psnr, ssim
+from elphel_host.preview import FONT_PX
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.demo.burst import DISTANCE_MM, FRAMES, SCALE
 from elphel_sim.demo.report import comparison_picture, reference_image
@@ -98,9 +99,15 @@ def test_comparison_picture_crops_on_one_scale(tmp_path):
         [("a", ramp), ("b", ramp * 2), ("ref", ramp)], tmp_path / "c.png", size=32, zoom=2
     )
     sheet = np.asarray(Image.open(path))
-    assert sheet.shape == (32 * 2 + 14, 3 * 64 + 2 * 4, 3)
+    label_px = FONT_PX + 6
+    assert sheet.shape == (32 * 2 + label_px, 3 * 64 + 2 * 4, 3)
     # one tone scale (the reference's): the brighter panel saturates, the others agree
-    first, second, ref = (sheet[14:, i * 68 : i * 68 + 64] for i in range(3))
+    first, second, ref = (sheet[label_px:, i * 68 : i * 68 + 64] for i in range(3))
     assert np.array_equal(first, ref) and second.mean() > ref.mean()
+    # colour crops share the reference's white balance: a green cast is taken out
+    cast = np.stack([ramp * 0.8, ramp, ramp * 0.6], axis=-1) + 10
+    path = comparison_picture([("a", cast), ("ref", cast)], tmp_path / "rgb.png", size=32)
+    panel = np.asarray(Image.open(path))[label_px:, :96].reshape(-1, 3).mean(axis=0)
+    assert np.all(np.abs(panel / panel[1] - 1) < 0.05), panel
     with pytest.raises(ValueError, match=r"panel 'b' has shape \(10, 10\)"):
         comparison_picture([("a", ramp), ("b", ramp[:10, :10])], tmp_path / "d.png")

@@ -8,13 +8,16 @@ import numpy as np
 import pytest
 
 from elphel_host.tp import io, processor
+from elphel_host.tp.config import TpConfig
 from elphel_host.tp.geometry import IDEAL_POSITIONS
+from elphel_host.tp.images import QuadImages
+from elphel_host.tp.tile_pass import measure
 from elphel_sim import quad as simquad
 
 
 def fourier_quad(
     size: int, disparity: float, *, bayer: str | None, noise: float = 0.0, seed: int = 0
-) -> processor.QuadImages:
+) -> QuadImages:
     """Four views of one band-limited RGB texture moved exactly by -D * position_i."""
     rng = np.random.default_rng(seed)
     f = np.fft.fftfreq(size)
@@ -38,14 +41,14 @@ def fourier_quad(
             img[1::2, 0::2] = rgb[2, 1::2, 0::2]
             img[1::2, 1::2] = rgb[1, 1::2, 1::2]
         views.append(img + noise * rng.normal(size=img.shape))
-    return processor.QuadImages(np.asarray(views, dtype=np.float32), bayer=bayer)
+    return QuadImages(np.asarray(views, dtype=np.float32), bayer=bayer)
 
 
 @pytest.mark.parametrize("bayer", [None, "GRBG"])
 @pytest.mark.parametrize("disparity", [0.0, 0.37, 2.5, 5.2])
 def test_fronto_parallel_exact_quads(bayer: str | None, disparity: float) -> None:
     q = fourier_quad(128, disparity, bayer=bayer)
-    dsi = processor.disparity_map(q, config=processor.TpConfig(threads=1))
+    dsi = processor.disparity_map(q, config=TpConfig(threads=1))
     inner = (slice(2, -2), slice(2, -2))  # the image wraps around: skip the border tiles
     err = dsi["disparity"][inner] - disparity
     assert np.sqrt(np.mean(err**2)) <= 0.02
@@ -56,18 +59,18 @@ def test_fronto_parallel_exact_quads(bayer: str | None, disparity: float) -> Non
 def test_first_pass_alone_is_biased_and_refinement_fixes_it() -> None:
     q = fourier_quad(128, 2.5, bayer="GRBG")
     inner = (slice(2, -2), slice(2, -2))
-    raw = processor.measure(q, np.zeros(q.tiles), config=processor.TpConfig(threads=1))
+    raw = measure(q, np.zeros(q.tiles), config=TpConfig(threads=1))
     assert np.mean(raw["residual"][inner]) < 2.5 - 0.2  # window pulls the peak towards 0
-    dsi = processor.disparity_map(q, config=processor.TpConfig(threads=1))
+    dsi = processor.disparity_map(q, config=TpConfig(threads=1))
     assert abs(np.mean(dsi["disparity"][inner]) - 2.5) < 0.01
 
 
 def test_noise_raises_error_and_lowers_strength() -> None:
     clean = processor.disparity_map(
-        fourier_quad(128, 1.0, bayer="GRBG"), config=processor.TpConfig(threads=1)
+        fourier_quad(128, 1.0, bayer="GRBG"), config=TpConfig(threads=1)
     )
     noisy = processor.disparity_map(
-        fourier_quad(128, 1.0, bayer="GRBG", noise=0.02), config=processor.TpConfig(threads=1)
+        fourier_quad(128, 1.0, bayer="GRBG", noise=0.02), config=TpConfig(threads=1)
     )
     inner = (slice(2, -2), slice(2, -2))
     assert np.std(noisy["disparity"][inner]) > np.std(clean["disparity"][inner])
@@ -76,8 +79,8 @@ def test_noise_raises_error_and_lowers_strength() -> None:
 
 def test_threads_and_chunks_do_not_change_results() -> None:
     q = fourier_quad(96, 1.7, bayer="GRBG", noise=0.01)
-    a = processor.disparity_map(q, config=processor.TpConfig(threads=1, chunk_tiles=10_000))
-    b = processor.disparity_map(q, config=processor.TpConfig(threads=2, chunk_tiles=37))
+    a = processor.disparity_map(q, config=TpConfig(threads=1, chunk_tiles=10_000))
+    b = processor.disparity_map(q, config=TpConfig(threads=2, chunk_tiles=37))
     for k in a:
         assert np.allclose(a[k], b[k], atol=1e-5)
 
@@ -118,15 +121,15 @@ def test_truth_matches_rig_formula() -> None:
 def test_scan_reaches_beyond_the_correlation_radius() -> None:
     q = fourier_quad(128, 9.0, bayer="GRBG")
     inner = (slice(3, -3), slice(3, -3))
-    plain = processor.disparity_map(q, config=processor.TpConfig(threads=1))
-    scanned = processor.disparity_map(q, config=processor.TpConfig(threads=1, scan=(0.0, 6.0)))
+    plain = processor.disparity_map(q, config=TpConfig(threads=1))
+    scanned = processor.disparity_map(q, config=TpConfig(threads=1, scan=(0.0, 6.0)))
     assert np.sqrt(np.mean((plain["disparity"][inner] - 9.0) ** 2)) > 0.5  # reach is 7 px from 0
     assert np.sqrt(np.mean((scanned["disparity"][inner] - 9.0) ** 2)) <= 0.05
 
 
 def test_no_refinement_reports_the_first_pass() -> None:
     q = fourier_quad(96, 0.8, bayer=None)
-    dsi = processor.disparity_map(q, config=processor.TpConfig(threads=1, refine_passes=0))
+    dsi = processor.disparity_map(q, config=TpConfig(threads=1, refine_passes=0))
     assert np.all(dsi["target_disparity"] == 0.0)
     inner = (slice(2, -2), slice(2, -2))
     assert abs(np.median(dsi["disparity"][inner]) - 0.8) < 0.1
@@ -137,21 +140,19 @@ def test_a_coarse_first_pass_measures_the_same_tiles_and_keeps_the_accuracy(
     rendered: tuple[Path, simquad.TileTruth],
 ) -> None:
     q = fourier_quad(96, 1.3, bayer="GRBG", noise=0.01)
-    config = processor.TpConfig(threads=1)
-    every = processor.measure(q, np.zeros(q.tiles), config=config, full=False)
-    coarse = processor.measure(q, np.zeros(q.tiles), config=config, full=False, step=2)
+    config = TpConfig(threads=1)
+    every = measure(q, np.zeros(q.tiles), config=config, full=False)
+    coarse = measure(q, np.zeros(q.tiles), config=config, full=False, step=2)
     assert coarse["residual"].shape == ((q.tiles[0] + 1) // 2, (q.tiles[1] + 1) // 2)
     for k in ("residual", "strength", "levelled"):
         assert np.allclose(coarse[k], every[k][::2, ::2], atol=1e-5), k
     with pytest.raises(ValueError, match="first_pass_step=0"):
-        processor.TpConfig(first_pass_step=0)
+        TpConfig(first_pass_step=0)
     # the DSI of the rendered quad: within noise of a first pass over every tile
     root, truth = rendered
     quad = io.read_quad_dir(root).quad
     err = {
-        step: processor.disparity_map(quad, config=processor.TpConfig(first_pass_step=step))[
-            "disparity"
-        ]
+        step: processor.disparity_map(quad, config=TpConfig(first_pass_step=step))["disparity"]
         - truth.disparity
         for step in (1, 2)
     }

@@ -11,7 +11,9 @@ import tifffile
 
 from elphel_host.cli import main
 from elphel_host.errors import InputFormatError
-from elphel_host.tp import dsi, io, processor
+from elphel_host.tp import dsi, io
+from elphel_host.tp.config import TpConfig
+from elphel_host.tp.images import QuadImages
 from elphel_sim import quad as simquad
 
 
@@ -91,6 +93,6 @@ def test_cli_bad_dir_exit_1(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 
 def test_config_rejects_bad_values() -> None:
     with pytest.raises(ValueError, match=r"radius=9; allowed: 1\.\.7"):
-        processor.TpConfig(radius=9)
+        TpConfig(radius=9)
     with pytest.raises(InputFormatError, match=r"shape \(4, H, W\)"):
-        processor.QuadImages(np.zeros((3, 8, 8), dtype=np.float32))
+        QuadImages(np.zeros((3, 8, 8), dtype=np.float32))

@@ -11,7 +11,9 @@ import tifffile
 from scipy import ndimage
 
 from elphel_host.tp import clt, io, kernels, processor
+from elphel_host.tp.config import TpConfig
 from elphel_host.tp.geometry import IDEAL_POSITIONS
+from elphel_host.tp.images import QuadImages
 
 
 def texture(size: int, seed: int = 0, band: float = 0.25) -> np.ndarray:
@@ -57,7 +59,7 @@ def test_clt_product_matches_direct_convolution_and_odd_odd_sign() -> None:
     assert errors["odd-x"] > 1.5 * errors["odd-odd"]
 
 
-def blurred_quad(*, kernel_for_others: bool) -> tuple[processor.QuadImages, float]:
+def blurred_quad(*, kernel_for_others: bool) -> tuple[QuadImages, float]:
     """Camera 1 blurred by an off-centre kernel (centroid +0.3 px in x); disparity 1.0."""
     size, disparity = 128, 1.0
     f = np.fft.fftfreq(size)
@@ -73,14 +75,14 @@ def blurred_quad(*, kernel_for_others: bool) -> tuple[processor.QuadImages, floa
         img = np.fft.ifft2(base * np.exp(2j * np.pi * disparity * (fx * px + fy * py))).real
         views.append(ndimage.convolve(img, blur, mode="wrap") if i == 1 else img)
     ks = np.stack([blur if i != 1 else ident for i in range(4)])[:, None, None, None]
-    return processor.QuadImages(
+    return QuadImages(
         np.asarray(views, dtype=np.float32), kernels=ks if kernel_for_others else None
     ), disparity
 
 
 def test_kernels_remove_the_bias_of_an_aberrated_camera() -> None:
     inner = (slice(2, -2), slice(2, -2))
-    cfg = processor.TpConfig(threads=1)
+    cfg = TpConfig(threads=1)
     q, d = blurred_quad(kernel_for_others=False)
     raw = processor.disparity_map(q, config=cfg)
     q, d = blurred_quad(kernel_for_others=True)
@@ -119,9 +121,7 @@ def test_bad_kernel_shape_rejected() -> None:
     with pytest.raises(ValueError, match=r"shape \(15, 15\)"):
         kernels.kernel_clt(np.zeros((7, 7)))
     with pytest.raises(Exception, match="kernels must have shape"):
-        processor.QuadImages(
-            np.zeros((4, 16, 16), dtype=np.float32), kernels=np.zeros((4, 1, 15, 15))
-        )
+        QuadImages(np.zeros((4, 16, 16), dtype=np.float32), kernels=np.zeros((4, 1, 15, 15)))
 
 
 def test_simulated_aberrations_and_their_kernel_file(tmp_path: Path) -> None:

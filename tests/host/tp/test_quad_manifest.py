@@ -88,7 +88,10 @@ def test_written_directory_reads_back(tmp_path: Path) -> None:
     ("edit", "message"),
     [
         (lambda m: m.update(optics=3), "optics=3; allowed: an object"),
-        (lambda m: m.update(full_scale_dn=0), "full_scale_dn=0; allowed: a number > 0"),
+        (
+            lambda m: m.update(full_scale_dn=0),
+            "full_scale_dn=0; allowed: a number in 0.001..4294967296",
+        ),
         (lambda m: m.update(kernels={"step": 16}), "kernels=.*allowed"),
         (
             lambda m: m.update(kernels={"file": "k.npy", "target_sigma_px": 0}),

@@ -7,6 +7,7 @@ reported without losing the others, and a second run must skip what is done.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -65,8 +66,13 @@ def test_local_cluster_matches_single_runs_and_resumes(
     before = {n: (out / f"{n}.tif").stat().st_mtime_ns for n in ("q0", "q1", "q2")}
     capsys.readouterr()
     rc = main(["tp", str(quads), "--out-dir", str(out), "--workers", "1", "--json"])
-    again = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    again = json.loads(captured.out)
     assert rc == 0
+    # the rate counts the computed quad only: none while skipping, then about one quad's
+    lines = captured.err.splitlines()
+    assert [line for line in lines if "/s" in line] == lines[-1:], lines
+    assert float(re.search(r"\(([\d.]+)/s", lines[-1]).group(1)) < 20, lines[-1]
     assert {Path(r["quad"]).name: r["status"] for r in again["quads"]} == {
         "q0": "skipped",
         "q1": "skipped",

@@ -7,6 +7,7 @@ import tempfile
 import numpy as np
 
 from elphel_host.tp import io, processor, tile_pass
+from elphel_host.tp.config import TpConfig
 from elphel_sim import quad as simquad
 
 
@@ -17,7 +18,7 @@ def test_stage_times_cover_every_stage_and_leave_results_alone() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         simquad.write_quad_dir(tmp, raw, rig)
         quad = io.read_quad_dir(tmp).quad
-    config = processor.TpConfig(threads=2, chunk_tiles=64)
+    config = TpConfig(threads=2, chunk_tiles=64)
     plain = processor.disparity_map(quad, config=config)
     with tile_pass.stage_times() as outer:
         with tile_pass.stage_times() as inner:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from elphel_host.tp import processor, texture
+from elphel_host.tp import texture
 from elphel_host.tp.geometry import IDEAL_POSITIONS
+from elphel_host.tp.images import QuadImages
 
 
-def smooth_quad(disparity: float, *, bayer: str | None, size: int = 96) -> processor.QuadImages:
+def smooth_quad(disparity: float, *, bayer: str | None, size: int = 96) -> QuadImages:
     rng = np.random.default_rng(0)
     f = np.fft.fftfreq(size)
     fy, fx = f[:, None], f[None, :]
@@ -27,7 +28,7 @@ def smooth_quad(disparity: float, *, bayer: str | None, size: int = 96) -> proce
             m[0::2, 0::2], m[0::2, 1::2] = rgb[1, 0::2, 0::2], rgb[0, 0::2, 1::2]
             m[1::2, 0::2], m[1::2, 1::2] = rgb[2, 1::2, 0::2], rgb[1, 1::2, 1::2]
             views.append(m)
-    return processor.QuadImages(np.asarray(views, dtype=np.float32), bayer=bayer)
+    return QuadImages(np.asarray(views, dtype=np.float32), bayer=bayer)
 
 
 def test_render_at_zero_disparity_reproduces_mono_image() -> None:

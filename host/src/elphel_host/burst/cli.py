@@ -19,7 +19,7 @@ from elphel_host.burst.plan import BurstPlan, plan_burst, read_plan, sensor_geom
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import (
     CAMERA_TOKEN_ENV,
-    add_camera_options,
+    CAMERA_URL_ENV,
     add_json_option,
     add_sensor_port_option,
     add_stage_model_option,
@@ -165,9 +165,23 @@ def _add_capture_parser(sub: Any) -> None:
         "is saved as it arrives; running the same command again completes a partial burst. "
         "With --fuse the frames are also registered for fusion while the stage moves, and "
         "the fused image (what 'elphel mfsr OUT --scale S --method M --out FUSED' gives) is "
-        "written moments after the last frame; a fusion failure keeps the frames and exits 1.",
+        "written moments after the last frame; a fusion failure keeps the frames and exits 1. "
+        "With several --camera, every camera takes its frame at each position together and "
+        "each gets its burst directory OUT/cam0, OUT/cam1, ... in the order given.",
     )
-    add_camera_options(cp)
+    cp.add_argument(
+        "--camera",
+        action="append",
+        metavar="URL",
+        help="camera URL: http://HOST:PORT (elphel-camd) or nc393://HOST[:PORT][?imgsrv=BASE] "
+        f"(a stock NC393); repeat for several cameras (env {CAMERA_URL_ENV}: one camera)",
+    )
+    cp.add_argument(
+        "--token",
+        action="append",
+        help="elphel-camd's bearer token: one for every camera, or one per --camera in "
+        f"their order (env {CAMERA_TOKEN_ENV})",
+    )
     add_stage_option(cp)
     cp.add_argument("--plan", type=Path, required=True, help="plan JSON (elphel burst plan --out)")
     cp.add_argument("--out", type=Path, required=True, help="burst directory to write")
@@ -257,12 +271,30 @@ def _manifest_top(args: argparse.Namespace, plan: BurstPlan) -> dict[str, Any]:
     return top
 
 
-def run_capture(args: argparse.Namespace) -> int:
-    if not args.camera or not args.stage:
+def _cameras_and_tokens(args: argparse.Namespace) -> tuple[list[str], list[str | None]]:
+    """The --camera URLs (else the environment's) and a token for each."""
+    cameras = args.camera or [u for u in [os.environ.get(CAMERA_URL_ENV)] if u]
+    tokens: list[str | None] = args.token or [os.environ.get(CAMERA_TOKEN_ENV)]
+    if not cameras or not args.stage:
         args.parser.error("give --camera and --stage (or ELPHEL_CAMERA_URL / ELPHEL_STAGE_URL)")
+    if len(tokens) == 1:
+        tokens = tokens * len(cameras)
+    if len(tokens) != len(cameras):
+        args.parser.error(
+            f"{len(tokens)} --token for {len(cameras)} --camera: give one token for all "
+            "cameras or one per camera"
+        )
+    return cameras, tokens
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    cameras, tokens = _cameras_and_tokens(args)
     if args.geometry is not None and not args.quad:
         args.parser.error("--geometry: allowed only with --quad")
     plan = read_plan(args.plan)
+    if len(cameras) > 1:
+        return run_multi_capture(args, plan, cameras, tokens)
+    args.camera, args.token = cameras[0], tokens[0]
     if args.quad:
         return run_quad_capture(args, plan)
     fuse = _fuse_options(args, plan)
@@ -281,7 +313,9 @@ def run_capture(args: argparse.Namespace) -> int:
             )
         with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
             positioner = Positioner(stage, StageModel.load(args.model))
-            start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out))
+            so_far = load_progress(args.out)
+            start_mm = _start_and_stage(args, positioner, plan, top, so_far)
+            line.restart(len(so_far.frames) if so_far is not None else 0)  # resumed: count anew
             engine = RigEngine(positioner, camera, port=args.sensor_port, settle_s=args.settle_s)
 
             def progress(done: int, total: int, message: str) -> None:
@@ -297,7 +331,10 @@ def run_capture(args: argparse.Namespace) -> int:
                 progress=progress,
                 on_frame=None if stream is None else stream.frame_stored,
             )
-            result = runner.start().wait()
+            try:
+                result = runner.start().wait()
+            except KeyboardInterrupt:
+                raise interrupted(args.out, len(plan.positions_mm), "frames") from None
             line.end()
         summary = _capture_summary(result, len(plan.positions_mm), start_mm)
         human = [
@@ -357,21 +394,76 @@ def run_quad_capture(args: argparse.Namespace, plan: BurstPlan) -> int:
     line = ProgressLine()
     with StageClient(args.stage) as stage, connect(args.camera, args.token) as camera:
         positioner = Positioner(stage, StageModel.load(args.model))
-        start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out / "cam0"))
+        so_far = load_progress(args.out / "cam0")
+        start_mm = _start_and_stage(args, positioner, plan, top, so_far)
+        line.restart(len(so_far.frames) if so_far is not None else 0)  # resumed: count anew
         engine = QuadRigEngine(positioner, camera, layout=layout, settle_s=args.settle_s)
 
         def progress(done: int, total: int, message: str) -> None:
             line.update(f"quad burst: {done}/{total} {message}", done=done, total=total)
 
-        result = capture_quad_burst(
-            engine, plan.positions_mm, args.out, start_mm=start_mm, top=top, progress=progress
-        )
+        try:
+            result = capture_quad_burst(
+                engine, plan.positions_mm, args.out, start_mm=start_mm, top=top, progress=progress
+            )
+        except KeyboardInterrupt:
+            raise interrupted(args.out / "cam0", len(plan.positions_mm), "quad sets") from None
         line.end()
     summary = _capture_summary(result, len(plan.positions_mm), start_mm)
     summary["quad"] = True
     human = (
         f"{result.directory}: {len(result.captured)} quad sets captured, "
         f"{len(result.skipped)} already there, in {result.seconds:.1f} s"
+    )
+    emit(args, summary, human)
+    return 0
+
+
+def interrupted(out: Path, total: int, what: str) -> KeyboardInterrupt:
+    """Ctrl-C during a capture: how much of it is kept in ``out``, and how to resume."""
+    try:
+        so_far = load_progress(out)
+    except InputFormatError:
+        so_far = None
+    kept = len(so_far.frames) if so_far is not None else 0
+    return KeyboardInterrupt(
+        f"{kept} of {total} {what} kept in {out}; the same command captures the rest"
+    )
+
+
+def run_multi_capture(
+    args: argparse.Namespace, plan: BurstPlan, cameras: list[str], tokens: list[str | None]
+) -> int:
+    """``elphel burst capture --camera A --camera B ...``: a burst per camera, resumable."""
+    from elphel_host.burst.multi_capture import MultiCameraEngine, capture_multi_burst
+
+    if args.quad:
+        args.parser.error("--quad: a quad camera is one --camera, not several")
+    if args.fuse:
+        args.parser.error("--fuse: with one --camera only; fuse each OUT/camN with elphel mfsr")
+    top = _manifest_top(args, plan)
+    line = ProgressLine()
+    with ExitStack() as stack:
+        stage = stack.enter_context(StageClient(args.stage))
+        clients = [stack.enter_context(connect(u, t)) for u, t in zip(cameras, tokens, strict=True)]
+        positioner = Positioner(stage, StageModel.load(args.model))
+        start_mm = _start_and_stage(args, positioner, plan, top, load_progress(args.out / "cam0"))
+        engine = MultiCameraEngine(
+            positioner, clients, port=args.sensor_port, settle_s=args.settle_s
+        )
+
+        def progress(done: int, total: int, message: str) -> None:
+            line.update(f"burst: {done}/{total} {message}", done=done, total=total)
+
+        result = capture_multi_burst(
+            engine, plan.positions_mm, args.out, start_mm=start_mm, top=top, progress=progress
+        )
+        line.end()
+    summary = _capture_summary(result, len(plan.positions_mm), start_mm)
+    summary["cameras"] = [str(args.out / f"cam{i}") for i in range(len(cameras))]
+    human = (
+        f"{result.directory}: {len(cameras)} cameras, {len(result.captured)} positions "
+        f"captured, {len(result.skipped)} already there, in {result.seconds:.1f} s"
     )
     emit(args, summary, human)
     return 0

@@ -31,6 +31,7 @@ from elphel_host.burst.manifest import (
     read_manifest,
     write_manifest,
 )
+from elphel_host.confined import inside
 from elphel_host.errors import InputFormatError
 from elphel_host.tp.io import MANIFEST as QUAD_MANIFEST
 from elphel_host.tp.io import QuadCamera, QuadManifest
@@ -95,22 +96,37 @@ def read_burst(path: str | Path) -> Burst:
         does not follow the burst format.
     """
     root = Path(path)
-    mpath = root / MANIFEST
     manifest = read_manifest(root)
     if manifest is None:
         raise InputFormatError(f"{root}: no {MANIFEST} (expected a burst directory)")
+    files = _frame_files(root, manifest)
+    images: list[NDArray[np.uint16]] = []
+    for file in files:
+        like = None if not images else (images[0].shape, manifest.frames[0].file)
+        images.append(read_frame(file, bayer=manifest.bayer, like=like))
+    return Burst(frames=np.stack(images), manifest=manifest)
+
+
+def _frame_files(root: Path, manifest: Manifest) -> list[Path]:
+    """The frames' files, checked before any is read: present, distinct, inside ``root``."""
+    mpath = root / MANIFEST
     if not manifest.frames:
         raise _fail(mpath, "frames", [], "a non-empty list of frame objects")
+    files = []
     for i, entry in enumerate(manifest.frames):
-        if not (root / entry.file).is_file():
+        file = inside(root, entry.file, where=f"{mpath}: frames[{i}].file")
+        if not file.is_file():
             raise InputFormatError(
                 f"{mpath}: frames[{i}].file={entry.file!r} does not exist in {root}"
             )
-    images: list[NDArray[np.uint16]] = []
-    for entry in manifest.frames:
-        like = None if not images else (images[0].shape, manifest.frames[0].file)
-        images.append(read_frame(root / entry.file, bayer=manifest.bayer, like=like))
-    return Burst(frames=np.stack(images), manifest=manifest)
+        files.append(file)
+    distinct = len({f.resolve() for f in files})
+    if distinct != len(files):
+        raise InputFormatError(
+            f"{mpath}: {len(files)} frames name only {distinct} distinct files; "
+            "allowed: one file per frame"
+        )
+    return files
 
 
 def write_burst(
@@ -211,7 +227,7 @@ def read_quad_burst(path: str | Path) -> QuadBurst:
     source = root / QUAD_MANIFEST
     bursts = []
     for i, cam in enumerate(manifest.cameras):
-        d = root / cam.file
+        d = manifest.file_of(root, i)
         if not d.is_dir():
             raise InputFormatError(
                 f"{source}: cameras[{i}].file={cam.file!r} is not a burst directory in {root}"

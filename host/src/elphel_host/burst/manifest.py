@@ -15,7 +15,6 @@ frame files) is read and written by :mod:`elphel_host.burst.io`.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -24,8 +23,10 @@ from typing import Any
 
 import numpy as np
 
+from elphel_host import strict_json
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
+from elphel_host.limits import HostLimits
 
 BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 MANIFEST = "manifest.json"
@@ -245,10 +246,23 @@ def read_manifest(directory: str | Path) -> Manifest | None:
     path = Path(directory) / MANIFEST
     if not path.is_file():
         return None
+    limits = HostLimits.from_env()
+    size = path.stat().st_size
+    if size > limits.json_bytes:
+        raise InputFormatError(
+            f"{path}: {size} bytes; limit json_bytes = {limits.json_bytes} "
+            "(raise ELPHEL_LIMIT_JSON_BYTES)"
+        )
     try:
-        obj = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputFormatError(f"{path}: not valid JSON ({e})") from e
+        obj = strict_json.loads(path.read_bytes(), what=str(path), limit_bytes=limits.json_bytes)
+    except ValueError as e:
+        raise InputFormatError(str(e)) from e
+    entries = obj.get("frames") if isinstance(obj, dict) else None
+    if isinstance(entries, list) and len(entries) > limits.manifest_frames:
+        raise InputFormatError(
+            f"{path}: {len(entries)} frames; limit manifest_frames = {limits.manifest_frames} "
+            "(raise ELPHEL_LIMIT_MANIFEST_FRAMES)"
+        )
     try:
         return Manifest.from_json(obj)
     except ValueError as e:
@@ -256,6 +270,10 @@ def read_manifest(directory: str | Path) -> Manifest | None:
 
 
 def write_manifest(directory: str | Path, manifest: Manifest, *, sync: bool = False) -> Path:
-    """Write ``directory/manifest.json`` atomically (``sync``: on disk before the rename)."""
-    text = json.dumps(manifest.to_json(), indent=1, sort_keys=True) + "\n"
+    """Write ``directory/manifest.json`` atomically (``sync``: on disk before the rename).
+
+    Strict JSON: a NaN or infinite value raises `DeviceAnswerError` and nothing is written.
+    """
+    what = str(Path(directory) / MANIFEST)
+    text = strict_json.dumps(manifest.to_json(), what=what, indent=1, sort_keys=True) + "\n"
     return write_atomic(Path(directory) / MANIFEST, text.encode(), sync=sync)

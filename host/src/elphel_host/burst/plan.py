@@ -55,9 +55,15 @@ def sensor_geometry(info: Mapping[str, Any], port: int = 0) -> SensorGeometry:
     InputFormatError
         No sensor on that port, or a model without a known pitch.
     """
-    from elphel_camd.sensors import lepton35, mt9f002_registers, mt9p006_registers
+    from elphel_camd.sensors import (
+        imx219_registers,
+        lepton35,
+        mt9f002_registers,
+        mt9p006_registers,
+    )
 
     pitches = {
+        "IMX219": imx219_registers.PIXEL_PITCH_UM,
         "MT9P006": mt9p006_registers.PIXEL_PITCH_UM,
         "MT9F002": mt9f002_registers.PIXEL_PITCH_UM,
         "LEPTON35": lepton35.PIXEL_PITCH_UM,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import json
 import re
@@ -27,6 +28,8 @@ from elphel_host.cli_common import (
     emit,
 )
 from elphel_host.errors import CameraAuthError, CameraClientError, CameraParameterError
+from elphel_host.fileio import replacing, write_atomic
+from elphel_host.shown import shown
 
 
 def register(sub: Any) -> None:
@@ -195,24 +198,29 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     with _client(args) as client:
         info = client.info()
-    lines = [f"{info['board']} board, {info['daemon']} {info['version']}"]
+    head = f"{info['board']} board, {info['daemon']} {info['version']}"
+    lines = [shown(head, limit_chars=120)]
     for port in info["ports"]:
         sensor = port["sensor"]
         if sensor is None:
             lines.append(f"  port {port['port']}: no sensor")
         else:
-            # A stock NC393 names its sensors by SENSOR code: no chip id, no I2C address.
-            where = (
-                f"chip id 0x{sensor['chip_id']:04x}, I2C 0x{sensor['i2c_address']:02x}"
-                if "chip_id" in sensor
-                else f"SENSOR 0x{sensor['sensor_code']:02x}"
-            )
-            lines.append(
-                f"  port {port['port']}: {sensor['model']} ({where}, "
-                f"{sensor['bits']}-bit, bayer {sensor['bayer']})"
-            )
+            lines.append(f"  port {port['port']}: {_sensor_line(sensor)}")
     emit(args, info, "\n".join(lines))
     return 0
+
+
+def _sensor_line(sensor: dict[str, Any]) -> str:
+    """``MT9P006 (chip id 0x1801, I2C 0x48, 12-bit, bayer GRBG)``; device text made safe."""
+    if sensor.get("chip_id") is not None and sensor.get("i2c_address") is not None:
+        where = f"chip id 0x{sensor['chip_id']:04x}, I2C 0x{sensor['i2c_address']:02x}, "
+    elif sensor.get("sensor_code") is not None:
+        # A stock NC393 names its sensors by SENSOR code: no chip id, no I2C address.
+        where = f"SENSOR 0x{sensor['sensor_code']:02x}, "
+    else:
+        where = ""
+    model, bayer = shown(sensor["model"], limit_chars=40), shown(sensor["bayer"], limit_chars=8)
+    return f"{model} ({where}{sensor['bits']}-bit, bayer {bayer})"
 
 
 @_said_plainly
@@ -278,10 +286,22 @@ def cmd_set(args: argparse.Namespace) -> int:
     return 0
 
 
-@_said_plainly
-def cmd_capture(args: argparse.Namespace) -> int:
+def _write_capture(
+    out: Path, tiff: bytes, png: Path | None, image: Any, *, bayer: str | None
+) -> None:
+    """Write the TIFF and the PNG preview (when asked): both appear, or neither does."""
     from elphel_host.preview import save_preview
 
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(replacing(out)).write_bytes(tiff)
+        if png is not None:
+            png.parent.mkdir(parents=True, exist_ok=True)
+            save_preview(image, stack.enter_context(replacing(png, keep_suffix=True)), bayer=bayer)
+
+
+@_said_plainly
+def cmd_capture(args: argparse.Namespace) -> int:
     if args.count < 1:
         args.parser.error("--count must be 1 or more")
     with _client(args) as client:
@@ -309,8 +329,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                 }
                 tiff = _tiff_bytes(image, metadata)
     out: Path = args.out or Path(f"port{args.sensor_port}-frame{first}.tif")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_bytes(tiff)
+    _write_capture(out, tiff, args.png, image, bayer=metadata.get("bayer"))
     result: dict[str, Any] = {
         "file": str(out),
         "shape": list(image.shape),
@@ -319,7 +338,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
         "metadata": metadata,
     }
     if args.png:
-        result["png"] = str(save_preview(image, args.png, bayer=metadata.get("bayer")))
+        result["png"] = str(args.png)
     h, w = image.shape[:2]
     what = f"frame {first}" if len(frames) == 1 else f"frames {frames[0]}..{frames[-1]}"
     if args.join:
@@ -334,7 +353,7 @@ def _keep_partial(args: argparse.Namespace, error: PartialBurstError) -> int:
     first = int(partial.metadata[0]["frame"])
     out: Path = args.out or Path(f"port{args.sensor_port}-frame{first}.tif")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_bytes(partial.tiff)
+    write_atomic(out, partial.tiff)
     frames = [int(m["frame"]) for m in partial.metadata]
     print(f"elphel: {error}; kept frames {frames[0]}..{frames[-1]} in {out}", file=sys.stderr)
     if args.json:
@@ -362,7 +381,7 @@ def _event_line(event: CameraEvent) -> str:
         what = data.get("changes") or {"register": data.get("register")}
         body = " ".join(f"{k}={v}" for k, v in what.items())
         return f"params port {data['port']} @{data['frame']}: {body}"
-    return f"{event.type:6s} {json.dumps(data, sort_keys=True)}"
+    return shown(f"{event.type:6s} {json.dumps(data, sort_keys=True)}", limit_chars=1000)
 
 
 @_said_plainly

@@ -14,6 +14,16 @@ from typing import Any
 
 import httpx
 
+from elphel_host import strict_json
+from elphel_host.camera.answers import (
+    EVENT_MODELS,
+    FrameAnswer,
+    FrameMetadata,
+    InfoAnswer,
+    PatchAnswer,
+    checked,
+    checked_dict,
+)
 from elphel_host.camera.events import CameraEvent, SSEParser
 from elphel_host.camera.frames import (
     CapturedBurst,
@@ -25,7 +35,15 @@ from elphel_host.camera.frames import (
 from elphel_host.camera.retry import Backoff, retryable
 from elphel_host.camera.staging import Applied, Staging
 from elphel_host.closing import Closing
-from elphel_host.errors import CameraAuthError, CameraClientError
+from elphel_host.errors import (
+    CameraAuthError,
+    CameraClientError,
+    DeviceAnswerError,
+    DeviceLimitError,
+    DeviceTimeout,
+)
+from elphel_host.limits import Deadline, HostLimits, bounded_lines, check_declared, read_bounded
+from elphel_host.shown import shown
 
 API = "/api/v1"
 _NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
@@ -81,7 +99,7 @@ class CameraClient(Staging, Closing):
     token
         Bearer token for writes (capture counts as one); None for read-only use.
     timeout_s
-        Per-request timeout.
+        Timeout of each read and of making the connection.
     retry_s
         How long to keep retrying while the daemon cannot be reached (a restart): reads
         and other idempotent requests are retried after any connection failure, PATCH
@@ -90,6 +108,8 @@ class CameraClient(Staging, Closing):
         gives up at once.
     transport
         httpx transport to use instead of the network (tests).
+    limits
+        Sizes and deadlines the daemon's answers are held to (default: `HostLimits.from_env`).
 
     Examples
     --------
@@ -107,6 +127,7 @@ class CameraClient(Staging, Closing):
         timeout_s: float = 30.0,
         retry_s: float = 10.0,
         transport: httpx.BaseTransport | None = None,
+        limits: HostLimits | None = None,
     ) -> None:
         if not url.startswith(("http://", "https://")):
             raise ValueError(f"camera url {url!r}; allowed: http://HOST:PORT or https://...")
@@ -114,6 +135,7 @@ class CameraClient(Staging, Closing):
         self.url = url.rstrip("/")
         self.timeout_s = timeout_s
         self.retry_s = retry_s
+        self.limits = HostLimits.from_env() if limits is None else limits
         if transport is None:
             # Small PATCHes go out as headers and body: without TCP_NODELAY, Nagle's
             # algorithm and the server's delayed ACK add 40 ms to each.
@@ -127,51 +149,96 @@ class CameraClient(Staging, Closing):
 
     # -- plumbing --------------------------------------------------------------------------
 
-    def _error(self, method: str, path: str, response: httpx.Response) -> CameraHTTPError:
+    def _error(self, method: str, path: str, status: int, content: bytes) -> CameraHTTPError:
         try:
-            body = response.json()
+            body = strict_json.loads(content, what="", limit_bytes=self.limits.json_bytes)
             if not isinstance(body, dict):
                 body = {"detail": body}
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            body = {"detail": response.text}
-        message = f"{method} {path}: HTTP {response.status_code}: {body.get('detail', body)}"
-        kind = CameraUnauthorizedError if response.status_code in (401, 403) else CameraHTTPError
-        return kind(message, status=response.status_code, body=body)
+        except ValueError:
+            body = {"detail": content.decode("utf-8", errors="replace")}
+        detail = shown(body.get("detail", body))
+        message = f"{method} {path}: HTTP {status}: {detail}"
+        kind = CameraUnauthorizedError if status in (401, 403) else CameraHTTPError
+        return kind(message, status=status, body=body)
 
-    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+    def _read(
+        self, response: httpx.Response, deadline: Deadline, limit_bytes: int, limit_name: str
+    ) -> bytes:
+        """The whole body of ``response`` within ``limit_bytes`` and ``deadline``."""
+        what = deadline.what
+        check_declared(
+            response.headers.get("content-length"),
+            limit_bytes=limit_bytes,
+            what=what,
+            limit_name=limit_name,
+        )
+        return read_bounded(
+            response.iter_bytes(),
+            limit_bytes=limit_bytes,
+            deadline=deadline,
+            what=what,
+            limit_name=limit_name,
+        )
+
+    def _request(
+        self,
+        method: str,
+        path: str,
+        *,
+        limit_bytes: int | None = None,
+        limit_name: str = "json_bytes",
+        deadline_s: float | None = None,
+        **kwargs: Any,
+    ) -> tuple[httpx.Response, bytes]:
+        """Send a request; its answer and body, read within a size limit and an overall deadline."""
+        limit = self.limits.json_bytes if limit_bytes is None else limit_bytes
         backoff = Backoff(self.retry_s)
         while True:
+            deadline = Deadline(deadline_s or self.limits.deadline_s, what=self._what(method, path))
+            timeout = min(self.timeout_s, deadline.seconds)
             try:
-                response = self._http.request(method, path, **kwargs)
+                with self._http.stream(method, path, timeout=timeout, **kwargs) as response:
+                    if response.status_code >= 400:
+                        content = self._read(
+                            response, deadline, self.limits.json_bytes, "json_bytes"
+                        )
+                        raise self._error(method, path, response.status_code, content)
+                    return response, self._read(response, deadline, limit, limit_name)
             except httpx.TransportError as e:
                 if retryable(method, e) and backoff.wait():
                     continue
                 raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
             except httpx.HTTPError as e:
                 raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
-            if response.status_code >= 400:
-                raise self._error(method, path, response)
-            return response
 
     def _json(self, method: str, path: str, **kwargs: Any) -> Any:
-        return self._request(method, path, **kwargs).json()
+        _, content = self._request(method, path, **kwargs)
+        what = f"the camera at {self.url} ({method} {path})"
+        return strict_json.loads(content, what=what, limit_bytes=self.limits.json_bytes)
+
+    def _what(self, method: str, path: str) -> str:
+        return f"the camera at {self.url} ({method} {path})"
 
     # -- board -----------------------------------------------------------------------------
 
     def info(self) -> dict[str, Any]:
         """Board, daemon version and ports with their sensors."""
-        result: dict[str, Any] = self._json("GET", "/info")
-        return result
+        what = self._what("GET", "/info")
+        return checked_dict(InfoAnswer, self._json("GET", "/info"), what=what)
 
     def health(self) -> dict[str, Any]:
         """The daemon's health report; ``status`` is ``degraded`` when a bus fails (503)."""
         try:
-            response = self._http.get("/health")
-        except httpx.HTTPError as e:
-            raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
-        if response.status_code not in (200, 503):
-            raise self._error("GET", "/health", response)
-        result: dict[str, Any] = response.json()
+            result = self._json("GET", "/health")
+        except CameraHTTPError as e:
+            if e.status != 503:
+                raise
+            result = e.body
+        if not isinstance(result, dict):
+            raise DeviceAnswerError(
+                f"{self._what('GET', '/health')}: {shown(result, limit_chars=60)}; "
+                "allowed: a JSON object"
+            )
         return result
 
     # -- parameters ------------------------------------------------------------------------
@@ -195,12 +262,17 @@ class CameraClient(Staging, Closing):
             query["frame"] = str(frame)
         if ahead is not None:
             query["ahead"] = ahead
-        body = self._json("PATCH", f"/ports/{port}/params", params=query, json=dict(changes))
-        return Applied(frame=int(body["frame"]), params=dict(body["params"]))
+        path = f"/ports/{port}/params"
+        body = self._json("PATCH", path, params=query, json=dict(changes))
+        answer = checked(PatchAnswer, body, what=self._what("PATCH", path))
+        return Applied(frame=answer.frame, params=dict(answer.params))
 
     def frame(self, port: int = 0) -> dict[str, int]:
         """Current frame number and its start time (ns)."""
-        result: dict[str, int] = self._json("GET", f"/ports/{port}/frame")
+        path = f"/ports/{port}/frame"
+        result: dict[str, int] = checked_dict(
+            FrameAnswer, self._json("GET", path), what=self._what("GET", path)
+        )
         return result
 
     # -- frames ----------------------------------------------------------------------------
@@ -212,11 +284,14 @@ class CameraClient(Staging, Closing):
         is still being formed): its wait follows the daemon's progress (`_capture_answer`).
         """
         query = {} if frame is None else {"frame": frame}
-        response = self._capture_answer(port, query)
-        image, metadata = read_tiff_metadata(response.content)
-        return CapturedFrame(tiff=response.content, image=image, metadata=metadata)
+        path = f"/ports/{port}/capture"
+        content = self._capture_answer(port, query)
+        what = self._what("POST", path)
+        image, metadata = read_tiff_metadata(content, limits=self.limits, what=what)
+        checked(FrameMetadata, metadata, what=f"{what}, frame metadata")
+        return CapturedFrame(tiff=content, image=image, metadata=metadata)
 
-    def _capture_answer(self, port: int, query: dict[str, Any]) -> httpx.Response:
+    def _capture_answer(self, port: int, query: dict[str, Any]) -> bytes:
         """The answer to a capture, waited for while the daemon shows progress.
 
         A capture that brings no byte within ``timeout_s`` is asked again as long as the
@@ -226,14 +301,18 @@ class CameraClient(Staging, Closing):
         frames stand still, ends the wait with the read timeout's error.
         """
         path = f"/ports/{port}/capture"
-        for _ in range(CAPTURE_TRIES - 1):
+        limit = self.limits.frame_bytes + self.limits.json_bytes
+        for tries in range(1, CAPTURE_TRIES + 1):
             before = self._frame_number(port)
             try:
-                return self._request("POST", path, params=query)
+                _, content = self._request(
+                    "POST", path, params=query, limit_bytes=limit, limit_name="frame_pixels"
+                )
+                return content
             except CameraClientError as e:
-                if not self._still_forming(e.__cause__, port, before):
+                if tries == CAPTURE_TRIES or not self._still_forming(e.__cause__, port, before):
                     raise
-        return self._request("POST", path, params=query)
+        raise AssertionError("unreachable: the last try returns or raises")
 
     def _still_forming(self, error: BaseException | None, port: int, before: int | None) -> bool:
         """Whether a capture that timed out is worth asking again: the daemon's frames moved."""
@@ -245,8 +324,10 @@ class CameraClient(Staging, Closing):
     def _frame_number(self, port: int) -> int | None:
         """The port's current frame number, or None if the daemon does not answer it."""
         try:
-            return int(self._http.get(f"/ports/{port}/frame").json()["frame"])
-        except (httpx.HTTPError, ValueError, KeyError, TypeError):
+            return int(self._json("GET", f"/ports/{port}/frame")["frame"])
+        except (CameraClientError, DeviceAnswerError, DeviceLimitError, DeviceTimeout):
+            return None
+        except (ValueError, KeyError, TypeError):
             return None
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
@@ -254,46 +335,32 @@ class CameraClient(Staging, Closing):
 
         The daemon sends every frame or breaks the connection off; a burst that ends
         early raises `PartialBurstError`, whose ``partial`` keeps the frames received.
-        A burst whose first bytes do not come within ``timeout_s`` is waited for as a
-        single capture is (`_capture_answer`).
         """
+        if not 1 <= count <= self.limits.burst_frames:
+            raise DeviceLimitError(
+                f"count={count}; allowed: 1..{self.limits.burst_frames} "
+                "(limit burst_frames; raise ELPHEL_LIMIT_BURST_FRAMES)"
+            )
         query: dict[str, Any] = {"count": count}
         if frame is not None:
             query["frame"] = frame
         path = f"/ports/{port}/capture"
-        data = bytearray()
-        broken: str | None = None
-        backoff = Backoff(self.retry_s)
-        tries = 1
-        while True:
-            before = self._frame_number(port)
-            try:
-                with self._http.stream("POST", path, params=query) as response:
-                    if response.status_code >= 400:
-                        response.read()
-                        raise self._error("POST", path, response)
-                    for chunk in response.iter_bytes():
-                        data += chunk
-            except httpx.TransportError as e:
-                if not data and retryable("POST", e) and backoff.wait():
-                    continue
-                if not data and tries < CAPTURE_TRIES and self._still_forming(e, port, before):
-                    tries += 1
-                    continue
-                if not data:
-                    raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
-                broken = str(e) or type(e).__name__
-            break
+        data, broken = self._burst_bytes(path, query, count)
         if broken is None:
             try:
-                images, metadata = read_tiff_pages(bytes(data))
-            except (ValueError, KeyError, OSError, json.JSONDecodeError) as e:
-                broken = f"unreadable TIFF: {e}"
+                what = self._what("POST", path)
+                images, metadata = read_tiff_pages(data, limits=self.limits, what=what)
+                for meta in metadata:
+                    checked(FrameMetadata, meta, what=f"{what}, frame metadata")
+            except (DeviceLimitError, DeviceAnswerError):
+                raise
+            except (ValueError, KeyError, OSError) as e:
+                broken = f"unreadable TIFF: {shown(e, limit_chars=120)}"
             else:
                 if len(metadata) == count:
-                    return CapturedBurst(tiff=bytes(data), images=images, metadata=metadata)
+                    return CapturedBurst(tiff=data, images=images, metadata=metadata)
                 broken = f"the TIFF has {len(metadata)} pages"
-        pages, metadata = read_partial_tiff(bytes(data))
+        pages, metadata = read_partial_tiff(data, limits=self.limits)
         partial = CapturedBurst(
             tiff=_pages_tiff(pages, metadata), images=pages, metadata=metadata, complete=False
         )
@@ -301,6 +368,53 @@ class CameraClient(Staging, Closing):
             f"burst ended after {len(metadata)} of {count} frames ({broken}; see the daemon log)",
             partial=partial,
         )
+
+    def _burst_bytes(
+        self, path: str, query: dict[str, Any], count: int
+    ) -> tuple[bytes, str | None]:
+        """The bytes of a multi-frame capture and, if it broke off, why."""
+        limits = self.limits
+        deadline = Deadline(
+            limits.deadline_s + count * limits.frame_deadline_s,
+            what=self._what("POST", f"{path}?count={count}"),
+        )
+        limit = count * limits.frame_bytes + limits.json_bytes
+        data = bytearray()
+        backoff = Backoff(self.retry_s)
+        tries = 1
+        while True:
+            timeout = min(self.timeout_s, deadline.seconds)
+            before = self._frame_number(int(path.split("/")[2]))
+            try:
+                with self._http.stream("POST", path, params=query, timeout=timeout) as response:
+                    if response.status_code >= 400:
+                        content = self._read(response, deadline, limits.json_bytes, "json_bytes")
+                        raise self._error("POST", path, response.status_code, content)
+                    check_declared(
+                        response.headers.get("content-length"),
+                        limit_bytes=limit,
+                        what=self._what("POST", path),
+                        limit_name="frame_pixels",
+                    )
+                    read_bounded(
+                        response.iter_bytes(),
+                        limit_bytes=limit,
+                        deadline=deadline,
+                        what=self._what("POST", path),
+                        limit_name="frame_pixels",
+                        into=data,
+                    )
+            except httpx.TransportError as e:
+                if not data and retryable("POST", e) and backoff.wait():
+                    continue
+                port = int(path.split("/")[2])
+                if not data and tries < CAPTURE_TRIES and self._still_forming(e, port, before):
+                    tries += 1
+                    continue
+                if not data:
+                    raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
+                return bytes(data), str(e) or type(e).__name__
+            return bytes(data), None
 
     # -- raw registers ---------------------------------------------------------------------
 
@@ -345,22 +459,25 @@ class CameraClient(Staging, Closing):
         while True:
             query = _event_query(types, port=port, count=remaining)
             headers = {} if last_id is None else {"Last-Event-ID": str(last_id)}
-            timeout = httpx.Timeout(self.timeout_s, read=None)
+            # The daemon sends a keepalive comment every keepalive_s: silence for longer
+            # than a few of them is a dead stream, not a quiet camera.
+            timeout = httpx.Timeout(self.timeout_s, read=self.limits.event_read_timeout_s)
             try:
                 with self._http.stream(
                     "GET", "/events", params=query, headers=headers, timeout=timeout
                 ) as response:
                     if response.status_code >= 400:
-                        response.read()
+                        deadline = Deadline(
+                            self.limits.deadline_s, what=self._what("GET", "/events")
+                        )
+                        content = self._read(
+                            response, deadline, self.limits.json_bytes, "json_bytes"
+                        )
                         if response.status_code == 503 and reconnect and backoff.wait():
                             continue
-                        raise self._error("GET", "/events", response)
+                        raise self._error("GET", "/events", response.status_code, content)
                     backoff.reset()
-                    parser = SSEParser()
-                    for line in response.iter_lines():
-                        event = parser.feed(line)
-                        if event is None:
-                            continue
+                    for event in self._parsed_events(response):
                         if event.id is not None:
                             last_id = event.id
                         yield event
@@ -368,6 +485,14 @@ class CameraClient(Staging, Closing):
                             remaining -= 1
                             if remaining == 0:
                                 return
+            except httpx.ReadTimeout as e:
+                # A daemon that restarts closes the stream; one that stays silent past its
+                # keepalives is broken, and reconnecting would only wait again.
+                raise DeviceTimeout(
+                    f"the event stream of the camera at {self.url} was silent for "
+                    f"{self.limits.event_read_timeout_s:g} s (3 keepalive periods; "
+                    "ELPHEL_LIMIT_KEEPALIVE_S sets the period)"
+                ) from e
             except httpx.TransportError as e:
                 if not (reconnect and backoff.wait()):
                     raise CameraClientError(f"event stream from {self.url} broke: {e}") from e
@@ -382,8 +507,24 @@ class CameraClient(Staging, Closing):
                     f"in {self.retry_s} s"
                 )
 
+    def _parsed_events(self, response: httpx.Response) -> Iterator[CameraEvent]:
+        """The events of an open stream, each line and event within the limits, checked."""
+        what = f"the event stream of the camera at {self.url}"
+        parser = SSEParser(limit_bytes=self.limits.event_bytes, what=what)
+        lines = bounded_lines(
+            response.iter_bytes(), limit_bytes=self.limits.event_line_bytes, what=what
+        )
+        for line in lines:
+            event = parser.feed(line)
+            if event is None:
+                continue
+            model = EVENT_MODELS.get(event.type)
+            if model is not None:
+                checked(model, event.data, what=f"{what}, event {event.type!r} (id {event.id})")
+            yield event
 
-#: How many times a single-frame capture is sent while the daemon shows progress.
+
+#: How many times a capture is sent while the daemon shows progress (`_capture_answer`).
 CAPTURE_TRIES = 8
 
 

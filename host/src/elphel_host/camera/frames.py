@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import io
 import itertools
-import json
 import struct
 from dataclasses import dataclass
 from typing import Any
@@ -19,7 +18,9 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
-from elphel_host.errors import CameraClientError
+from elphel_host import strict_json
+from elphel_host.errors import CameraClientError, DeviceAnswerError, DeviceLimitError
+from elphel_host.limits import HostLimits, check_frame_shape
 
 
 @dataclass(frozen=True)
@@ -103,52 +104,84 @@ class PhotoFinish:
     frames: list[int]
 
 
-def read_tiff_metadata(data: bytes | str) -> tuple[NDArray[Any], dict[str, Any]]:
-    """Image and JSON metadata (ImageDescription) of a TIFF written by the daemon."""
+def _description(text: str | bytes | None, *, what: str, limits: HostLimits) -> dict[str, Any]:
+    """A page's JSON metadata: strict JSON, one object (``{}`` when there is none)."""
+    if not text:
+        return {}
+    try:
+        metadata = strict_json.loads(text, what=what, limit_bytes=limits.json_bytes)
+    except DeviceAnswerError as e:
+        raise CameraClientError(f"TIFF ImageDescription is not JSON metadata: {e}") from e
+    if not isinstance(metadata, dict):
+        raise DeviceAnswerError(f"{what}: the TIFF's metadata is not a JSON object")
+    metadata.pop("shape", None)
+    return metadata
+
+
+def _checked_pages(tif: tifffile.TiffFile, *, what: str, limits: HostLimits) -> list[Any]:
+    """The pages of ``tif``, each one's claimed size checked before anything is decoded."""
+    pages: list[Any] = []
+    for page in tif.pages:
+        if len(pages) >= limits.burst_frames:
+            raise DeviceLimitError(
+                f"{what}: more than {limits.burst_frames} pages "
+                "(limit burst_frames; raise ELPHEL_LIMIT_BURST_FRAMES)"
+            )
+        check_frame_shape(tuple(page.shape), limits, what=what)
+        pages.append(page)
+    return pages
+
+
+def read_tiff_metadata(
+    data: bytes | str, *, limits: HostLimits | None = None, what: str = "a TIFF"
+) -> tuple[NDArray[Any], dict[str, Any]]:
+    """Image and JSON metadata (ImageDescription) of a TIFF written by the daemon.
+
+    The image's claimed size is checked against ``limits`` (default `HostLimits`) before
+    it is decoded; a larger one raises `DeviceLimitError`.
+    """
+    limits = limits or HostLimits()
     source: Any = io.BytesIO(data) if isinstance(data, bytes) else data
     with tifffile.TiffFile(source) as tif:
-        image = tif.asarray()
-        description = tif.pages.first.description
-    try:
-        metadata = json.loads(description) if description else {}
-    except json.JSONDecodeError as e:
-        raise CameraClientError(f"TIFF ImageDescription is not JSON metadata: {e}") from e
-    metadata.pop("shape", None)
-    return image, metadata
+        first = _checked_pages(tif, what=what, limits=limits)[0]
+        image = first.asarray()
+        description = first.description
+    return image, _description(description, what=what, limits=limits)
 
 
 def read_tiff_pages(
-    data: bytes,
+    data: bytes, *, limits: HostLimits | None = None, what: str = "a TIFF"
 ) -> tuple[NDArray[Any] | list[NDArray[Any]], list[dict[str, Any]]]:
     """Images and each page's JSON metadata of a multi-page TIFF from the daemon.
 
     The images are one (N, H, W) array if all pages have one shape, else a list of pages.
+    Page count and sizes are checked against ``limits`` before decoding.
     """
+    limits = limits or HostLimits()
     with tifffile.TiffFile(io.BytesIO(data)) as tif:
-        pages = [tif.pages[i] for i in range(len(tif.pages))]
-        metadata = []
-        for page in pages:
-            meta = json.loads(page.description)  # type: ignore[union-attr]
-            meta.pop("shape", None)
-            metadata.append(meta)
+        pages = _checked_pages(tif, what=what, limits=limits)
+        metadata = [_description(p.description, what=what, limits=limits) for p in pages]
         arrays = [page.asarray() for page in pages]
     if len({a.shape for a in arrays}) > 1:
         return arrays, metadata
     return np.stack(arrays), metadata
 
 
-def read_partial_tiff(data: bytes) -> tuple[list[NDArray[Any]], list[dict[str, Any]]]:
+def read_partial_tiff(
+    data: bytes, *, limits: HostLimits | None = None
+) -> tuple[list[NDArray[Any]], list[dict[str, Any]]]:
     """The complete pages at the start of a TIFF that was cut off (a broken-off burst).
 
     Pages are laid out front to back (IFD, description, pixels), so every page whose
-    pixels arrived is read; the rest is left out.
+    pixels arrived is read; the rest is left out, and so is anything past ``limits``.
     """
+    limits = limits or HostLimits()
     images: list[NDArray[Any]] = []
     metadata: list[dict[str, Any]] = []
     if len(data) < 8 or data[:4] != b"II*\x00":
         return images, metadata
     offset = int.from_bytes(data[4:8], "little")
-    while offset and offset + 2 <= len(data):
+    while offset and offset + 2 <= len(data) and len(images) < limits.burst_frames:
         n = int.from_bytes(data[offset : offset + 2], "little")
         end = offset + 2 + 12 * n + 4
         if end > len(data):
@@ -169,8 +202,10 @@ def read_partial_tiff(data: bytes) -> tuple[list[NDArray[Any]], list[dict[str, A
             break
         description = data[desc_at : desc_at + desc_count].rstrip(b"\x00")
         try:
-            meta = json.loads(description)
-        except (json.JSONDecodeError, UnicodeDecodeError):
+            meta = strict_json.loads(description, what="", limit_bytes=limits.json_bytes)
+        except ValueError:
+            break
+        if not isinstance(meta, dict):
             break
         meta.pop("shape", None)
         pixels = np.frombuffer(data, dtype="<u2", count=width * height, offset=strip_at)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import calendar
 import functools
 import io
-import json
 import re
 import time
 from typing import Any
@@ -26,9 +25,11 @@ import tifffile
 from numpy.typing import NDArray
 from PIL import Image
 
+from elphel_host import strict_json
 from elphel_host.camera.exif import ExifFields, read_exif, scan_jpeg
 from elphel_host.camera.makernote import FULL_SCALE, JP4, JP46, MONO, MakerNote, linear_lut
-from elphel_host.errors import Jp4FormatError
+from elphel_host.errors import DeviceLimitError, Jp4FormatError
+from elphel_host.limits import HostLimits, check_frame_shape
 
 SOURCES = {JP4: "jp4", JP46: "jp46", MONO: "jpeg"}
 RAW = 15
@@ -179,7 +180,28 @@ def _check_size(width: int, height: int, mode: int) -> None:
         raise Jp4FormatError(f"{name} frame {width}x{height}: height not a multiple of {need[1]}")
 
 
-def decode_jp4(data: bytes) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+def _check_window(width: int, height: int, note: MakerNote, limits: HostLimits) -> None:
+    """Refuse a JPEG whose SOF claims more than its MakerNote's window (or the limit) allows.
+
+    Decimation and binning only shrink the window; a composite frame stacks sub-frames, so
+    its height is not bounded by the window's.
+    """
+    check_frame_shape((height, width), limits, what="the JPEG's SOF")
+    _, _, woi_width, woi_height = note.woi
+    if (
+        woi_width
+        and woi_height
+        and (width > woi_width or (height > woi_height and not note.composite))
+    ):
+        raise Jp4FormatError(
+            f"the JPEG's SOF claims {width}x{height} but the MakerNote's window is "
+            f"{woi_width}x{woi_height}; allowed: at most the window"
+        )
+
+
+def decode_jp4(
+    data: bytes, *, limits: HostLimits | None = None
+) -> tuple[NDArray[np.uint16], dict[str, Any]]:
     """Decode an NC393 JPEG frame (JP4, JP46 or mono) to linear 16-bit and its metadata.
 
     Parameters
@@ -200,7 +222,10 @@ def decode_jp4(data: bytes) -> tuple[NDArray[np.uint16], dict[str, Any]]:
     ------
     Jp4FormatError
         Not a JPEG, truncated, no Exif or MakerNote, a short MakerNote, an unknown
-        COLOR_MODE, a colour JPEG, or a size the mode does not allow.
+        COLOR_MODE, a colour JPEG, a size the mode does not allow, or a size larger than
+        the MakerNote's window.
+    DeviceLimitError
+        A size beyond ``limits.frame_pixels`` (default `HostLimits.from_env`).
     """
     info = scan_jpeg(data)
     if info.exif is None:
@@ -220,11 +245,12 @@ def decode_jp4(data: bytes) -> tuple[NDArray[np.uint16], dict[str, Any]]:
             "demosaiced by the camera, not raw data (record with COLOR=5, JP4)"
         )
     _check_size(info.width, info.height, mode)
+    _check_window(info.width, info.height, note, limits or HostLimits.from_env())
     try:
         with Image.open(io.BytesIO(data)) as im:
             im.load()
             pixels = np.asarray(im)
-    except (OSError, SyntaxError, ValueError) as e:
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
         raise Jp4FormatError(f"JPEG data cannot be decoded: {e}") from e
     if pixels.dtype != np.uint8 or pixels.shape != (info.height, info.width):
         raise Jp4FormatError(
@@ -234,17 +260,24 @@ def decode_jp4(data: bytes) -> tuple[NDArray[np.uint16], dict[str, Any]]:
     return linearise(pixels, note), frame_metadata(fields, note, source=SOURCES[mode])
 
 
-def decode_tiff(data: bytes) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+def decode_tiff(
+    data: bytes, *, limits: HostLimits | None = None
+) -> tuple[NDArray[np.uint16], dict[str, Any]]:
     """Decode imgsrv's raw frame (COLOR=15): a 16-bit TIFF, or an 8-bit one with a MakerNote.
 
     A 16-bit frame is returned as it is (the camera bypasses the gamma); an 8-bit frame
     went through the gamma tables and is linearised like a mono JPEG. Metadata: the
     ImageDescription's JSON object if it holds one, and the Exif fields if there are any.
+    The size the TIFF claims is checked against ``limits`` before it is decoded.
     """
+    limits = limits or HostLimits.from_env()
     try:
         with tifffile.TiffFile(io.BytesIO(data)) as tif:
+            check_frame_shape(tuple(tif.pages.first.shape), limits, what="the raw TIFF")
             image = tif.asarray()
             description = tif.pages.first.description
+    except DeviceLimitError:
+        raise
     except Exception as e:  # tifffile raises many kinds on a damaged file
         raise Jp4FormatError(f"not a readable TIFF: {e}") from e
     if image.ndim != 2:
@@ -254,8 +287,12 @@ def decode_tiff(data: bytes) -> tuple[NDArray[np.uint16], dict[str, Any]]:
     meta = frame_metadata(fields, note, source="tiff")
     meta["COLOR"] = RAW
     try:
-        described = json.loads(description) if description else None
-    except json.JSONDecodeError:
+        described = (
+            strict_json.loads(description, what="", limit_bytes=limits.json_bytes)
+            if description
+            else None
+        )
+    except ValueError:
         described = None
     if isinstance(described, dict):
         described.pop("shape", None)

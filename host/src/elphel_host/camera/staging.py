@@ -14,7 +14,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from elphel_host.errors import CameraClientError
+from elphel_host.errors import CameraClientError, ElphelError
 
 if TYPE_CHECKING:
     from elphel_host.camera.protocol import CameraInterface
@@ -81,7 +81,7 @@ class Staging(ABC):
         except BaseException as e:
             try:
                 _restore(self, previous, applied)
-            except CameraClientError as restore_error:
+            except ElphelError as restore_error:
                 e.add_note(str(restore_error))
             raise
         try:
@@ -99,7 +99,7 @@ def _restore(
     for p in reversed(list(applied)):
         try:
             camera.set_params(previous[p], port=p)
-        except CameraClientError as e:
+        except ElphelError as e:
             errors.append(f"port {p}: {e}")
     if errors:
         raise CameraClientError("could not restore staged settings: " + "; ".join(errors))

@@ -16,7 +16,8 @@ import numpy as np
 from elphel_host.cli_common import add_json_option, emit
 from elphel_host.cloud.compare import compare_clouds
 from elphel_host.cloud.ply import PointCloud, read_ply, write_ply
-from elphel_host.cloud.render import colour_map, histogram_png
+from elphel_host.cloud.render import histogram_png
+from elphel_host.preview import colour_map
 
 
 def register(subparsers: Any) -> None:
@@ -79,7 +80,10 @@ def run_compare(args: argparse.Namespace) -> int:
         comments=(f"colour: distance to {args.reference.name}, 0 .. {hi:.4g} mm (viridis)",),
     )
     hist = histogram_png(
-        out_dir / f"{stem}_c2c_hist.png", shown, title=f"{stem} -> {args.reference.stem}"
+        out_dir / f"{stem}_c2c_hist.png",
+        d,
+        max_mm=args.max_distance,
+        title=f"{stem} -> {args.reference.stem}",
     )
     summary: dict[str, Any] = {
         "compared": str(args.compared),

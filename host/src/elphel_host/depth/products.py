@@ -8,8 +8,15 @@ vertical and diagonal disparities that pass the strength threshold themselves. D
 inverse to disparity, so that is a tile whose depth the pair directions do not agree on
 within about that fraction; a tile without a confident direction is kept. Each point's
 colour is the mean of what the four cameras see where the measured disparity puts the
-tile centre in each of them (the 2x2 Bayer cell there), white-balanced by nothing and
-shown with a display gamma of 1/2.2, scaled so the 99.5th percentile is white.
+tile centre in each of them (the 2x2 Bayer cell there), white-balanced by
+`elphel_host.preview.white_balance` (as every picture) and shown with a display gamma of
+1/2.2, scaled so the 99.5th percentile is white.
+
+The pictures (`write_depth_products`) colour depth over its robust range and paint the
+tiles left out in colours that are not on the colour map, each named in the legend:
+texture-less, directions disagree, and far: at infinity or with a disparity below
+`FAR_DISPARITY_PX`, whose depth is mostly the disparity's noise. Far points stay in the
+cloud; its picture leaves them out and counts them.
 """
 
 from __future__ import annotations
@@ -24,10 +31,18 @@ import tifffile
 from numpy.typing import NDArray
 
 from elphel_host.cloud.ply import PointCloud, write_ply
-from elphel_host.cloud.render import cloud_png, depth_png
+from elphel_host.cloud.render import cloud_png, depth_png, length_unit
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import replacing
+from elphel_host.preview import (
+    DISAGREE_RGB,
+    FAR_RGB,
+    NO_VALUE_RGB,
+    Swatch,
+    number_text,
+    white_balance,
+)
 from elphel_host.tp.bayer import lattices
 from elphel_host.tp.geometry import tile_centres
 from elphel_host.tp.images import QuadImages
@@ -46,6 +61,14 @@ DEFAULT_MAX_DISAGREEMENT = 0.25
 #: directions differ by their noise (a few hundredths of a pixel on strong tiles, tenths
 #: on weak ones), which is a large fraction of a small disparity.
 DISAGREEMENT_FLOOR_PX = 0.25
+
+#: Pictures show tiles under this disparity (px of the DSI) as far: their depth is
+#: mostly noise (a tile's disparity noise is a few hundredths of a pixel on strong
+#: tiles, tenths on weak ones).
+FAR_DISPARITY_PX = 0.25
+
+#: Why a tile has no depth, in `DepthResult.reason`.
+KEPT, WEAK, INFINITE, INCONSISTENT = 0, 1, 2, 3
 
 #: The DSI's per-direction layers: (disparity, strength).
 DIRECTIONS = (
@@ -70,10 +93,14 @@ class DepthResult:
         disparity <= 0 (or not finite); left out because the directions disagree.
     min_strength, max_disagreement
         The thresholds used (``max_disagreement`` None: not checked).
+    reason
+        ``(tiles_y, tiles_x)`` uint8: `KEPT`, or why the tile is left out (`WEAK`,
+        `INFINITE`, `INCONSISTENT`).
     """
 
     depth_mm: F32
     cloud: PointCloud
+    reason: NDArray[np.uint8]
     tiles: int
     weak: int
     infinite: int
@@ -150,7 +177,7 @@ def _colours(
             counts[lat.colour] += 1
         r, b, g = (sums[i] / counts[i] for i in range(3))
         rgb += np.stack([r, g, b], axis=1)
-    rgb /= 4.0
+    rgb = white_balance(rgb / 4.0) if n else rgb
     white = float(np.percentile(rgb, 99.5)) if n else 1.0
     disp = np.clip(rgb / max(white, 1e-12), 0.0, 1.0) ** (1 / 2.2)
     out: NDArray[np.uint8] = np.round(disp * 255).astype(np.uint8)
@@ -211,9 +238,11 @@ def dsi_depth(
         rgb_images,
     )
     cloud = PointCloud(pts.astype(np.float32), strength[keep].astype(np.float32), colours)
+    reason = np.select([weak, infinite, inconsistent], [WEAK, INFINITE, INCONSISTENT], KEPT)
     return DepthResult(
         depth_mm=depth.astype(np.float32),
         cloud=cloud,
+        reason=reason.astype(np.uint8),
         tiles=int(disparity.size),
         weak=int(np.count_nonzero(weak)),
         infinite=int(np.count_nonzero(infinite)),
@@ -278,10 +307,37 @@ def depth_paths(ply: str | Path) -> dict[str, Path]:
     }
 
 
+def left_out_swatches(result: DepthResult, far_mm: float) -> list[Swatch]:
+    """The tiles a depth picture paints outside its colour map, named for the legend."""
+    reason = result.reason
+    weak = np.count_nonzero(reason == WEAK)
+    with np.errstate(invalid="ignore"):
+        far = (reason == INFINITE) | ((reason == KEPT) & (result.depth_mm > far_mm))
+    unit, per = length_unit(far_mm)
+    return [
+        Swatch(
+            f"far: disparity < {FAR_DISPARITY_PX:g} px, beyond {number_text(far_mm / per)} {unit} "
+            f"({np.count_nonzero(far)} tiles)",
+            far,
+            FAR_RGB,
+        ),
+        Swatch(
+            f"no texture: strength < {result.min_strength:g} ({weak} tiles)",
+            reason == WEAK,
+            NO_VALUE_RGB,
+        ),
+        Swatch(
+            f"directions disagree ({np.count_nonzero(reason == INCONSISTENT)} tiles)",
+            reason == INCONSISTENT,
+            DISAGREE_RGB,
+        ),
+    ]
+
+
 def write_depth_products(
     ply: str | Path, result: DepthResult, optics: DepthOptics, *, title: str = ""
 ) -> dict[str, str]:
-    """Write the cloud (PLY + PNG view) and the depth map (TIFF + PNG with a colour bar)."""
+    """Write the cloud (PLY + PNG views) and the depth map (TIFF + PNG with a colour bar)."""
     paths = depth_paths(ply)
     meta = {
         "min_strength": result.min_strength,
@@ -298,7 +354,13 @@ def write_depth_products(
         result.cloud,
         comments=("elphel depth: x y z in mm, camera frame of the virtual centre camera",),
     )
-    cloud_png(paths["cloud_png"], result.cloud, title=f"{title} {len(result.cloud)} points".strip())
+    far_mm = float(optics.depth_mm(np.array(FAR_DISPARITY_PX)))
+    cloud_png(paths["cloud_png"], result.cloud, far_mm=far_mm, title=f"{title} cloud".strip())
     write_depth_tiff(paths["depth_tiff"], result.depth_mm, metadata=meta)
-    depth_png(paths["depth_png"], result.depth_mm, title=f"{title} depth".strip())
+    depth_png(
+        paths["depth_png"],
+        result.depth_mm,
+        title=f"{title} depth".strip(),
+        swatches=left_out_swatches(result, far_mm),
+    )
     return {k: str(v) for k, v in paths.items()}

@@ -7,7 +7,8 @@
   default, or ``--scheduler tcp://host:8786``), with progress on stderr as each finishes.
 * ``elphel mfsr compare BURST_DIR --scale S [--reference REF.tif] --out DIR`` runs
   bicubic, baseline and robust, scores them against the reference (PSNR, SSIM) and writes
-  the three TIFFs, a ``compare.json`` and a side-by-side crops PNG.
+  the three TIFFs, a ``compare.json`` and ``crops.png``: their centre crops side by side
+  on one tone scale, each labelled with its method (and scores).
 """
 
 from __future__ import annotations
@@ -24,13 +25,14 @@ from numpy.typing import NDArray
 from elphel_host.burst.io import read_burst
 from elphel_host.cli_common import add_json_option, emit
 from elphel_host.errors import InputFormatError
+from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.fuse import FusionResult, fuse_burst
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.output import fused_meta, write_image
 from elphel_host.mfsr.psf_spec import PsfSpec, parse_psf
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
-from elphel_host.preview import save_preview
+from elphel_host.preview import labelled_row, save_png
 from elphel_host.progress import ProgressLine
 
 if TYPE_CHECKING:  # the quad's PSFs are imported when asked for (SciPy's optimiser)
@@ -157,15 +159,20 @@ def run(args: argparse.Namespace) -> int:
         return run_compare(args)
     dirs = args.burst_dirs
     if len(dirs) == 1:
-        result = _fuse_one(
-            dirs[0],
-            args.scale,
-            args.method,
-            args.out,
-            args.float,
-            args.psf_choice,
-            not args.no_prior,
-        )
+        line = ProgressLine()
+        try:
+            with line.ticking(f"mfsr: fusing {dirs[0]} ({args.method} x{args.scale})"):
+                result = _fuse_one(
+                    dirs[0],
+                    args.scale,
+                    args.method,
+                    args.out,
+                    args.float,
+                    args.psf_choice,
+                    not args.no_prior,
+                )
+        finally:
+            line.end()
         human = (
             f"{result['out']}: {result['method']} x{args.scale}, {result['used']}/"
             f"{result['frames']} frames, {result['seconds']:.2f} s"
@@ -268,6 +275,13 @@ def _scores(
     }
 
 
+def crop_label(method: str, entry: dict[str, Any]) -> str:
+    """A crop's label in crops.png: the method, with its scores when there is a reference."""
+    if "psnr_db" not in entry:
+        return method
+    return f"{method} {entry['psnr_db']:.2f} dB, SSIM {entry['ssim']:.3f}"
+
+
 def run_compare(args: argparse.Namespace) -> int:
     if len(args.burst_dirs) != 2:
         raise InputFormatError(f"compare takes one BURST_DIR, got {args.burst_dirs[1:]}")
@@ -279,15 +293,17 @@ def run_compare(args: argparse.Namespace) -> int:
     if args.reference:
         ref = np.asarray(tifffile.imread(args.reference), dtype=np.float32)
     results: dict[str, Any] = {}
-    crops = []
-    for method in ("bicubic", "baseline", "robust"):
-        res: FusionResult = fuse_burst(
-            burst,
-            scale=args.scale,
-            method=method,
-            use_prior=not args.no_prior,
-            config=config,
-        )
+    crops: list[tuple[str, NDArray[np.float32]]] = []
+    line = ProgressLine()
+    for i, method in enumerate(("bicubic", "baseline", "robust"), start=1):
+        with line.ticking(f"mfsr compare: {i}/3 {method} x{args.scale}"):
+            res: FusionResult = fuse_burst(
+                burst,
+                scale=args.scale,
+                method=method,
+                use_prior=not args.no_prior,
+                config=config,
+            )
         entry = write_image(
             out / f"{method}.tif",
             res.image,
@@ -300,9 +316,9 @@ def run_compare(args: argparse.Namespace) -> int:
         if ref is not None:
             entry.update(_scores(ref, res.image, args.scale, args.reference))
         results[method] = entry
-        crops.append(_crop(res.image, 256))
-    side = np.concatenate([np.asarray(c, np.float32) for c in crops], axis=1)
-    png = save_preview(side, out / "crops.png")
+        crops.append((crop_label(method, entry), _crop(res.image, 256)))
+    line.end()
+    png = save_png(labelled_row(crops), out / "crops.png")
     summary = {
         "burst": args.burst_dirs[1],
         "scale": args.scale,
@@ -310,7 +326,9 @@ def run_compare(args: argparse.Namespace) -> int:
         "crops_png": str(png),
         "crops_order": ["bicubic", "baseline", "robust"],
     }
-    (out / "compare.json").write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
+    # An identical image's PSNR is infinite, which strict JSON cannot hold.
+    text = json.dumps(summary, indent=1, sort_keys=True)
+    write_atomic(out / "compare.json", (text + "\n").encode())
     lines = [
         f"{m}: {e.get('psnr_db', '-')} dB, SSIM {e.get('ssim', '-')}, {e['seconds']} s"
         for m, e in results.items()

@@ -20,9 +20,7 @@ from __future__ import annotations
 try:
     import pymmcore_plus.experimental.unicore  # noqa: F401
 except ImportError as e:  # pragma: no cover - depends on the install
-    raise ImportError(
-        "elphel_host.mm needs pymmcore-plus: pip install 'elphel-host[mm]'"
-    ) from e
+    raise ImportError("elphel_host.mm needs pymmcore-plus: pip install 'elphel-host[mm]'") from e
 
 from elphel_host.mm.camera import ElphelCameraDevice
 from elphel_host.mm.loader import CAMERA_LABEL, STAGE_LABEL, load_elphel_devices

@@ -13,6 +13,7 @@ from typing import Any
 from elphel_host.cli_common import add_json_option, emit
 from elphel_host.progress import ProgressLine
 from elphel_host.recordings.conversion import convert
+from elphel_host.shown import shown
 
 
 def register(subparsers: Any) -> None:
@@ -74,7 +75,7 @@ def run_convert(args: argparse.Namespace) -> int:
     finally:
         line.end()
     for failure in result.failed:
-        print(f"elphel: {failure.reason}", file=sys.stderr)
+        print(f"elphel: {shown(failure.reason, limit_chars=500)}", file=sys.stderr)
     written = sum(not c.skipped for c in result.converted)
     skipped = len(result.converted) - written
     human = (

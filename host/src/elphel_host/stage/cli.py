@@ -59,7 +59,7 @@ def _status(args: argparse.Namespace) -> int:
 class _ReportingClient:
     """The stage client as a move sees it, showing each caliper reading as progress.
 
-    Progress is the distance covered towards the target (µm), from the readings the
+    Progress is the distance covered towards the target (mm), from the readings the
     move takes anyway; nothing extra is asked of the stage.
     """
 
@@ -80,12 +80,13 @@ class _ReportingClient:
                 # it starts leaves only its one-line error on stderr).
                 self._start_um = um
                 return um
-            total = max(abs(self.target_um - self._start_um), 1)
-            done = max(0, total - abs(self.target_um - um))
+            total_um = max(abs(self.target_um - self._start_um), 1)
+            done_um = max(0, total_um - abs(self.target_um - um))
             self._line.update(
                 f"stage: caliper {um / 1000:.3f} mm, target {self.target_um / 1000:.3f} mm",
-                done=done,
-                total=total,
+                done=done_um / 1000,
+                total=total_um / 1000,
+                unit="mm",
             )
         return um
 

@@ -20,6 +20,8 @@ from elphel_host.errors import (
     StageResetError,
     StageTimeout,
 )
+from elphel_host.limits import HostLimits
+from elphel_host.shown import shown
 from elphel_host.stage.protocol import (
     Reply,
     StageStatus,
@@ -86,7 +88,11 @@ class StageClient:
         with self._lock:
             if self._link is not None:
                 self._link.close()
-            self._link = LineLink(self.opener(self.url), self.url)
+            self._link = LineLink(
+                self.opener(self.url),
+                self.url,
+                line_limit_bytes=HostLimits.from_env().stage_line_bytes,
+            )
             self._link.drain(0.05)
             deadline = time.monotonic() + self.open_timeout_s
             while True:
@@ -96,8 +102,7 @@ class StageClient:
                 except (StageProtocolError, StageTimeout):
                     if time.monotonic() > deadline:
                         raise
-            boot_id = dict(item.partition("=")[::2] for item in boot.split())["id"]
-            self._note_boot(boot_id)
+            self._note_boot(_boot_id(boot))
 
     def _note_boot(self, boot_id: str) -> None:
         old, self.boot_id = self.boot_id, boot_id
@@ -354,3 +359,13 @@ class MoveStatus:
 
 
 __all__ = ["Identity", "MoveStatus", "StageClient", "StageCommandError"]
+
+
+def _boot_id(reply: str) -> str:
+    """The ``id=`` of a ``BOOT?`` reply; `StageProtocolError` naming the reply without one."""
+    fields = dict(item.partition("=")[::2] for item in reply.split())
+    if not fields.get("id"):
+        raise StageProtocolError(
+            f"BOOT? answered '{shown(reply, limit_chars=80)}'; allowed: a reply with id=..."
+        )
+    return fields["id"]

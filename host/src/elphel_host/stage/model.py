@@ -13,7 +13,9 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from elphel_host import strict_json
 from elphel_host.errors import InputFormatError, StageNotHomedError
+from elphel_host.fileio import write_atomic
 from elphel_host.stage.client import NOMINAL_MM_PER_STEP
 
 
@@ -67,7 +69,8 @@ class StageModel:
             "backlash_mm": self.backlash_mm,
             "spread_mm_per_step": self.spread_mm_per_step,
         }
-        path.write_text(json.dumps(data, indent=1))
+        text = strict_json.dumps(data, what=str(path), indent=1)
+        write_atomic(path, text.encode())
 
     def steps_for(self, mm: float) -> float:
         if self.offset_mm is None:

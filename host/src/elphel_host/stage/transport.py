@@ -11,7 +11,7 @@ import time
 import serial
 from serial.urlhandler.protocol_socket import Serial as _PySerialSocket
 
-from elphel_host.errors import StageConnectionError
+from elphel_host.errors import StageConnectionError, StageProtocolError
 
 log = logging.getLogger(__name__)
 
@@ -84,11 +84,16 @@ def open_link(url: str, *, timeout_s: float = 0.05) -> serial.SerialBase:
 
 
 class LineLink:
-    """Line I/O on an open port: write a line, read lines until a deadline."""
+    """Line I/O on an open port: write a line, read lines until a deadline.
 
-    def __init__(self, port: serial.SerialBase, url: str) -> None:
+    A line longer than ``line_limit_bytes`` (the protocol's are under 200) is a
+    `StageProtocolError`: a board sending bytes without end cannot fill the memory.
+    """
+
+    def __init__(self, port: serial.SerialBase, url: str, *, line_limit_bytes: int = 4096) -> None:
         self.port = port
         self.url = url
+        self.line_limit_bytes = line_limit_bytes
         self._buf = bytearray()
 
     def write_line(self, line: str) -> None:
@@ -124,6 +129,12 @@ class LineLink:
                 ) from e
             if chunk:
                 self._buf.extend(chunk)
+                if len(self._buf) > self.line_limit_bytes and b"\n" not in self._buf:
+                    self._buf.clear()
+                    raise StageProtocolError(
+                        f"stage {self.url!r}: a line longer than {self.line_limit_bytes} bytes "
+                        "(limit stage_line_bytes; raise ELPHEL_LIMIT_STAGE_LINE_BYTES)"
+                    )
 
     def drain(self, quiet_s: float = 0.0) -> list[str]:
         """Discard pending input; return the complete lines that were in it."""

@@ -12,11 +12,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from elphel_host.camera.backends import connect
 from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.depth.cli import add_disagreement_option, max_disagreement
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
+from elphel_host.preview import NO_VALUE_RGB, Swatch, save_map_picture
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
@@ -29,7 +32,8 @@ from elphel_host.tp.tile_pass import correlation_tiles
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
 
 CAPTURE = "capture"
-USAGE = """elphel tp QUAD_DIR --out DSI.tif [--ply CLOUD.ply] [--json] [tile processor options]
+USAGE = """elphel tp QUAD_DIR --out DSI.tif [--no-png] [--ply CLOUD.ply] [--json]
+                         [tile processor options]
        elphel tp QUAD_DIR... --out-dir DIR [--scheduler ADDRESS] [--workers N] [--json]
        elphel tp capture --camera URL [--token T] --out QUAD_DIR [--geometry FILE]
                          [--trigger-period-ms MS] [--force] [--json]"""
@@ -110,6 +114,12 @@ def _add_tp_options(p: argparse.ArgumentParser) -> None:
     )
     tp.add_argument("--threads", type=int, default=TpConfig.threads, help="worker threads")
     tp.add_argument(
+        "--no-png",
+        action="store_true",
+        help="do not write DSI.png beside DSI.tif (the disparity map with a colour bar in px, "
+        "tiles weaker than --min-strength named as texture-less)",
+    )
+    tp.add_argument(
         "--ml-data", metavar="PATH", help="also write the correlation tiles in ML_DATA layout"
     )
     tp.add_argument(
@@ -161,6 +171,7 @@ def _add_sequence_options(p: Any) -> None:
 
 # Options of one form that make no sense in the other (compared with their defaults).
 _TP_ONLY = (
+    "no_png",
     "refine",
     "scan",
     "fat_zero",
@@ -269,9 +280,9 @@ def run_tp(args: argparse.Namespace) -> int:
     qs = read_quad_dir(args.quad_dir)
     optics = None
     disagreement = None
+    if not args.min_strength >= 0:
+        args.parser.error(f"--min-strength {args.min_strength:g}; allowed: >= 0")
     if args.ply:
-        if not args.min_strength >= 0:
-            args.parser.error(f"--min-strength {args.min_strength:g}; allowed: >= 0")
         disagreement = max_disagreement(args)
         optics = DepthOptics.from_optics(
             qs.manifest.optics, source=str(Path(args.quad_dir, "quad.json"))
@@ -283,6 +294,12 @@ def run_tp(args: argparse.Namespace) -> int:
         threads=args.threads,
     )
     dsi, result = quad_dsi(qs, args.out, config)
+    if not args.no_png:
+        result["png"] = str(
+            save_disparity_png(
+                Path(args.out).with_suffix(".png"), dsi, min_strength=args.min_strength
+            )
+        )
     if args.ml_data:
         corr = correlation_tiles(qs.quad, dsi["target_disparity"], config=config)
         write_ml_data(
@@ -318,6 +335,21 @@ def run_tp(args: argparse.Namespace) -> int:
     return 0
 
 
+def save_disparity_png(path: Path, dsi: dict[str, Any], *, min_strength: float) -> Path:
+    """DSI.png: the disparity over its robust range, texture-less tiles named in the legend."""
+    disparity = np.asarray(dsi["disparity"], dtype=np.float64)
+    weak = ~(np.asarray(dsi["strength"]) >= min_strength)
+    swatch = Swatch(
+        f"no texture: strength < {min_strength:g} ({np.count_nonzero(weak)} tiles)",
+        weak,
+        NO_VALUE_RGB,
+    )
+    cell = max(1, int(np.ceil(400 / max(1, min(disparity.shape)))))
+    return save_map_picture(
+        disparity, path, unit="px", title="disparity (DSI)", swatches=[swatch], cell=cell
+    )
+
+
 def run_many(args: argparse.Namespace) -> int:
     """``elphel tp QUAD_DIR... --out-dir DIR``: one DSI per quad, on a Dask cluster."""
     if args.out:
@@ -347,6 +379,8 @@ def run_many(args: argparse.Namespace) -> int:
 
     def report(res: dict[str, Any], done: int, total: int) -> None:
         counts[res["status"]] += 1
+        if res["status"] == "skipped":  # already there (reported first): not in the rate
+            progress.restart(done)
         if res["status"] == "failed":
             failed_line(f"{res['quad']}: {res['error']}")
         progress.update(

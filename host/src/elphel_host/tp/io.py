@@ -13,7 +13,7 @@ importable from here too. The ``kernels`` entry and its array are
 
 from __future__ import annotations
 
-import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,8 +23,11 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
+from elphel_host import strict_json
+from elphel_host.confined import check_relative, inside
 from elphel_host.errors import InputFormatError
-from elphel_host.fileio import write_atomic
+from elphel_host.fileio import replacing, write_atomic
+from elphel_host.limits import HostLimits
 from elphel_host.tp.bayer import BAYER_PATTERNS
 from elphel_host.tp.dsi import DAMAGED_TIFF_ERRORS
 from elphel_host.tp.geometry import QuadGeometry
@@ -37,11 +40,21 @@ MANIFEST = "quad.json"
 
 
 def load_json(path: Path) -> Any:
-    """The JSON document in ``path``; `InputFormatError` when it is not JSON."""
+    """The strict JSON document in ``path``; `InputFormatError` when it is not JSON.
+
+    A file over the ``json_bytes`` limit (`HostLimits`) is refused before it is read.
+    """
+    limits = HostLimits.from_env()
+    size = path.stat().st_size
+    if size > limits.json_bytes:
+        raise InputFormatError(
+            f"{path}: {size} bytes; limit json_bytes = {limits.json_bytes} "
+            "(raise ELPHEL_LIMIT_JSON_BYTES)"
+        )
     try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputFormatError(f"{path}: not valid JSON ({e})") from e
+        return strict_json.loads(path.read_bytes(), what=str(path), limit_bytes=limits.json_bytes)
+    except ValueError as e:
+        raise InputFormatError(str(e)) from e
 
 
 def camera_list(doc: Any, where: str) -> list[Any]:
@@ -52,15 +65,35 @@ def camera_list(doc: Any, where: str) -> list[Any]:
     return cams
 
 
+# A position is in units of the square's side: a camera 100 sides away is no quad.
+POSITION_MAX = 100.0
+# Full scale of the images: 8..32-bit integer data, or float data scaled to 1.
+FULL_SCALE_RANGE = (1e-3, 2.0**32)
+
+
 def parse_position(value: Any, where: str) -> tuple[float, float]:
-    """A camera ``position``: ``[x, y]`` numbers in units of the square's side."""
+    """A camera ``position``: ``[x, y]`` finite numbers in units of the square's side."""
     if not (
         isinstance(value, list)
         and len(value) == 2
         and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        and all(math.isfinite(v) and abs(v) <= POSITION_MAX for v in value)
     ):
-        raise InputFormatError(f"{where}.position={value!r}; allowed: [x, y] numbers")
+        raise InputFormatError(
+            f"{where}.position={value!r}; allowed: [x, y] finite numbers within +-{POSITION_MAX:g}"
+        )
     return float(value[0]), float(value[1])
+
+
+def check_full_scale(full: Any, source: str) -> None:
+    """``full_scale_dn``: None or a finite number in `FULL_SCALE_RANGE`."""
+    lo, hi = FULL_SCALE_RANGE
+    if full is not None and not (
+        isinstance(full, int | float) and not isinstance(full, bool) and lo <= full <= hi
+    ):
+        raise InputFormatError(
+            f"{source}: full_scale_dn={full!r}; allowed: a number in {lo:g}..{hi:.0f}"
+        )
 
 
 @dataclass(frozen=True)
@@ -90,6 +123,18 @@ class QuadCamera:
     def to_json(self) -> dict[str, Any]:
         """The camera's entry of ``quad.json``."""
         return {"file": self.file, "position": list(self.position), **self.fields}
+
+
+def _check_distinct(cameras: Sequence[QuadCamera], source: str) -> None:
+    """Four different files at four different positions."""
+    positions = [cam.position for cam in cameras]
+    if len(set(positions)) != len(positions):
+        raise InputFormatError(
+            f"{source}: cameras' positions {positions}; allowed: four distinct positions"
+        )
+    files = [cam.file for cam in cameras]
+    if len(set(files)) != len(files):
+        raise InputFormatError(f"{source}: cameras' files {files}; allowed: four distinct files")
 
 
 def quad_cameras(
@@ -205,11 +250,12 @@ class QuadManifest:
                     f"{source}: cameras[{i}] needs 'file' and 'position', got {cam!r}"
                 )
             position = parse_position(cam["position"], f"{source}: cameras[{i}]")
+            file = check_relative(cam["file"], where=f"{source}: cameras[{i}].file")
             rest = {k: v for k, v in cam.items() if k not in ("file", "position")}
-            cameras.append(QuadCamera(file=str(cam["file"]), position=position, fields=rest))
+            cameras.append(QuadCamera(file=file, position=position, fields=rest))
+        _check_distinct(cameras, source)
         full = doc.get("full_scale_dn")
-        if full is not None and not (isinstance(full, int | float) and full > 0):
-            raise InputFormatError(f"{source}: full_scale_dn={full!r}; allowed: a number > 0")
+        check_full_scale(full, source)
         optics = doc.get("optics")
         if optics is not None and not isinstance(optics, dict):
             raise InputFormatError(f"{source}: optics={optics!r}; allowed: an object")
@@ -222,6 +268,11 @@ class QuadManifest:
             extra={k: v for k, v in doc.items() if k not in cls.FIELDS},
         )
 
+    def file_of(self, root: Path, index: int) -> Path:
+        """Camera ``index``'s file under ``root``, refused if it (or a link) leaves ``root``."""
+        where = f"{root / MANIFEST}: cameras[{index}].file"
+        return inside(root, self.cameras[index].file, where=where)
+
     @classmethod
     def read(cls, root: str | Path) -> QuadManifest:
         """Read ``root/quad.json``."""
@@ -233,8 +284,8 @@ class QuadManifest:
         return cls.from_json(load_json(path), source=str(path))
 
     def write(self, root: str | Path) -> Path:
-        """Write ``root/quad.json`` (atomically)."""
-        text = json.dumps(self.to_json(), indent=2) + "\n"
+        """Write ``root/quad.json`` (atomically, strict JSON)."""
+        text = strict_json.dumps(self.to_json(), what=str(Path(root) / MANIFEST), indent=2) + "\n"
         return write_atomic(Path(root) / MANIFEST, text.encode())
 
 
@@ -266,9 +317,10 @@ def write_quad_dir(
     out.mkdir(parents=True, exist_ok=True)
     for cam, image in zip(manifest.cameras, images, strict=True):
         if isinstance(image, bytes):
-            (out / cam.file).write_bytes(image)
+            write_atomic(out / cam.file, image)
         else:
-            tifffile.imwrite(out / cam.file, image)
+            with replacing(out / cam.file, keep_suffix=True) as tmp:
+                tifffile.imwrite(tmp, image)
     if kernels is not None and manifest.kernels is not None:
         np.save(out / manifest.kernels.file, kernels)
     manifest.write(out)
@@ -296,8 +348,8 @@ def read_quad_dir(path: str | Path) -> QuadSet:
     manifest = QuadManifest.read(root)
     source = root / MANIFEST
     images = []
-    for i, cam in enumerate(manifest.cameras):
-        file = root / cam.file
+    for i in range(len(manifest.cameras)):
+        file = manifest.file_of(root, i)
         if not file.is_file():
             raise InputFormatError(f"{source}: cameras[{i}].file {file} does not exist")
         try:

@@ -7,10 +7,6 @@ of several targets keeping the strongest); each refinement pass re-centres every
 the disparity measured so far, so the final residual is small and the sub-pixel
 estimate works where it is most accurate (near lag 0, where the correlation peak is
 symmetric).
-
-This is the front of the package: :class:`TpConfig` (:mod:`~elphel_host.tp.config`),
-:class:`QuadImages` (:mod:`~elphel_host.tp.images`), :func:`measure` and
-:func:`correlation_tiles` (:mod:`~elphel_host.tp.tile_pass`) are importable from here too.
 """
 
 from __future__ import annotations
@@ -20,17 +16,9 @@ from numpy.typing import NDArray
 
 from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
 from elphel_host.tp.images import QuadImages
-from elphel_host.tp.tile_pass import colour_masks, correlation_tiles, measure, prepare
+from elphel_host.tp.tile_pass import measure, prepare
 
-__all__ = [
-    "DSI_LAYERS",
-    "QuadImages",
-    "TpConfig",
-    "colour_masks",
-    "correlation_tiles",
-    "disparity_map",
-    "measure",
-]
+__all__ = ["DSI_LAYERS", "disparity_map"]
 
 F32 = NDArray[np.float32]
 

@@ -14,9 +14,9 @@ mapped linearly to scene temperature, 283.15 K at radiance 0 to 303.15 K at radi
 with 50 mK temporal noise when the board renders noise. TLinear on (radiometry on) gives
 kelvin in 0.01 K or 0.1 K counts; TLinear off gives 14-bit flux counts, 8192 at the FPA
 temperature and 30 counts per kelvin. With telemetry on, two rows (footer or header)
-carry the simulator's telemetry: words 0 revision, 1-2 uptime ms, 20-21 frame counter,
-22 frame mean, 24 FPA temperature in 0.01 K (32-bit values least significant word first),
-the rest 0.
+carry the telemetry the daemon decodes (`elphel_camd.vospi.telemetry`): revision, uptime,
+FFC state, frame counter, frame mean, FPA temperature, TLinear state and resolution; the
+rest 0.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from elphel_sim.chips.registers import SimRegisterChip
 from elphel_sim.chips.sensor import ImageContext, SensorTiming, SimSensor
 from elphel_sim.fpga import FrameRecord
 from elphel_sim.render import Intrinsics, render_radiance
+from elphel_sim.vospi import telemetry_rows
 
 ERROR_RANGE = -3
 ERROR_DATA_SIZE = -6
@@ -42,7 +43,8 @@ SCENE_SPAN_K = 20.0  # radiance 1 is 303.15 K
 NETD_K = 0.05
 RAW_AT_FPA = 8192
 RAW_PER_K = 30.0
-TELEMETRY_REVISION = 14
+FFC_NEVER = 0  # telemetry FFC state: never commanded
+FFC_DONE = 3  # complete
 _ERROR = cci.REGISTERS.field("status.error")
 
 # Enum attributes: power-on value (reference 5.2) and the values a SET accepts.
@@ -189,6 +191,7 @@ class SimLepton35(SimRegisterChip, SimSensor):
             "FPA_CENTI_K": round(self.sim_fpa_temperature_k * 100),
             "FRAME_COUNTER": self.frame,
             "UPTIME_MS": self._value("SYS_UPTIME"),
+            "FFC_STATE": FFC_DONE if self.ffc_count else FFC_NEVER,
         }
 
     def render(self, record: FrameRecord, context: ImageContext) -> NDArray[np.uint16]:
@@ -211,13 +214,15 @@ class SimLepton35(SimRegisterChip, SimSensor):
             image = np.clip(np.rint(counts), 0, 0x3FFF).astype(np.uint16)
         if not r["SYS_TELEMETRY_ENABLE"]:
             return image
-        telemetry = np.zeros((spec.HEIGHT_TELEMETRY - spec.HEIGHT, spec.WIDTH), np.uint16)
-        row = telemetry[0]
-        row[0] = TELEMETRY_REVISION
-        row[1:3] = cci.words_of(r["UPTIME_MS"], 2)
-        row[20:22] = cci.words_of(r["FRAME_COUNTER"] & 0xFFFFFFFF, 2)
-        row[22] = round(float(image.mean()))
-        row[24] = r["FPA_CENTI_K"]
+        telemetry = telemetry_rows(
+            frame_counter=r["FRAME_COUNTER"],
+            uptime_ms=r["UPTIME_MS"],
+            fpa_centi_k=r["FPA_CENTI_K"],
+            frame_mean=round(float(image.mean())),
+            ffc_state=r["FFC_STATE"],
+            tlinear=bool(r["RAD_ENABLE"] and r["RAD_TLINEAR_ENABLE"]),
+            resolution_code=r["RAD_TLINEAR_RESOLUTION"],
+        )
         if r["SYS_TELEMETRY_LOCATION"] == spec.TELEMETRY_FOOTER:
             return np.ascontiguousarray(np.vstack([image, telemetry]))
         return np.ascontiguousarray(np.vstack([telemetry, image]))

@@ -22,7 +22,7 @@ import tifffile
 from numpy.typing import NDArray
 from PIL import Image
 
-from elphel_host.preview import map_picture
+from elphel_host.preview import map_picture, robust_range
 from elphel_sim.demo.rig import elphel, rig_env, simulated_rig, step
 
 # `elphel` commands of this step: 4 windows, home, plan, capture, tp, depth, 2 compares.
@@ -185,7 +185,7 @@ def depth_picture(
     """One LR quad's depth | the MFSR quad's | the truth, on one scale in metres."""
     f, b, pitch = optics["focal_length_mm"], optics["baseline_mm"], optics["pixel_pitch_um"]
     true_m = f * b / (np.where(truth > 0, truth, np.nan) * pitch / 1000.0) / 1000.0
-    lo, hi = 0.0, float(np.nanpercentile(true_m, 99.5)) * 1.05
+    lo, hi = robust_range(true_m)
 
     def panel(depth_mm: NDArray[Any], cell: int, title: str) -> Image.Image:
         values = np.asarray(depth_mm, np.float64) / 1000.0

@@ -2,7 +2,7 @@
 
 `reference_image` renders the burst's scene with pixels ``scale`` times finer (what the
 fused image should look like); `comparison_picture` and `burst_crops` put the same crop
-of several images side by side on one tone scale; `colour_map` colours a disparity map.
+of several images side by side on one tone scale and one white balance.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from PIL import Image, ImageDraw
+
+from elphel_host.preview import FONT_PX, label_font, white_balance, white_balance_gains
 
 
 def reference_image(
@@ -69,8 +71,9 @@ def comparison_picture(
     ----------
     panels
         (label, image) pairs, images 2-D or (H, W, 3) on one grid; the last one (the
-        reference) sets the tone scale (0.5 and 99.5 percentiles of its crop, gamma 2.2),
-        so brightness and contrast compare between panels.
+        reference) sets the tone scale (0.5 and 99.5 percentiles of its crop, gamma 2.2)
+        and, in colour, the white balance (`elphel_host.preview.white_balance`), so
+        brightness, contrast and colour compare between panels.
     path
         The PNG to write.
     size
@@ -97,8 +100,11 @@ def comparison_picture(
     y0 = int(np.clip(cy - size // 2, 0, h - size))
     x0 = int(np.clip(cx - size // 2, 0, w - size))
     crops = [np.asarray(im[y0 : y0 + size, x0 : x0 + size], np.float64) for _, im in panels]
+    if crops[-1].ndim == 3:  # colour: every crop balanced by the reference's gains
+        gains = white_balance_gains(crops[-1])
+        crops = [white_balance(c, gains=gains) for c in crops]
     lo, hi = (float(v) for v in np.percentile(crops[-1], [0.5, 99.5]))
-    label_px, gap = 14, 4
+    label_px, gap = FONT_PX + 6, 4
     side = size * zoom
     sheet = Image.new("RGB", (len(crops) * (side + gap) - gap, side + label_px), (0, 0, 0))
     draw = ImageDraw.Draw(sheet)
@@ -106,7 +112,7 @@ def comparison_picture(
         tile = _tone(crop, lo, hi).repeat(zoom, axis=0).repeat(zoom, axis=1)
         x = i * (side + gap)
         sheet.paste(Image.fromarray(tile).convert("RGB"), (x, label_px))
-        draw.text((x + 2, 1), label, fill=(255, 255, 255))
+        draw.text((x + 2, 2), label, fill=(255, 255, 255), font=label_font())
     path.parent.mkdir(parents=True, exist_ok=True)
     sheet.save(path, optimize=True)
     return path
@@ -124,10 +130,3 @@ def burst_crops(compare_dir: Path, reference: Path, path: Path) -> Path:
         panels.append((label, tifffile.imread(compare_dir / f"{method}.tif")))
     panels.append(("reference (simulator, pitch/2)", tifffile.imread(reference)))
     return comparison_picture(panels, path)
-
-
-def colour_map(values: NDArray[np.floating], lo: float, hi: float) -> NDArray[np.uint8]:
-    """Map values to RGB along a dark-blue -> green -> yellow -> red ramp; NaN -> grey."""
-    from elphel_host.preview import colour_map as host_colour_map
-
-    return host_colour_map(values, lo, hi)

@@ -28,7 +28,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_host.camera import CameraClient
-from elphel_host.preview import save_map_picture, save_preview
+from elphel_host.preview import (
+    FAR_RGB,
+    NO_VALUE_RGB,
+    Swatch,
+    robust_range,
+    save_map_picture,
+    save_preview,
+)
 from elphel_sim.demo.burst import COMMANDS as BURST_COMMANDS
 from elphel_sim.demo.burst import burst_step, lens_blur_step
 from elphel_sim.demo.depth import COMMANDS as DEPTH_COMMANDS
@@ -187,33 +194,47 @@ def save_quad_pictures(
     true_disparity: NDArray[np.float64],
     optics: dict[str, float],
 ) -> None:
-    """disparity.png, disparity-truth.png and depth.png of the quad's DSI."""
-    shown = np.where(strength > STRENGTH_SHOWN, disparity, np.nan)
-    weak = f"no texture (strength < {STRENGTH_SHOWN})"
-    bar = {"lo": -0.5, "hi": 6.0, "unit": "px", "cell": 2}
-    save_map_picture(shown, out / "disparity.png", title="disparity (DSI)", no_value=weak, **bar)
+    """disparity.png, disparity-truth.png and depth.png of the quad's DSI.
+
+    Both disparity maps share one bar (the robust range of the truth), so they compare;
+    texture-less tiles and far ones (whose depth is mostly noise) are named in the legends.
+    """
+    weak = ~(strength >= STRENGTH_SHOWN)
+    no_texture = Swatch(f"no texture: strength < {STRENGTH_SHOWN}", weak, NO_VALUE_RGB)
+    lo, hi = robust_range(true_disparity)
+    bar = {"lo": lo, "hi": hi, "unit": "px", "cell": 2}
+    save_map_picture(
+        disparity, out / "disparity.png", title="disparity (DSI)", swatches=[no_texture], **bar
+    )
     save_map_picture(
         true_disparity, out / "disparity-truth.png", title="true disparity (simulator)", **bar
     )
     # Depth of a tile: Z = f * B / (D * pitch), B the square's side (optics of quad.json).
     # Below MIN_DEPTH_DISPARITY_PX the depth is beyond a km and dominated by the error.
-    near = np.where(shown > MIN_DEPTH_DISPARITY_PX, shown, np.nan)
+    with np.errstate(invalid="ignore"):
+        far = ~weak & ~(disparity > MIN_DEPTH_DISPARITY_PX)
+    near = np.where(weak | far, np.nan, disparity)
     depth_m = (
         optics["focal_length_mm"]
         * optics["baseline_mm"]
         / (near * optics["pixel_pitch_um"] / 1000.0)
         / 1000.0
     )
-    finite = depth_m[np.isfinite(depth_m)]
-    far = float(np.percentile(finite, 99)) if finite.size else 1000.0
+    far_m = (
+        optics["focal_length_mm"]
+        * optics["baseline_mm"]
+        / (MIN_DEPTH_DISPARITY_PX * optics["pixel_pitch_um"] / 1000.0)
+        / 1000.0
+    )
+    far_swatch = Swatch(
+        f"far: disparity < {MIN_DEPTH_DISPARITY_PX} px, beyond {far_m:.0f} m", far, FAR_RGB
+    )
     save_map_picture(
         depth_m,
         out / "depth.png",
-        lo=0.0,
-        hi=far,
         unit="m",
         title="depth from the DSI",
-        no_value=f"{weak} or disparity < {MIN_DEPTH_DISPARITY_PX} px (too far)",
+        swatches=[far_swatch, no_texture],
         cell=2,
     )
 

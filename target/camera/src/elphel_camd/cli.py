@@ -2,7 +2,8 @@
 
 ``elphel-camd --board B ...`` serves the board; ``elphel-camd token rotate`` writes a new
 random token to the token file (0600), which a running daemon reads at its next request
-(the old token is refused from then on). Settings come from the command line, then
+(the old token is refused from then on); ``elphel-camd vospi-record`` records a Lepton's
+VoSPI stream for replay (`elphel_camd.cli_vospi`). Settings come from the command line, then
 ``ELPHEL_CAMD_*`` environment variables, then the JSON config file (see
 `elphel_camd.config`); what the daemon keeps on disk is `elphel_camd.store`'s.
 """
@@ -47,7 +48,28 @@ def build_parser() -> argparse.ArgumentParser:
         help="JSON settings file (default /etc/elphel-camd/config.json if it exists), e.g. "
         '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "public_reads": true}',
     )
-    p.add_argument("--bus", action="append", default=[], help="I2C bus URL per port (i2c board)")
+    p.add_argument(
+        "--bus",
+        action="append",
+        default=[],
+        help="I2C bus URL per port (i2c board; v4l2 board: the bus of the k-th --video's "
+        "sensor when the project's own driver programs it; lepton board: its CCI bus)",
+    )
+    p.add_argument(
+        "--video",
+        action="append",
+        default=[],
+        help="V4L2 capture node per port (v4l2 board), e.g. /dev/video0",
+    )
+    p.add_argument(
+        "--sensor",
+        help="v4l2 board: the kernel driver of the sensor (e.g. imx219), for its gain laws",
+    )
+    p.add_argument(
+        "--vospi",
+        help="lepton board: the Lepton's spidev node (/dev/spidevB.C), or a file or FIFO "
+        "with its VoSPI bytes (a recording)",
+    )
     p.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="TCP port (default 8000; 0 = any free port)")
     p.add_argument(
@@ -84,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 # Options named as the setting they override (an option left out is None: not given).
 _SETTING_OPTIONS = (
     "board",
+    "sensor",
     "host",
     "port",
     "token",
@@ -146,7 +169,12 @@ def token_main(argv: Sequence[str]) -> int:
 
 def settings_from_args(args: argparse.Namespace) -> DaemonSettings:
     given = {name: getattr(args, name) for name in _SETTING_OPTIONS}
-    return load_settings(args.config, bus_urls=args.bus or None, **given)
+    settings = load_settings(
+        args.config, bus_urls=args.bus or None, video=args.video or None, **given
+    )
+    if args.vospi is not None:
+        settings.board_options["vospi"] = args.vospi
+    return settings
 
 
 def build_service(settings: DaemonSettings) -> CameraService:
@@ -154,6 +182,10 @@ def build_service(settings: DaemonSettings) -> CameraService:
     options: dict[str, Any] = dict(settings.board_options)
     if settings.bus_urls:
         options["bus_urls"] = list(settings.bus_urls)
+    if settings.video:
+        options["video"] = list(settings.video)
+    if settings.sensor:
+        options["sensor"] = settings.sensor
     name = settings.board or "i2c"
     factory = board_factories()[name]
     try:
@@ -186,6 +218,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["token"]:
         return token_main(argv[1:])
+    if argv[:1] == ["vospi-record"]:
+        from elphel_camd.cli_vospi import record_main
+
+        return record_main(argv[1:])
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"

@@ -57,6 +57,15 @@ class DaemonSettings(BaseSettings):
     bus_urls: list[str] = Field(
         default_factory=list, description="I2C bus URL per port (i2c board), e.g. /dev/i2c-0"
     )
+    video: list[str] = Field(
+        default_factory=list,
+        description="V4L2 capture node per port (v4l2 board), e.g. /dev/video0",
+    )
+    sensor: str | None = Field(
+        None,
+        description="kernel driver of the v4l2 ports' sensor, for its gain laws (e.g. imx219; "
+        "default: the node's card name)",
+    )
     board_options: dict[str, Any] = Field(
         default_factory=dict, description="keyword arguments of the board factory"
     )

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-EVENT_TYPES = ("frame", "params", "error")
+EVENT_TYPES = ("frame", "params", "error", "port")
 
 
 class TooManyStreamsError(RuntimeError):

@@ -47,8 +47,8 @@ def frame_metadata(
     -------
     dict
         ``frame``, ``timestamp_ns``, ``port``, ``sensor``, ``bayer`` (after the flips), every
-        parameter, and for a photo-finish composite ``pf_strips`` and
-        ``pf_strip_period_ns``.
+        parameter, what the board adds to the frame (a Lepton's telemetry and pixel unit),
+        and for a photo-finish composite ``pf_strips`` and ``pf_strip_period_ns``.
     """
     metadata: dict[str, Any] = {
         "frame": got.frame,
@@ -57,6 +57,7 @@ def frame_metadata(
         "sensor": sensor,
         "bayer": bayer_after_flips(bayer, params.get("FLIPH", 0), params.get("FLIPV", 0)),
         **params,
+        **got.metadata,
     }
     if params.get("PF_HEIGHT"):
         # Row r of a composite was read in strip r // PF_HEIGHT, which started at

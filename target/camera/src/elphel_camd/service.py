@@ -73,6 +73,11 @@ class CameraService:
         self.sensors: dict[int, SensorDriver | None] = {
             port: detect(bus, bus_name=f"port {port}") for port, bus in board.buses().items()
         }
+        # Sensors the board drives itself (a kernel driver's, through V4L2 controls; a
+        # Lepton without its CCI).
+        board_sensors = getattr(board, "sensors", None)
+        if board_sensors is not None:
+            self.sensors.update(board_sensors())
         self.sequencers: dict[int, PortSequencer] = {}
         for port, driver in self.sensors.items():
             if driver is not None:
@@ -90,6 +95,9 @@ class CameraService:
         self.capture_pool = CapturePool()
         self.frames = FrameCapture(board, self.sequencers, sensor=self.sensor, params=self.params)
         board.on_frame_sync(self._frame_sync)
+        on_event = getattr(board, "on_event", None)
+        if on_event is not None:  # a board's own news: port states, lost frames
+            on_event(self.events.publish)
 
     def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
         seq = self.sequencers.get(port)
@@ -198,6 +206,9 @@ class CameraService:
             if driver is not None:
                 entry["sensor"] = driver.identity()
                 entry["frame"] = self.sequencers[port].this_frame
+            status = getattr(self.board, "port_status", None)
+            if status is not None:
+                entry["stream"] = status(port)
             ports.append(entry)
         return {
             "board": self.board.name,
@@ -399,13 +410,26 @@ class CameraService:
                     first = first or e
                 entry["frame"] = seq.this_frame
             ports.append(entry)
+        streams_ok = all(self._stream_health(entry) for entry in ports)
         return {
-            "status": "ok" if first is None else "degraded",
+            "status": "ok" if first is None and streams_ok else "degraded",
             "board": self.board.name,
             "uptime_s": round((time.time_ns() - self.started_ns) / 1e9, 3),
             "ports": ports,
             **({} if first is None else {"error": "i2c", "detail": str(first)}),
         }
+
+    def _stream_health(self, entry: dict[str, Any]) -> bool:
+        """Add the port's stream (v4l2, lepton boards) to its entry; False if not streaming."""
+        status = getattr(self.board, "port_status", None)
+        if status is None:
+            return True
+        stream = status(entry["port"])
+        entry["stream"] = stream
+        if stream["state"] == "streaming":
+            return True
+        entry.update(ok=False, error=stream["state"], detail=stream.get("detail", ""))
+        return False
 
     def close(self) -> None:
         """Close the event streams, the board, then the store (pending writes flushed)."""

@@ -22,6 +22,7 @@ from elphel_host.camera.nc393.frames import decoded_frame, newest_stamp, tiff_pa
 from elphel_host.camera.nc393.http import http_get
 from elphel_host.camera.nc393.model import StockModel
 from elphel_host.errors import CameraParameterError, UnsupportedError
+from elphel_host.limits import HostLimits
 
 # A capture waits for at most this many frames beyond the newest (elphel-camd's limit).
 CAPTURE_AHEAD_MAX = 14
@@ -33,6 +34,7 @@ class StockFrames(ABC):
     _imgsrv: list[httpx.Client]
     _stamps: dict[int, tuple[int, tuple[int, int]]]
     _lock: threading.Lock
+    limits: HostLimits
 
     @abstractmethod
     def params(self, port: int = 0, *, frame: int | None = None) -> dict[str, int]:
@@ -63,7 +65,8 @@ class StockFrames(ABC):
         check_port(port)
         client = self._imgsrv[port]
         url = str(client.base_url).rstrip("/") + imgsrv.FRAME
-        return imgsrv.frame_number(http_get(client, imgsrv.FRAME).text, url=url)
+        answer = http_get(client, imgsrv.FRAME, limits=self.limits)
+        return imgsrv.frame_number(answer.text, url=url)
 
     def _stamp(self, port: int) -> tuple[int, int]:
         client = self._imgsrv[port]
@@ -71,14 +74,14 @@ class StockFrames(ABC):
         def raw(data: bytes, kind: str, url: str) -> CapturedFrame:
             return self._decoded(port, data, kind, url, {})
 
-        return newest_stamp(client, raw)
+        return newest_stamp(client, raw, limits=self.limits)
 
     def _fetch(
         self, port: int, path: str, params: Mapping[str, int] | None = None
     ) -> CapturedFrame:
         client = self._imgsrv[port]
         url = str(client.base_url).rstrip("/") + path
-        response = http_get(client, path)
+        response = http_get(client, path, limits=self.limits, frame=True)
         kind = imgsrv.image_type(response.headers.get("content-type"), url=url)
         return self._decoded(port, response.content, kind, url, params)
 

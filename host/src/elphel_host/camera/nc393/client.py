@@ -27,6 +27,7 @@ from elphel_host.camera.staging import Applied, Staging
 from elphel_host.camera.unsupported import NoEventsNoRegisters
 from elphel_host.closing import Closing
 from elphel_host.errors import CameraClientError, CameraParameterError, UnsupportedError
+from elphel_host.limits import HostLimits
 
 # Read with every parameter listing when the camera has them (the model needs the rest).
 _EXTRA = ("FP1000S", "COLOR", "BITS", "QUALITY")
@@ -43,6 +44,8 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
         Per-request timeout, and how long a change may take to come into effect.
     transport
         httpx transport to use instead of the network (tests); shared by all services.
+    limits
+        Sizes and deadlines the camera's answers are held to (default: `HostLimits.from_env`).
 
     Examples
     --------
@@ -57,10 +60,12 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
         *,
         timeout_s: float = 30.0,
         transport: httpx.BaseTransport | None = None,
+        limits: HostLimits | None = None,
     ) -> None:
         self.address = parse_nc393_url(address) if isinstance(address, str) else address
         self.url = self.address.url
         self.timeout_s = timeout_s
+        self.limits = HostLimits.from_env() if limits is None else limits
         self._web = httpx.Client(
             base_url=self.address.parsedit_url, timeout=timeout_s, transport=transport
         )
@@ -83,7 +88,7 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
 
     def _parsedit(self, query: str, names: tuple[str, ...]) -> dict[str, int]:
         path = f"{parsedit.PATH}?{query}"
-        response = http_get(self._web, path)
+        response = http_get(self._web, path, limits=self.limits)
         url = str(self._web.base_url).rstrip("/") + path
         return parsedit.parse_answer(response.text, url=url, names=names)
 
@@ -289,4 +294,4 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
                 value=trig,
                 allowed="4 or 20 (snapshot)",
             )
-        http_get(self._imgsrv[port], imgsrv.TRIGGER)
+        http_get(self._imgsrv[port], imgsrv.TRIGGER, limits=self.limits)

@@ -23,7 +23,8 @@ from elphel_host.camera.frames import CapturedBurst, CapturedFrame
 from elphel_host.camera.jp4 import decode_frame
 from elphel_host.camera.jp4 import frame_metadata as exif_metadata
 from elphel_host.camera.nc393 import imgsrv
-from elphel_host.errors import CameraClientError, InputFormatError
+from elphel_host.errors import CameraClientError, DeviceLimitError, InputFormatError
+from elphel_host.limits import Deadline, HostLimits, read_bounded
 
 _FIRST = ("frame", "timestamp_ns", "port", "sensor", "bayer")
 
@@ -102,25 +103,41 @@ def header_stamp(block: bytes, *, url: str) -> tuple[int, int]:
 
 
 def newest_stamp(
-    client: httpx.Client, raw: Callable[[bytes, str, str], CapturedFrame]
+    client: httpx.Client, raw: Callable[[bytes, str, str], CapturedFrame], *, limits: HostLimits
 ) -> tuple[int, int]:
     """``(frame, timestamp_ns)`` of imgsrv's newest frame, from its first KiB.
 
-    The answer is streamed only up to the Exif block of a JPEG frame; a raw TIFF frame
-    (its tags may be anywhere) is read whole and decoded by ``raw(data, type, url)``.
+    The answer is streamed only up to the Exif block of a JPEG frame, at most
+    ``limits.jpeg_head_bytes`` of segments before it; a raw TIFF frame (its tags may be
+    anywhere) is read whole, within the frame limit, and decoded by ``raw(data, type, url)``.
     """
     url = str(client.base_url).rstrip("/") + imgsrv.NEWEST
+    deadline = Deadline(limits.deadline_s, what=f"GET {imgsrv.NEWEST}")
     try:
         with client.stream("GET", imgsrv.NEWEST) as response:
             if response.status_code >= 400:
                 raise CameraClientError(f"{url}: HTTP {response.status_code}")
             kind = imgsrv.image_type(response.headers.get("content-type"), url=url)
             if kind == "image/tiff":
-                got = raw(response.read(), kind, url)
+                data = read_bounded(
+                    response.iter_bytes(),
+                    limit_bytes=limits.frame_bytes + limits.json_bytes,
+                    deadline=deadline,
+                    what=f"the camera at {url}",
+                    limit_name="frame_pixels",
+                )
+                got = raw(data, kind, url)
                 return got.frame, int(got.metadata["timestamp_ns"])
             head = b""
             for chunk in response.iter_bytes():
                 head += chunk
+                deadline.check()
+                if len(head) > limits.jpeg_head_bytes:
+                    raise DeviceLimitError(
+                        f"the camera at {url}: no Exif block in the first "
+                        f"{limits.jpeg_head_bytes} bytes "
+                        "(limit jpeg_head_bytes; raise ELPHEL_LIMIT_JPEG_HEAD_BYTES)"
+                    )
                 try:
                     block = exif_block(head)
                 except InputFormatError as e:

@@ -37,6 +37,7 @@ ERROR_STATUS: tuple[tuple[type[Exception], int, str], ...] = (
     (camd.SensorNotFoundError, 404, "no_sensor"),
     (camd.RegisterNotFoundError, 404, "no_such_register"),
     (camd.FrameNotAvailableError, 404, "frame_not_available"),
+    (camd.ControlRefusedError, 422, "control_refused"),
     (camd.ParameterRangeError, 409, "parameter_range"),
     (camd.FrameTooLateError, 409, "frame_too_late"),
     (camd.FrameTooEarlyError, 409, "frame_too_early"),
@@ -44,6 +45,7 @@ ERROR_STATUS: tuple[tuple[type[Exception], int, str], ...] = (
     (camd.CaptureUnavailableError, 501, "no_image_path"),
     (camd.StateWriteError, 503, "state_not_writable"),
     (camd.I2CError, 503, "i2c"),
+    (camd.PortDisconnectedError, 503, "disconnected"),
     (TimeoutError, 504, "timeout"),
 )
 
@@ -59,9 +61,11 @@ _DESCRIPTIONS = {
     "the window, the frame schedule, a read-only register); names what and why",
     413: "request body too large (names the limit)",
     422: "invalid by the schema: names the parameter, the value and what is allowed "
-    "(a body that is not a JSON object: error malformed_body, parameter body)",
+    "(a body that is not a JSON object: error malformed_body, parameter body); or a value "
+    "a V4L2 driver refuses (error control_refused, naming the control's limits)",
     501: "the board has no image path",
-    503: "the port's I2C bus fails, or the state directory cannot be written",
+    503: "the port's I2C bus fails, its video node is gone (error disconnected), or the "
+    "state directory cannot be written",
     504: "the frame did not come in time",
 }
 

@@ -170,12 +170,20 @@ class PortHealth(BaseModel):
     frame: int | None = None
     error: str | None = None
     detail: str | None = None
+    stream: dict[str, Any] | None = Field(
+        None,
+        description="the port's frame stream where the board has one (v4l2, lepton): "
+        "its state (streaming when frames come) and counts",
+    )
 
 
 class Health(BaseModel):
     model_config = ConfigDict(extra="allow")
 
-    status: str = Field(description="ok, or degraded when a port's I2C bus fails (HTTP 503)")
+    status: str = Field(
+        description="ok, or degraded when a port's I2C bus fails or its frame stream "
+        "stopped (HTTP 503)"
+    )
     board: str
     uptime_s: float
     ports: list[PortHealth]

@@ -8,8 +8,8 @@ A board supplies, per sensor port, an I2C bus and, where it has them, frame sync
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from typing import Protocol
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +27,7 @@ class Frame:
     frame: int
     timestamp_ns: int
     strip_period_ns: int = 0  # photo-finish: time from one strip to the next (0 otherwise)
+    metadata: Mapping[str, Any] = field(default_factory=dict)  # what the board adds (telemetry)
 
 
 class Board(Protocol):
@@ -34,7 +35,9 @@ class Board(Protocol):
 
     ``capabilities`` may hold ``"frames"`` (frame syncs: changes can be scheduled on
     frames), ``"capture"`` (an image path), ``"trigger"`` (a common trigger generator) and
-    ``"photofinish"``.
+    ``"photofinish"``. A board may also have ``sensors()`` (port -> driver, for ports whose
+    sensor is not found on an I2C bus) and ``port_status(port)`` (its frame stream's
+    state, a dict with at least ``state``: ``streaming`` when frames come).
     """
 
     name: str

@@ -64,7 +64,62 @@ _UNSUPPORTED = {
 _FIXED_WINDOW = "the Lepton window is fixed at 160x120, or 160x122 with telemetry"
 
 
-class Lepton35(CommandSensor):
+class LeptonParameters:
+    """The Lepton's parameter model: a fixed window, no trigger, 8.7 fps.
+
+    Shared by the CCI driver and a Lepton reached by VoSPI only.
+    """
+
+    def defaults(self) -> State:
+        state = {
+            "WOI_LEFT": 0,
+            "WOI_TOP": 0,
+            "WOI_WIDTH": WIDTH,
+            "WOI_HEIGHT": HEIGHT,
+            "FLIPH": 0,
+            "FLIPV": 0,
+            "TRIG": 0,
+            "TRIG_PERIOD": 0,
+            "TRIG_MASTER": 0,
+            "TRIG_DELAY": 0,
+            "TRIG_DECIMATE": 0,
+            "PF_HEIGHT": 0,
+            "FP1000SLIM": 0,
+            "FPSFLAGS": 0,
+        }
+        return self.normalize(state, frozenset())
+
+    def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
+        s = dict(state)
+        if s["WOI_WIDTH"] != WIDTH:
+            raise ParameterRangeError("WOI_WIDTH", s["WOI_WIDTH"], f"160 ({_FIXED_WINDOW})")
+        if s["WOI_HEIGHT"] not in (HEIGHT, HEIGHT_TELEMETRY):
+            raise ParameterRangeError(
+                "WOI_HEIGHT", s["WOI_HEIGHT"], f"120, or 122 for telemetry ({_FIXED_WINDOW})"
+            )
+        for name in ("WOI_LEFT", "WOI_TOP"):
+            if s[name]:
+                raise ParameterRangeError(name, s[name], f"0 ({_FIXED_WINDOW})")
+        if s["TRIG"]:
+            raise ParameterRangeError(
+                "TRIG", s["TRIG"], "0 (the Lepton has no trigger input; it runs free at 8.7 fps)"
+            )
+        if 1 < s["TRIG_PERIOD"] < TRIG_PERIOD_MIN_REPEAT:
+            raise ParameterRangeError(
+                "TRIG_PERIOD", s["TRIG_PERIOD"], "0 (stop), 1 (single), >= 256"
+            )
+        check_range("TRIG_MASTER", s["TRIG_MASTER"], 0, 3)
+        s["FP1000S"] = FP1000S
+        s["SENSOR"] = SENSOR_CODE
+        s["COLOR"] = 15
+        s["BITS"] = BITS
+        return s
+
+    def frame_period_s(self, state: Mapping[str, int]) -> float:
+        return 1000 / FP1000S
+
+
+class Lepton35(LeptonParameters, CommandSensor):
     """Driver of the FLIR Lepton 3.5 through its CCI.
 
     Parameters
@@ -183,54 +238,6 @@ class Lepton35(CommandSensor):
             if name not in self.writable:
                 why = _UNSUPPORTED.get(name, "it has no such control")
                 raise UnsupportedError(f"{self.model} does not support setting {name}: {why}")
-
-    def defaults(self) -> State:
-        state = {
-            "WOI_LEFT": 0,
-            "WOI_TOP": 0,
-            "WOI_WIDTH": WIDTH,
-            "WOI_HEIGHT": HEIGHT,
-            "FLIPH": 0,
-            "FLIPV": 0,
-            "TRIG": 0,
-            "TRIG_PERIOD": 0,
-            "TRIG_MASTER": 0,
-            "TRIG_DELAY": 0,
-            "TRIG_DECIMATE": 0,
-            "PF_HEIGHT": 0,
-            "FP1000SLIM": 0,
-            "FPSFLAGS": 0,
-        }
-        return self.normalize(state, frozenset())
-
-    def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
-        s = dict(state)
-        if s["WOI_WIDTH"] != WIDTH:
-            raise ParameterRangeError("WOI_WIDTH", s["WOI_WIDTH"], f"160 ({_FIXED_WINDOW})")
-        if s["WOI_HEIGHT"] not in (HEIGHT, HEIGHT_TELEMETRY):
-            raise ParameterRangeError(
-                "WOI_HEIGHT", s["WOI_HEIGHT"], f"120, or 122 for telemetry ({_FIXED_WINDOW})"
-            )
-        for name in ("WOI_LEFT", "WOI_TOP"):
-            if s[name]:
-                raise ParameterRangeError(name, s[name], f"0 ({_FIXED_WINDOW})")
-        if s["TRIG"]:
-            raise ParameterRangeError(
-                "TRIG", s["TRIG"], "0 (the Lepton has no trigger input; it runs free at 8.7 fps)"
-            )
-        if 1 < s["TRIG_PERIOD"] < TRIG_PERIOD_MIN_REPEAT:
-            raise ParameterRangeError(
-                "TRIG_PERIOD", s["TRIG_PERIOD"], "0 (stop), 1 (single), >= 256"
-            )
-        check_range("TRIG_MASTER", s["TRIG_MASTER"], 0, 3)
-        s["FP1000S"] = FP1000S
-        s["SENSOR"] = SENSOR_CODE
-        s["COLOR"] = 15
-        s["BITS"] = BITS
-        return s
-
-    def frame_period_s(self, state: Mapping[str, int]) -> float:
-        return 1000 / FP1000S
 
     def program(self, function: str, state: Mapping[str, int]) -> list[str]:
         """Issue the CCI commands of a function; return the attributes set.

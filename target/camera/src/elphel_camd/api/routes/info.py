@@ -21,9 +21,14 @@ def info(service: Service) -> JSONResponse:
 @router.get(
     "/health",
     response_model=Health,
-    responses={503: {"model": Health, "description": "a port's I2C bus fails"}},
+    responses={
+        503: {"model": Health, "description": "a port's I2C bus fails or its frames stopped"}
+    },
 )
 def health(service: Service) -> JSONResponse:
-    """Each sensor answering on its bus now; 503 (status degraded) if one does not."""
+    """Each sensor answering on its bus now, and its frame stream where there is one.
+
+    503 (status degraded) if a sensor does not answer or its frames stopped.
+    """
     report = service.health()
     return JSONResponse(report, status_code=200 if report["status"] == "ok" else 503)

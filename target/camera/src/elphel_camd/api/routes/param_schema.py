@@ -17,10 +17,12 @@ from fastapi.responses import JSONResponse
 from elphel_camd.api.deps import READS, PortPath, Service
 from elphel_camd.api.errors import error_responses
 from elphel_camd.params import PARAMS, TRIG_VALUES
-from elphel_camd.sensors import lepton35
+from elphel_camd.sensors import imx219, lepton35
 from elphel_camd.sensors.aptina import AptinaSensor, exposure_max_us
 from elphel_camd.sensors.base import SensorDriver
+from elphel_camd.sensors.imx219 import IMX219
 from elphel_camd.sensors.lepton35 import Lepton35
+from elphel_camd.v4l2.sensor import V4L2Sensor
 
 router = APIRouter()
 
@@ -56,16 +58,37 @@ def _limits(driver: SensorDriver, state: dict[str, int]) -> dict[str, tuple[int,
         row_s = driver.row_time_s(state["WOI_WIDTH"])
         out["VEXPOS"] = (1, driver.exposure_rows_max)
         out["EXPOS"] = (1, exposure_max_us(row_s=row_s, max_rows=driver.exposure_rows_max))
+    elif isinstance(driver, IMX219):
+        out.update(_imx219_limits(driver, state))
     elif isinstance(driver, Lepton35):
         out.update(WOI_LEFT=(0, 0), WOI_TOP=(0, 0), WOI_WIDTH=(lepton35.WIDTH, lepton35.WIDTH))
         out["WOI_HEIGHT"] = (lepton35.HEIGHT, lepton35.HEIGHT_TELEMETRY)
         out["TRIG"] = (0, 0)
+    elif isinstance(driver, V4L2Sensor):
+        out.update(driver.limits())
+        out["TRIG"] = (0, 0)
     return out
+
+
+def _imx219_limits(driver: IMX219, state: dict[str, int]) -> dict[str, tuple[int, int]]:
+    """The IMX219's window, gain and exposure limits in this state."""
+    width, height = driver.image_width, driver.image_height
+    row_s = driver.row_time_s()
+    longest = driver.exposure_rows_max
+    return {
+        "WOI_WIDTH": (2, width),
+        "WOI_HEIGHT": (2, height),
+        "WOI_LEFT": (0, width - state["WOI_WIDTH"]),
+        "WOI_TOP": (0, height - state["WOI_HEIGHT"]),
+        **{gain: (driver.gain_min, driver.gain_max) for gain in imx219.GAIN_PARAMS},
+        "VEXPOS": (imx219.EXPOSURE_LINES_MIN, longest),
+        "EXPOS": (1, imx219.lines_to_us(longest, row_s=row_s)),
+    }
 
 
 def window_of(driver: SensorDriver) -> dict[str, int] | None:
     """The sensor's full window and the step of its edges (None if the window is fixed)."""
-    if isinstance(driver, AptinaSensor):
+    if isinstance(driver, (AptinaSensor, IMX219)):
         return {"width": driver.image_width, "height": driver.image_height, "step": 2}
     return None
 

@@ -1,0 +1,212 @@
+"""A sensor a kernel driver owns, driven through its node's V4L2 controls.
+
+`V4L2Sensor` is the port's `elphel_camd.sensors.base.SensorDriver`: the sequencer asks it
+to program a state and it sets the controls that changed; each frame's parameters are
+the control values read back from the driver when the frame arrived, not the values
+asked for. Its Bayer order is the node's format after the flips, taken back through them
+(the metadata applies the flips again).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar
+
+from elphel_camd.errors import ControlRefusedError, PortDisconnectedError
+from elphel_camd.i2c.bus import I2CBus
+from elphel_camd.params import EXPOSURE, FUNCTIONS, GAINS, PARAMS, WINDOW, check_range
+from elphel_camd.sensors.base import SensorDriver, State
+from elphel_camd.v4l2.controls import (
+    CID_AUTOGAIN,
+    CID_EXPOSURE_AUTO,
+    CID_HBLANK,
+    CID_PIXEL_RATE,
+    COLOUR_GAINS,
+    EXPOSURE_AUTO_MANUAL,
+    UNITY,
+    ControlMap,
+)
+from elphel_camd.v4l2.formats import flipped_bayer
+from elphel_camd.v4l2.source import FrameSource
+
+READBACK_FRAMES = 4096  # frames whose read-back controls are kept for their metadata
+_STATE_NAMES = [n for n, spec in PARAMS.items() if not spec.read_only]
+
+
+class V4L2Sensor(SensorDriver):
+    """Parameters of one port through its node's controls.
+
+    Parameters
+    ----------
+    source
+        Returns the port's node as it is now (a reconnected node is a new object).
+    model
+        The kernel driver's name (the card or the sensor subdevice), for gain laws.
+    period_s
+        Returns the port's measured frame period (0 before two frames).
+    """
+
+    model = "V4L2"
+    i2c_address = 0
+    sensor_code = 0
+    bayer: ClassVar[str | None] = None  # set per instance: the node's order
+    bits = 16
+    # Every function is issued one frame ahead; only the window (flips), the gains and the
+    # exposure set controls.
+    ahead: ClassVar[Mapping[str, tuple[int, int]]] = dict.fromkeys(FUNCTIONS, (1, 1))
+    writable: ClassVar[frozenset[str]] = frozenset()  # set per instance: the controls
+
+    def __init__(
+        self, source: Callable[[], FrameSource], *, model: str, period_s: Callable[[], float]
+    ) -> None:
+        self._source = source
+        self.kernel_model = model
+        self._period_s = period_s
+        node = source()
+        self.map = ControlMap(node.controls(), model=model)
+        self.writable = self.map.offered  # type: ignore[misc]
+        self.bits = node.stream_format.format.bits  # type: ignore[misc]
+        self._written: dict[int, int] = {}
+        self._readback: OrderedDict[int, dict[str, int]] = OrderedDict()
+        self._lock = threading.Lock()
+        self._update_bayer(self._now_params())
+
+    @classmethod
+    def probe(cls, bus: I2CBus, *, bus_name: str) -> SensorDriver | None:
+        """A kernel-owned sensor is reached through its node, never found on a bus."""
+        return None
+
+    def read_chip_id(self) -> int:
+        """0: the kernel reads a kernel-owned sensor's chip id, not the daemon.
+
+        Whether the sensor answers shows in the port's stream state (`V4L2Board.port_status`).
+        """
+        return 0
+
+    def identity(self) -> dict[str, Any]:
+        node = self._source()
+        fmt = node.stream_format
+        return {
+            "model": self.model,
+            "kernel_driver": self.kernel_model,
+            "node": node.path,
+            "chip_id": 0,
+            "i2c_address": self.i2c_address,
+            "sensor_code": self.sensor_code,
+            "bayer": self.bayer,
+            "bits": self.bits,
+            "format": fmt.format.fourcc,
+            "width": fmt.width,
+            "height": fmt.height,
+            "controls": sorted(self.writable),
+        }
+
+    # -- state -----------------------------------------------------------------------------
+
+    def _width(self) -> int:
+        return self._source().stream_format.width
+
+    def _timing(self) -> dict[int, int]:
+        if not self.map.line_exposure:
+            return {}
+        return self._source().get_controls([CID_HBLANK, CID_PIXEL_RATE])
+
+    def _now_params(self) -> dict[str, int]:
+        values = self._source().get_controls(self.map.read_ids())
+        return self.map.to_params(values, width=self._width())
+
+    def _update_bayer(self, params: Mapping[str, int]) -> None:
+        order = self._source().refresh_format().format.bayer
+        if order is not None:
+            order = flipped_bayer(
+                order, hflip=bool(params.get("FLIPH")), vflip=bool(params.get("FLIPV"))
+            )
+        self.bayer = order  # type: ignore[misc]
+
+    def init(self) -> None:
+        """Manual exposure and gain, so the values asked for are the values used."""
+        node = self._source()
+        manual = {CID_EXPOSURE_AUTO: EXPOSURE_AUTO_MANUAL, CID_AUTOGAIN: 0}
+        present = {c: v for c, v in manual.items() if c in node.controls()}
+        if present:
+            node.set_controls(present)
+
+    def defaults(self) -> State:
+        fmt = self._source().stream_format
+        state = dict.fromkeys(_STATE_NAMES, 0)
+        state.update(WOI_WIDTH=fmt.width, WOI_HEIGHT=fmt.height, EXPOS=10_000)
+        state.update(dict.fromkeys(COLOUR_GAINS, UNITY))
+        state.update(self._now_params())
+        state.pop("VEXPOS", None)
+        return self.normalize(state, frozenset())
+
+    def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
+        s = dict(state)
+        for name in changed & set(COLOUR_GAINS):
+            if any(s[g] != s[name] for g in changed & set(COLOUR_GAINS)):
+                asked = ", ".join(f"{g}={s[g]}" for g in sorted(changed & set(COLOUR_GAINS)))
+                raise ControlRefusedError(
+                    name, s[name], f"one gain for all colours on this sensor ({asked})"
+                )
+            s.update(dict.fromkeys(COLOUR_GAINS, s[name]))
+        for name in changed & {"FLIPH", "FLIPV"}:
+            check_range(name, s[name], 0, 1)
+        if changed & self.writable:
+            self.map.to_controls(s, width=self._width(), timing=self._timing())
+        period = self._period_s()
+        s.update(SENSOR=self.sensor_code, COLOR=15, BITS=16)
+        s["FP1000S"] = round(1000 / period) if period > 0 else 0
+        return s
+
+    def limits(self) -> dict[str, tuple[int, int]]:
+        """Each offered parameter's range under the driver's control limits, now."""
+        fmt = self._source().stream_format
+        found = self.map.limits(width=fmt.width, timing=self._timing())
+        found.update(
+            WOI_LEFT=(0, 0),
+            WOI_TOP=(0, 0),
+            WOI_WIDTH=(fmt.width, fmt.width),
+            WOI_HEIGHT=(fmt.height, fmt.height),
+        )
+        return found
+
+    def frame_period_s(self, state: Mapping[str, int]) -> float:
+        return self._period_s()
+
+    # -- programming and read-back ---------------------------------------------------------
+
+    def program(self, function: str, state: Mapping[str, int]) -> list[str]:
+        """Set the controls of a function's parameters that differ from those last set."""
+        names = {WINDOW: ("FLIPH", "FLIPV"), GAINS: COLOUR_GAINS, EXPOSURE: ("EXPOS",)}
+        wanted = [n for n in names.get(function, ()) if n in self.writable]
+        if not wanted:
+            return []
+        values = self.map.to_controls(state, width=self._width(), timing=self._timing())
+        ids = set(self.map.ids_of(wanted))
+        changed = {c: v for c, v in values.items() if c in ids and self._written.get(c) != v}
+        if not changed:
+            return []
+        node = self._source()
+        node.set_controls(changed)
+        self._written.update(changed)
+        if function == WINDOW:
+            self._update_bayer(state)
+        return wanted
+
+    def record(self, frame: int) -> None:
+        """Read the controls back for a frame that just arrived (its metadata's values)."""
+        try:
+            params = self._now_params()
+        except (PortDisconnectedError, OSError):
+            return
+        with self._lock:
+            self._readback[frame] = params
+            while len(self._readback) > READBACK_FRAMES:
+                self._readback.popitem(last=False)
+
+    def actual_gains(self, state: Mapping[str, int]) -> dict[str, int]:
+        """The values read back from the driver for the state's frame (EXPOS, gains, flips)."""
+        with self._lock:
+            return dict(self._readback.get(state.get("FRAME", -1), {}))
