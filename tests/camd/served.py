@@ -45,6 +45,7 @@ def serve(service: CameraService, *, public_reads: bool = True, **config: Any) -
         token=TOKEN,
         public_reads=public_reads,
         keepalive_s=config.pop("keepalive_s", 15.0),
+        stream_idle_s=config.pop("stream_idle_s", 300.0),
     )
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

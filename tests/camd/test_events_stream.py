@@ -318,3 +318,34 @@ def test_waiting_captures_do_not_slow_other_requests(service):
         for t in threads:
             t.join(10)
         assert len(results) == 45 and all(code == 501 for code in results)
+
+
+def test_an_idle_stream_ends_after_stream_idle_s_keepalives_not_counting(service):
+    with serve(service, keepalive_s=0.2, stream_idle_s=1.5) as srv:
+        lines: list[str] = []
+        start = time.monotonic()
+        with httpx.stream(
+            "GET",
+            srv.url + "/api/v1/events",
+            params={"types": "error"},
+            timeout=httpx.Timeout(10, read=5),
+        ) as r:
+            assert r.status_code == 200
+            done = threading.Event()
+
+            def publish() -> None:  # errors for 2 s: each one restarts the idle time
+                for k in range(8):
+                    service.events.publish("error", {"port": 0, "frame": k, "detail": "x"})
+                    time.sleep(0.25)
+                done.set()
+
+            threading.Thread(target=publish, daemon=True).start()
+            lines.extend(r.iter_lines())  # ends when the daemon closes the stream
+        took = time.monotonic() - start
+        assert done.is_set()
+        assert sum(line.startswith("event: error") for line in lines) == 8
+        assert sum(line == ": keepalive" for line in lines) >= 4  # they did not keep it open
+        assert ": no event for 1.5 s: closed" in lines
+        # 2 s of errors, then 1.5 s idle: closed then, not before and not much later.
+        assert 3.0 <= took < 5.5, took
+        assert wait_until(lambda: service.events.subscribers == 0)

@@ -18,7 +18,7 @@ from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.scenarios import build
 
-from .served import serve
+from .served import TOKEN, serve
 
 
 @pytest.fixture(params=["httptools", "h11"])
@@ -100,3 +100,38 @@ def test_keep_alive_and_pipelined_requests_are_each_answered(parser, service):
             for _ in range(50):
                 r = client.get("/api/v1/info", headers={"X-Pad": "a" * 2000})
                 assert r.status_code == 200
+
+
+def _patch_bytes(body_bytes: int, *, token: bool = False) -> bytes:
+    """A PATCH of EXPOS whose JSON body is padded with spaces to ``body_bytes``."""
+    body = b'{"EXPOS": 1000}'
+    body += b" " * (body_bytes - len(body))
+    auth = f"Authorization: Bearer {TOKEN}\r\n".encode() if token else b""
+    return (
+        b"PATCH /api/v1/ports/0/params HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        b"Content-Type: application/json\r\nConnection: close\r\n"
+        + auth
+        + b"Content-Length: %d\r\n\r\n" % len(body)
+        + body
+    )
+
+
+@pytest.mark.parametrize("body_bytes", [17, 4097, 20000, 65536])
+def test_a_body_sent_with_its_head_does_not_count_as_head(parser, service, body_bytes):
+    with serve(service, max_head_bytes=4096) as srv:
+        sock = socket.create_connection(("127.0.0.1", port_of(srv.url)))
+        sock.sendall(_patch_bytes(body_bytes, token=True))  # one write: head and body together
+        answer = read_all(sock)
+        sock.close()
+        assert answer.startswith(b"HTTP/1.1 200"), answer[:200]
+
+
+def test_a_body_over_the_limit_is_413_whatever_the_reads(parser, service):
+    with serve(service) as srv:
+        sock = socket.create_connection(("127.0.0.1", port_of(srv.url)))
+        with contextlib.suppress(ConnectionError):
+            sock.sendall(_patch_bytes(65537, token=True))
+        answer = read_all(sock)
+        sock.close()
+        assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
+        assert b'"limit":"max_body_bytes"' in answer.replace(b" ", b"")

@@ -33,6 +33,10 @@ from elphel_sim.scenarios import PortSpec, Scenario, build
 
 FrameSync = Callable[[int, int, int], None]
 TRUTH_FRAMES = 100_000  # frames whose true pose is kept per port (sim_frame_truth)
+# A frame whose image was asked for stays available this long after, out of the ring too:
+# a capture that its client gave up on while the image formed (a busy machine) and asked
+# for again gets the same frame, formed once.
+FORMED_KEEP_S = 45.0
 
 # Simulated chips by model name (PortSpec.model).
 SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
@@ -91,6 +95,9 @@ class SimCameraBoard:
         # until the frame is taken). They stay here after leaving the ring buffer.
         self._pins: dict[int, dict[int, FrameRecord | None]] = {}
         self._pin_counts: dict[int, Counter[int]] = {}  # captures holding each frame
+        # Frames whose image was asked for: (port, frame) -> (record, when, its forming lock).
+        self._formed: OrderedDict[tuple[int, int], tuple[FrameRecord, float, threading.Lock]]
+        self._formed = OrderedDict()
         for port, spec in self.ports.items():
             bus = SimI2CBus(f"port {port}")
             if spec.model in SIM_SENSORS:
@@ -247,6 +254,7 @@ class SimCameraBoard:
             )
         )
         record = fpga.ring[-1]
+        self._forget_formed(time.monotonic() - FORMED_KEEP_S)
         pins = self._pins.get(port)
         if pins is not None and record.frame in pins:
             pins[record.frame] = record
@@ -298,6 +306,8 @@ class SimCameraBoard:
                 if self._closed:
                     raise CaptureUnavailableError(f"port {port}: the board is closing")
                 held = self._pins.get(port, {}).get(frame)
+                if held is None and (port, frame) in self._formed:
+                    held = self._formed[(port, frame)][0]
                 if held is not None:
                     return held
                 for record in fpga.ring:
@@ -344,27 +354,46 @@ class SimCameraBoard:
     def _image(self, record: FrameRecord) -> np.ndarray:
         # Rendered outside the board's lock: a full frame takes seconds, and the frame
         # clock and the other ports must not wait for it. The image depends only on the
-        # record and the seed, so two threads forming the same frame get the same pixels.
+        # record and the seed; two captures of one frame at once form it once.
         with self._cond:
             if record.image is not None:
                 return record.image
-            spec = self.ports[record.port]
-            form_image = self.chips[record.port].form_image
-        seed = [self.seed, record.port, record.frame] if self.noise else None
-        if self._former is not None:  # child processes, side by side
-            image = self._former.form(spec, record, self.world.scene, seed)
-        # In this process one frame is formed at a time: forming is CPU-bound, and several
-        # at once only take the interpreter from the frame clock and the request handling.
-        else:
-            with self._forming:
+            lock = self._keep_formed(record)
+        with lock:
+            with self._cond:
                 if record.image is not None:
                     return record.image
-                rng = None if seed is None else np.random.default_rng(seed)
-                image = form_image(record, self.world, rng=rng, **spec.forming_options())
-        with self._cond:
-            if record.image is None:
-                record.image = image
-            return record.image
+                spec = self.ports[record.port]
+                form_image = self.chips[record.port].form_image
+            seed = [self.seed, record.port, record.frame] if self.noise else None
+            if self._former is not None:  # child processes, side by side
+                image = self._former.form(spec, record, self.world.scene, seed)
+            # In this process one frame is formed at a time: forming is CPU-bound, and
+            # several at once only take the interpreter from the clock and the requests.
+            else:
+                with self._forming:
+                    rng = None if seed is None else np.random.default_rng(seed)
+                    image = form_image(record, self.world, rng=rng, **spec.forming_options())
+            with self._cond:
+                if record.image is None:
+                    record.image = image
+                return record.image
+
+    def _keep_formed(self, record: FrameRecord) -> threading.Lock:
+        """Keep a frame asked for findable for `FORMED_KEEP_S`; its forming lock (lock held)."""
+        key = (record.port, record.frame)
+        kept = self._formed.pop(key, None)
+        lock = threading.Lock() if kept is None else kept[2]
+        self._formed[key] = (record, time.monotonic(), lock)
+        return lock
+
+    def _forget_formed(self, before: float) -> None:
+        """Let go of the frames asked for before ``before`` (monotonic seconds; lock held)."""
+        while self._formed:
+            key, (_, when, _) = next(iter(self._formed.items()))
+            if when >= before:
+                return
+            del self._formed[key]
 
     # -- real time -------------------------------------------------------------------------
 

@@ -25,6 +25,7 @@ instead of 33 ms, 80-180 ms of it in the kernel.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import mmap
 import os
 import socket
@@ -47,6 +48,13 @@ from elphel_sim.world import Scene, World
 
 START_TIMEOUT_S = 120.0  # the child imports NumPy and SciPy first
 
+# How much the children yield the CPU. The daemon mostly sleeps, so the scheduler lets it
+# in as soon as a request wakes it, whatever the children's niceness; a large niceness
+# only starves the children themselves beside other busy processes (at 10 they get a
+# twentieth of the CPU beside two CPU-bound processes, and a capture waits for its frame
+# ten times longer), so they yield a little, not all.
+FORMING_NICENESS = 3
+
 # The child's environment: its frame-sized arrays come from the heap and go back to it,
 # instead of being mapped anew for every frame and their pages faulted in again, and in
 # small pages (NumPy's huge-page advice off: see the module's docstring).
@@ -57,17 +65,34 @@ CHILD_ENVIRONMENT = {
 }
 
 
+#: After this long without a frame to form, the child gives its free heap back (`trim_heap`).
+IDLE_TRIM_S = 5.0
+
+
+def trim_heap() -> None:
+    """Give the heap's free memory back to the system (glibc's ``malloc_trim``; else nothing).
+
+    The child's heap keeps the frame-sized arrays it freed (its environment says so, see
+    `CHILD_ENVIRONMENT`): fast while frames come, but after a burst it would hold the
+    burst's peak for as long as the board runs.
+    """
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").malloc_trim(ctypes.c_size_t(0))
+
+
 def _serve(conn: Connection, pixels: socket.socket) -> None:
     """The child: form images until the pipe closes (pixels sent raw on ``pixels``)."""
-    from elphel_sim.board import SIM_SENSORS
-
-    # The sensor and FPGA never take a camera's CPU: here they yield it to the daemon.
-    os.nice(10)
+    # The sensor and FPGA never take a camera's CPU: here they yield some to the daemon.
+    os.nice(FORMING_NICENESS)
     chips: dict[str, Any] = {}
     world: World | None = None
+    trimmed = True
     conn.send(("ready",))
     while True:
         try:
+            if not trimmed and not conn.poll(IDLE_TRIM_S):
+                trim_heap()
+                trimmed = True
             message = conn.recv()
         except (EOFError, OSError):
             return
@@ -76,20 +101,37 @@ def _serve(conn: Connection, pixels: socket.socket) -> None:
         if message[0] == "scene":
             world = World(scene=message[1])
             continue
-        _, spec, record, seed = message
-        try:
-            if world is None:
-                raise RuntimeError("no scene was sent")
-            chip = chips.get(spec.model) or chips.setdefault(spec.model, SIM_SENSORS[spec.model]())
-            rng = None if seed is None else np.random.default_rng(seed)
-            image = np.ascontiguousarray(
-                chip.form_image(record, world, rng=rng, **spec.forming_options())
-            )
-        except Exception as e:  # reported to the board, which raises it for the capture
-            conn.send(("error", f"{type(e).__name__}: {e}"))
-            continue
-        conn.send(("image", image.shape, image.dtype.str))
-        pixels.sendall(image.data.cast("B"))
+        trimmed = False
+        _form_one(conn, pixels, message[1:], world, chips)
+
+
+def _form_one(
+    conn: Connection,
+    pixels: socket.socket,
+    request: tuple[Any, ...],
+    world: World | None,
+    chips: dict[str, Any],
+) -> None:
+    """Form one frame's image in the child and send it (or the error) to the board.
+
+    ``request`` is what the board sent: the port's spec, the frame's record and its seed.
+    """
+    from elphel_sim.board import SIM_SENSORS
+
+    spec, record, seed = request
+    try:
+        if world is None:
+            raise RuntimeError("no scene was sent")
+        chip = chips.get(spec.model) or chips.setdefault(spec.model, SIM_SENSORS[spec.model]())
+        rng = None if seed is None else np.random.default_rng(seed)
+        image = np.ascontiguousarray(
+            chip.form_image(record, world, rng=rng, **spec.forming_options())
+        )
+    except Exception as e:  # reported to the board, which raises it for the capture
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+        return
+    conn.send(("image", image.shape, image.dtype.str))
+    pixels.sendall(image.data.cast("B"))
 
 
 class FormingProcess:

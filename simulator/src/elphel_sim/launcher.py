@@ -349,7 +349,11 @@ def up(
     A scenario with a daemon per camera (pi-pair) also announces ``camera_urls`` and
     ``tokens``, camera i being port i of the inspection endpoint.
     """
-    board = SimCameraBoard(build(scenario, seed=seed, lens_blur=lens_blur), seed=seed)
+    # Frames are formed in child processes: in this one, forming would hold the interpreter
+    # lock that the daemon's answers need (a capture unanswered for 30 s on a busy machine).
+    board = SimCameraBoard(
+        build(scenario, seed=seed, lens_blur=lens_blur), seed=seed, forming="process"
+    )
     cameras, served, urls, tokens = serve_daemons(
         board, firmware=firmware, port=camera_port, public_reads=public_reads
     )

@@ -1,10 +1,12 @@
 """The typed camera client against a scripted daemon (httpx mock transport)."""
 
+import io
 import json
 
 import httpx
 import numpy as np
 import pytest
+import tifffile
 
 from elphel_host.camera import CameraClient, CameraHTTPError, CameraUnauthorizedError, CapturedBurst
 from elphel_host.camera.events import SSEParser
@@ -116,3 +118,50 @@ def test_photofinish_refuses_gaps_and_plain_frames():
     )
     with pytest.raises(CameraClientError, match="PF_HEIGHT"):
         plain.photofinish()
+
+
+class SlowFormingDaemon:
+    """A daemon whose captures time out ``slow`` times; its frames move on unless ``stuck``."""
+
+    def __init__(self, slow: int, *, stuck: bool = False) -> None:
+        self.slow, self.stuck = slow, stuck
+        self.frame = 100
+        self.captures = 0
+
+    def __call__(self, request: httpx.Request) -> httpx.Response:
+        if request.url.path.endswith("/frame"):
+            if not self.stuck:
+                self.frame += 3
+            return httpx.Response(200, json={"port": 0, "frame": self.frame, "timestamp_ns": 0})
+        self.captures += 1
+        if self.captures <= self.slow:
+            raise httpx.ReadTimeout("timed out", request=request)
+        buffer = io.BytesIO()
+        metadata = json.dumps({"frame": self.frame, "port": 0})
+        tifffile.imwrite(buffer, np.zeros((4, 6), np.uint16), description=metadata, metadata=None)
+        body = buffer.getvalue()
+        return httpx.Response(200, content=body, headers={"X-Frame-Number": str(self.frame)})
+
+
+def test_a_capture_waits_on_while_the_daemons_frames_move_on():
+    daemon = SlowFormingDaemon(slow=3)
+    with camera(daemon) as cam:
+        got = cam.capture(0)
+    assert daemon.captures == 4 and got.image.shape == (4, 6)
+
+
+@pytest.mark.parametrize(("slow", "stuck"), [(2, True), (100, False)])
+def test_a_capture_gives_up_when_frames_stand_still_or_after_its_tries(slow, stuck):
+    from elphel_host.camera.client import CAPTURE_TRIES
+
+    daemon = SlowFormingDaemon(slow=slow, stuck=stuck)
+    with camera(daemon) as cam, pytest.raises(CameraClientError, match="timed out"):
+        cam.capture(0)
+    assert daemon.captures == (1 if stuck else CAPTURE_TRIES)
+
+
+def test_a_burst_waits_on_for_its_first_bytes_while_the_frames_move_on():
+    daemon = SlowFormingDaemon(slow=2)
+    with camera(daemon) as cam:
+        got = cam.burst(1)
+    assert daemon.captures == 3 and got.complete and len(got.metadata) == 1

@@ -304,20 +304,57 @@ class CameraClient(Staging, Closing):
     # -- frames ----------------------------------------------------------------------------
 
     def capture(self, port: int = 0, *, frame: int | None = None) -> CapturedFrame:
-        """The next frame of a port, or frame ``frame`` from the daemon's ring buffer."""
+        """The next frame of a port, or frame ``frame`` from the daemon's ring buffer.
+
+        A capture may take longer than ``timeout_s`` on a busy machine (the frame's image
+        is still being formed): its wait follows the daemon's progress (`_capture_answer`).
+        """
         query = {} if frame is None else {"frame": frame}
         path = f"/ports/{port}/capture"
-        _, content = self._request(
-            "POST",
-            path,
-            params=query,
-            limit_bytes=self.limits.frame_bytes + self.limits.json_bytes,
-            limit_name="frame_pixels",
-        )
+        content = self._capture_answer(port, query)
         what = self._what("POST", path)
         image, metadata = read_tiff_metadata(content, limits=self.limits, what=what)
         checked(FrameMetadata, metadata, what=f"{what}, frame metadata")
         return CapturedFrame(tiff=content, image=image, metadata=metadata)
+
+    def _capture_answer(self, port: int, query: dict[str, Any]) -> bytes:
+        """The answer to a capture, waited for while the daemon shows progress.
+
+        A capture that brings no byte within ``timeout_s`` is asked again as long as the
+        daemon answers ``GET /ports/{port}/frame`` with a frame number past the one it
+        gave before the try (it runs and its frames come: the image is being formed, not
+        lost), at most `CAPTURE_TRIES` times. A daemon that does not answer, or whose
+        frames stand still, ends the wait with the read timeout's error.
+        """
+        path = f"/ports/{port}/capture"
+        limit = self.limits.frame_bytes + self.limits.json_bytes
+        for tries in range(1, CAPTURE_TRIES + 1):
+            before = self._frame_number(port)
+            try:
+                _, content = self._request(
+                    "POST", path, params=query, limit_bytes=limit, limit_name="frame_pixels"
+                )
+                return content
+            except CameraClientError as e:
+                if tries == CAPTURE_TRIES or not self._still_forming(e.__cause__, port, before):
+                    raise
+        raise AssertionError("unreachable: the last try returns or raises")
+
+    def _still_forming(self, error: BaseException | None, port: int, before: int | None) -> bool:
+        """Whether a capture that timed out is worth asking again: the daemon's frames moved."""
+        if not isinstance(error, httpx.ReadTimeout) or before is None:
+            return False
+        after = self._frame_number(port)
+        return after is not None and after > before
+
+    def _frame_number(self, port: int) -> int | None:
+        """The port's current frame number, or None if the daemon does not answer it."""
+        try:
+            return int(self._json("GET", f"/ports/{port}/frame")["frame"])
+        except (CameraClientError, DeviceAnswerError, DeviceLimitError, DeviceTimeout):
+            return None
+        except (ValueError, KeyError, TypeError):
+            return None
 
     def burst(self, count: int, *, port: int = 0, frame: int | None = None) -> CapturedBurst:
         """``count`` consecutive frames (from the next one or from ``frame``) in one TIFF.
@@ -370,8 +407,10 @@ class CameraClient(Staging, Closing):
         limit = count * limits.frame_bytes + limits.json_bytes
         data = bytearray()
         backoff = Backoff(self.retry_s)
+        tries = 1
         while True:
             timeout = min(self.timeout_s, deadline.seconds)
+            before = self._frame_number(int(path.split("/")[2]))
             try:
                 with self._http.stream("POST", path, params=query, timeout=timeout) as response:
                     if response.status_code >= 400:
@@ -393,6 +432,10 @@ class CameraClient(Staging, Closing):
                     )
             except httpx.TransportError as e:
                 if not data and retryable("POST", e) and backoff.wait():
+                    continue
+                port = int(path.split("/")[2])
+                if not data and tries < CAPTURE_TRIES and self._still_forming(e, port, before):
+                    tries += 1
                     continue
                 if not data:
                     raise CameraClientError(f"cannot reach the camera at {self.url}: {e}") from e
@@ -505,6 +548,10 @@ class CameraClient(Staging, Closing):
             if model is not None:
                 checked(model, event.data, what=f"{what}, event {event.type!r} (id {event.id})")
             yield event
+
+
+#: How many times a capture is sent while the daemon shows progress (`_capture_answer`).
+CAPTURE_TRIES = 8
 
 
 def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:

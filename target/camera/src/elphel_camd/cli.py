@@ -270,6 +270,7 @@ def serve(settings: DaemonSettings, service: CameraService, token: TokenSource) 
             token=token,
             public_reads=settings.public_reads,
             max_body_bytes=settings.max_body_bytes,
+            stream_idle_s=settings.stream_idle_s,
             allowed_hosts=[settings.host, *settings.allowed_hosts],
             cors_origins=settings.cors_origins,
         )

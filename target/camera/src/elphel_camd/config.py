@@ -103,6 +103,12 @@ class DaemonSettings(BaseSettings):
     )
     max_body_bytes: int = Field(65536, ge=1024, description="largest request body accepted")
     event_queue: int = Field(256, ge=1, description="events buffered per SSE client")
+    stream_idle_s: float = Field(
+        300.0,
+        gt=0,
+        allow_inf_nan=False,
+        description="an event stream without an event of its types for this long ends",
+    )
     log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
     access_log: bool = Field(True, description="log every request")
 

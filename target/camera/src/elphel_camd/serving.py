@@ -130,9 +130,9 @@ def _httptools_protocol() -> type[Any] | None:
     class TimedHttpToolsProtocol(_RequestDeadline, HttpToolsProtocol):  # type: ignore[misc]
         """uvicorn's httptools protocol with the request deadline and a head size limit.
 
-        h11 bounds a request's head itself; httptools does not: the bytes received while
-        no request is open (a head arriving) are counted, and past ``max_head_bytes`` the
-        connection is answered 400 and closed.
+        h11 bounds a request's head itself; httptools does not: the bytes of each request's
+        head are counted (up to its empty line: a body that arrives in the same read is
+        not), and past ``max_head_bytes`` the connection is answered 400 and closed.
         """
 
         parser_name = "httptools"
@@ -141,11 +141,13 @@ def _httptools_protocol() -> type[Any] | None:
         def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
             self._head_bytes = 0
+            self._head_tail = b""  # the last bytes of the head so far (an end split in two)
             self._in_body = False
 
         def data_received(self, data: bytes) -> None:
             if not self._in_body:
-                self._head_bytes += len(data)
+                self._head_bytes += _head_part(self._head_tail, data)
+                self._head_tail = (self._head_tail + data)[-3:]
                 if self._head_bytes > self.max_head_bytes:
                     self._head_too_large()
                     return
@@ -158,6 +160,7 @@ def _httptools_protocol() -> type[Any] | None:
 
         def on_headers_complete(self) -> None:
             self._head_bytes = 0
+            self._head_tail = b""
             self._in_body = True
             super().on_headers_complete()
 
@@ -166,6 +169,18 @@ def _httptools_protocol() -> type[Any] | None:
             super().on_message_complete()
 
     return TimedHttpToolsProtocol
+
+
+def _head_part(tail: bytes, data: bytes) -> int:
+    """How many bytes of ``data`` belong to a request head whose last bytes were ``tail``.
+
+    The head ends at its first empty line; what follows in the same read is the body
+    (or the next pipelined request), which the head limit must not count.
+    """
+    end = (tail + data).find(b"\r\n\r\n")
+    if end < 0:
+        return len(data)
+    return max(0, end + 4 - len(tail))
 
 
 class GracefulServer(uvicorn.Server):

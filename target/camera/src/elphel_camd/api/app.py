@@ -1,18 +1,20 @@
 """The FastAPI application: the camera REST API under /api/v1, built around one service.
 
 `create_app` puts the service and the options where the dependencies find them
-(`elphel_camd.api.deps`), adds the body limit and the Host allow-list (`middleware`), CORS
-only for the origins it is given, and the error answers (`errors`), and includes one
-router per resource group (`routes`). Every request but ``GET /health`` needs
-``Authorization: Bearer <token>`` unless the app is built with ``public_reads``, which
-opens the reads (writes and capture still need it). The OpenAPI schema says exactly that:
-its ``security`` is what the daemon checks. ``/docs`` is a small self-contained page (no
-assets from a CDN, so it works on an offline camera) that lists the operations from
-``/openapi.json``.
+(`elphel_camd.api.deps`), adds the body limit, the Host allow-list and the security
+headers (`middleware`), CORS only for the origins it is given, and the error answers
+(`errors`), and includes one router per resource group (`routes`). Every request but
+``GET /health`` needs ``Authorization: Bearer <token>`` unless the app is built with
+``public_reads``, which opens the reads (writes and capture still need it). The OpenAPI
+schema says exactly that: its ``security`` is what the daemon checks. ``/docs`` is a
+small self-contained page (no assets from a CDN, so it works on an offline camera) that
+lists the operations from ``/openapi.json``.
 """
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import html
 from collections.abc import Sequence
 from typing import Any
@@ -26,7 +28,7 @@ from elphel_camd import __version__
 from elphel_camd.api.deps import ApiOptions, TokenSource
 from elphel_camd.api.errors import add_error_handlers
 from elphel_camd.api.fast_path import ParamsFastPath
-from elphel_camd.api.middleware import BodyLimit, HostAllowList
+from elphel_camd.api.middleware import BodyLimit, HostAllowList, SecurityHeaders
 from elphel_camd.api.models import EVENT_SCHEMA, Problem
 from elphel_camd.api.routes import ROUTERS, page, param_schema
 from elphel_camd.api.routes import preview as preview_routes
@@ -46,6 +48,7 @@ def create_app(
     public_reads: bool = False,
     max_body_bytes: int = 65536,
     keepalive_s: float = 15.0,
+    stream_idle_s: float = 300.0,
     allowed_hosts: Sequence[str] | None = None,
     cors_origins: Sequence[str] = (),
     fast_path: bool = True,
@@ -65,6 +68,8 @@ def create_app(
         Largest request body; larger ones get 413.
     keepalive_s
         Idle time after which the event stream sends a comment line.
+    stream_idle_s
+        An event stream with no event of its types for this long ends.
     allowed_hosts
         Host names (besides IP addresses and ``localhost``) the ``Host`` header may
         carry; None checks nothing (in-process clients), ``["*"]`` allows any.
@@ -88,7 +93,12 @@ def create_app(
         redoc_url=None,
     )
     app.state.service = service
-    app.state.options = ApiOptions(token=source, public_reads=public_reads, keepalive_s=keepalive_s)
+    app.state.options = ApiOptions(
+        token=source,
+        public_reads=public_reads,
+        keepalive_s=keepalive_s,
+        stream_idle_s=stream_idle_s,
+    )
     if fast_path:
         app.add_middleware(ParamsFastPath)  # added first: the innermost, under every limit
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
@@ -96,6 +106,7 @@ def create_app(
         add_cors(app, cors_origins)
     if allowed_hosts is not None:
         app.add_middleware(HostAllowList, allowed=allowed_hosts)
+    app.add_middleware(SecurityHeaders)  # the outermost: on every answer, refusals included
     add_error_handlers(app)
     include_routes(app)
     serve_contract(app, public_reads=public_reads)
@@ -141,7 +152,7 @@ def serve_contract(app: FastAPI, *, public_reads: bool) -> None:
 
     @app.get("/docs", include_in_schema=False)
     def docs() -> HTMLResponse:
-        return HTMLResponse(docs_page(openapi()))
+        return HTMLResponse(docs_page(openapi()), headers={"Content-Security-Policy": DOCS_CSP})
 
 
 def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
@@ -179,6 +190,17 @@ def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
     return schema
 
 
+# The /docs page's one inline style, allowed by its hash: nothing else runs or loads there.
+DOCS_STYLE = (
+    "body{font-family:sans-serif;margin:2em}td{padding:2px 8px;border-bottom:1px solid #ddd}"
+)
+DOCS_CSP = (
+    "default-src 'none'; style-src "
+    f"'sha256-{base64.b64encode(hashlib.sha256(DOCS_STYLE.encode()).digest()).decode()}'; "
+    "base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+)
+
+
 def docs_page(schema: dict[str, Any]) -> str:
     """A self-contained HTML page listing the API's operations (no external assets)."""
     rows = []
@@ -194,8 +216,7 @@ def docs_page(schema: dict[str, Any]) -> str:
     title = html.escape(f"{schema['info']['title']} {schema['info']['version']}")
     return (
         "<!doctype html><html><head><meta charset='utf-8'>"
-        f"<title>{title}</title><style>body{{font-family:sans-serif;margin:2em}}"
-        "td{padding:2px 8px;border-bottom:1px solid #ddd}</style></head><body>"
+        f"<title>{title}</title><style>{DOCS_STYLE}</style></head><body>"
         f"<h1>{title}</h1><p>{html.escape(schema['info'].get('description', ''))}</p>"
         "<p>The full schema: <a href='/openapi.json'>/openapi.json</a> (&#128274; = needs "
         "the bearer token).</p><table><tr><th>method</th><th>path</th><th>what</th>"

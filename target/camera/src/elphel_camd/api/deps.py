@@ -6,10 +6,13 @@
 was started with public reads). `PortPath` and `FrameQuery` are the path and query
 parameters the port routes share.
 
-A wrong token is logged with the peer's address and answered after a delay that doubles
-with each failure of that peer (`FailedAuth`, bounded), so guessing tokens over the
-network is slow; the answer is the same whatever the token was. A missing token (no
-guess) is logged and answered at once.
+A request carries the token in exactly one ``Authorization: Bearer`` header: two or more
+``Authorization`` headers are refused like a wrong token (`token_accepted` is the one
+rule, for the routes and the parameter fast path alike). A wrong token is logged with the
+peer's address and answered after a delay that doubles with each failure of that peer
+(`FailedAuth`, bounded), so guessing tokens over the network is slow; the answer is the
+same whatever the token was. A missing token (no guess) is logged and answered at once.
+These log lines are rate-limited (`LogLimit`): a flood of bad tokens cannot fill the disk.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ import os
 import secrets
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
@@ -120,6 +124,31 @@ class FailedAuth:
 
 
 @dataclass
+class LogLimit:
+    """At most ``lines`` log lines per ``window_s``; the others are counted, not written.
+
+    The next line written after some were left out says how many (`allow`).
+    """
+
+    lines: int = 10
+    window_s: float = 60.0
+    _times: deque[float] = field(default_factory=deque)
+    _left_out: int = 0
+
+    def allow(self) -> int | None:
+        """None: leave this line out; else how many lines were left out before it."""
+        now = time.monotonic()
+        while self._times and self._times[0] <= now - self.window_s:
+            self._times.popleft()
+        if len(self._times) >= self.lines:
+            self._left_out += 1
+            return None
+        self._times.append(now)
+        left_out, self._left_out = self._left_out, 0
+        return left_out
+
+
+@dataclass
 class ApiOptions:
     """How the API guards and streams (fixed when the app is built).
 
@@ -131,12 +160,21 @@ class ApiOptions:
         Reads are answered without the token (writes still need it).
     keepalive_s
         Idle time after which the event stream sends a comment line.
+    stream_idle_s
+        An event stream with no event of its types for this long ends (keepalive comments
+        do not count).
+    failed
+        The per-peer back-off of failed tokens.
+    auth_log
+        The rate limit of the failed-token log lines.
     """
 
     token: TokenSource
     public_reads: bool = False
     keepalive_s: float = 15.0
+    stream_idle_s: float = 300.0
     failed: FailedAuth = field(default_factory=FailedAuth)
+    auth_log: LogLimit = field(default_factory=LogLimit)
 
 
 async def get_service(request: Request) -> CameraService:
@@ -162,58 +200,95 @@ def _peer(request: Request) -> str:
     return request.client.host if request.client is not None else "unknown"
 
 
-def token_accepted(options: ApiOptions, given: str, peer: str) -> bool:
-    """Whether ``given`` is the daemon's token; a right one clears ``peer``'s failures.
+def bearer(headers: Iterable[tuple[bytes, bytes]]) -> tuple[int, str]:
+    """How many ``Authorization`` headers an ASGI request has, and the bearer token of one.
+
+    The token is "" unless there is exactly one such header and it says ``Bearer <token>``.
+    """
+    values = [value for key, value in headers if key.lower() == b"authorization"]
+    if len(values) != 1:
+        return len(values), ""
+    scheme, _, given = values[0].decode("latin-1").strip().partition(" ")
+    return 1, given.strip() if scheme.lower() == "bearer" else ""
+
+
+def token_accepted(options: ApiOptions, headers: Iterable[tuple[bytes, bytes]], peer: str) -> bool:
+    """Whether the request's one ``Authorization`` header bears the daemon's token.
 
     Every token check goes through here: the routes' `require_token` and the parameter
-    fast path (`elphel_camd.api.fast_path`).
+    fast path (`elphel_camd.api.fast_path`). Two or more ``Authorization`` headers are
+    refused whatever they say. A right token clears ``peer``'s failures.
     """
+    count, given = bearer(headers)
     # compare_digest on bytes of any length: no early exit that would tell how close it was.
-    if given and secrets.compare_digest(given.encode(), options.token.current().encode()):
+    expected = options.token.current().encode()
+    if count == 1 and given and secrets.compare_digest(given.encode(), expected):
         options.failed.succeed(peer)
         return True
     return False
 
 
+def _log_refusal(options: ApiOptions, level: int, message: str, *args: object) -> None:
+    """Log a refused token, unless the rate limit leaves the line out (then it is counted)."""
+    left_out = options.auth_log.allow()
+    if left_out is None:
+        return
+    if left_out:
+        message += f" ({left_out} similar lines left out before this one)"
+    log.log(level, message, *args)
+
+
+_NO_TOKEN = "this request needs the camera's token: send Authorization: Bearer <token>"
+
+
 async def require_token(
     request: Request,
     options: Options,
-    credentials: HTTPAuthorizationCredentials | None = _BEARER,
+    _declared: HTTPAuthorizationCredentials | None = _BEARER,
 ) -> None:
-    """401 unless the request carries the daemon's bearer token (slowed per failing peer)."""
-    given = credentials.credentials if credentials is not None else ""
+    """401 unless the request carries the daemon's bearer token (slowed per failing peer).
+
+    ``_declared`` only declares the bearer security in the OpenAPI schema; the check reads
+    the request's headers itself (`token_accepted`).
+    """
+    headers = request.scope["headers"]
     peer = _peer(request)
-    if token_accepted(options, given, peer):
+    if token_accepted(options, headers, peer):
         return
-    if given:
+    count, given = bearer(headers)
+    where = (request.method, request.url.path, peer)
+    detail = _NO_TOKEN
+    if count > 1:
+        detail = f"this request has {count} Authorization headers: send one (Bearer <token>)"
+    if given or count > 1:
         # A guess: slowed down, more for each failure of the same peer.
-        count, delay = options.failed.fail(peer)
-        log.warning(
-            "%s %s from %s: wrong token (failure %d of this peer; answering in %.2f s)",
-            request.method,
-            request.url.path,
-            peer,
-            count,
+        failures, delay = options.failed.fail(peer)
+        why = "wrong token" if count == 1 else f"{count} Authorization headers"
+        _log_refusal(
+            options,
+            logging.WARNING,
+            "%s %s from %s: %s (failure %d of this peer; answering in %.2f s)",
+            *where,
+            why,
+            failures,
             delay,
         )
         await asyncio.sleep(delay)
     else:
-        log.info("%s %s from %s: no token", request.method, request.url.path, peer)
+        _log_refusal(options, logging.INFO, "%s %s from %s: no token", *where)
     raise StarletteHTTPException(
-        status_code=401,
-        detail="this request needs the camera's token: send Authorization: Bearer <token>",
-        headers={"WWW-Authenticate": "Bearer"},
+        status_code=401, detail=detail, headers={"WWW-Authenticate": "Bearer"}
     )
 
 
 async def require_read(
     request: Request,
     options: Options,
-    credentials: HTTPAuthorizationCredentials | None = _BEARER,
+    _declared: HTTPAuthorizationCredentials | None = _BEARER,
 ) -> None:
     """The token check, unless the daemon serves reads publicly."""
     if not options.public_reads:
-        await require_token(request, options, credentials)
+        await require_token(request, options, _declared)
 
 
 WRITES = [Depends(require_token)]

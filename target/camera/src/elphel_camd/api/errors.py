@@ -10,7 +10,9 @@ body. A body that is not a JSON object (not JSON, not UTF-8, a list) is 422 with
 register or frame is 404, a board without an image path 501, a failing I2C bus or a
 state directory that cannot be written 503 (reads keep serving), a frame that does not
 come 504. Non-finite numbers in a rejected body are named as strings (``"NaN"``,
-``"Infinity"``): JSON has no such numbers.
+``"Infinity"``): JSON has no such numbers. Text that UTF-8 cannot carry (a lone UTF-16
+surrogate such as U+D800 in a JSON body) is named with a backslash escape
+(`problem`), so every error answer can be encoded.
 """
 
 from __future__ import annotations
@@ -78,14 +80,27 @@ _HTTP_CODES = {
 
 
 def json_safe(value: Any) -> Any:
-    """A rejected value made JSON-ready: non-finite floats become "NaN"/"Infinity" strings."""
+    """A rejected value made JSON-ready and encodable as UTF-8.
+
+    Non-finite floats become "NaN"/"Infinity" strings; text with lone surrogates gets them
+    as backslash escapes (U+D800 becomes backslash, "ud800").
+    """
     if isinstance(value, float) and not math.isfinite(value):
         return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, str):
+        return value.encode("utf-8", "backslashreplace").decode("utf-8")
     if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
+        return {json_safe(str(k)): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     return value
+
+
+def problem(
+    status: int, body: dict[str, Any], headers: dict[str, str] | None = None
+) -> JSONResponse:
+    """An error answer: ``body`` made encodable (`json_safe`) whatever text it names."""
+    return JSONResponse(status_code=status, content=json_safe(body), headers=headers)
 
 
 def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
@@ -190,8 +205,7 @@ def sensor_allowed(request: Request, name: str) -> str | None:
 
 def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    problem = validation_problem(exc, lambda name: sensor_allowed(request, name))
-    return JSONResponse(status_code=422, content=problem)
+    return problem(422, validation_problem(exc, lambda name: sensor_allowed(request, name)))
 
 
 def allowed_methods(request: Request) -> list[str]:
@@ -211,9 +225,9 @@ def _on_http(request: Request, exc: Exception) -> JSONResponse:
     if exc.status_code == 400 and request.method in ("PATCH", "PUT", "POST"):
         # FastAPI's answer to a body it cannot decode (not UTF-8): invalid input, like
         # a body that is not JSON.
-        return JSONResponse(
-            status_code=422,
-            content={
+        return problem(
+            422,
+            {
                 "detail": f"the request body cannot be read: {exc.detail}",
                 "error": MALFORMED_BODY,
                 "parameter": "body",
@@ -226,10 +240,10 @@ def _on_http(request: Request, exc: Exception) -> JSONResponse:
         # Starlette names the methods of the first route that matched the path only; a
         # path served by several routes (GET and PATCH of params) has all of theirs.
         headers["Allow"] = ", ".join(allowed_methods(request))
-    return JSONResponse(
-        status_code=exc.status_code,
-        content={"detail": str(exc.detail), "error": _HTTP_CODES.get(exc.status_code, "http")},
-        headers=headers,
+    return problem(
+        exc.status_code,
+        {"detail": str(exc.detail), "error": _HTTP_CODES.get(exc.status_code, "http")},
+        headers,
     )
 
 
@@ -240,7 +254,7 @@ def add_error_handlers(app: FastAPI) -> None:
         def handler(
             request: Request, exc: Exception, status: int = status, code: str = code
         ) -> JSONResponse:
-            return JSONResponse(status_code=status, content=error_body(exc, code))
+            return problem(status, error_body(exc, code))
 
         app.add_exception_handler(exc_type, handler)
     app.add_exception_handler(RequestValidationError, _on_invalid)

@@ -54,7 +54,7 @@ class ParamsFastPath:
         port = int(match[1])
         headers = dict(scope["headers"])
         needs_token = method == "PATCH" or not options.public_reads
-        allowed = not needs_token or _has_token(scope, headers, options)
+        allowed = not needs_token or _has_token(scope, options)
         if port not in service.sequencers or not allowed:
             await self.app(scope, receive, send)
             return
@@ -80,16 +80,14 @@ class ParamsFastPath:
         await answer(scope, receive, send)
 
 
-def _has_token(scope: Scope, headers: dict[bytes, bytes], options: ApiOptions) -> bool:
-    """The request carries ``Authorization: Bearer <the daemon's token>`` (`token_accepted`).
+def _has_token(scope: Scope, options: ApiOptions) -> bool:
+    """The request carries the daemon's token, by the one rule (`token_accepted`).
 
-    A missing or wrong token is left to the routes, which log it and slow the peer down.
+    A missing or wrong token, or two ``Authorization`` headers, are left to the routes,
+    which log it and slow the peer down.
     """
-    scheme, _, given = headers.get(b"authorization", b"").decode("latin-1").partition(" ")
-    if scheme.lower() != "bearer" or not given:
-        return False
     client = scope.get("client")
-    return token_accepted(options, given, client[0] if client else "unknown")
+    return token_accepted(options, scope["headers"], client[0] if client else "unknown")
 
 
 def _patch_values(headers: dict[bytes, bytes], body: bytes) -> dict[str, int] | None:

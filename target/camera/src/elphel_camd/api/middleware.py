@@ -1,11 +1,14 @@
-"""ASGI middleware of the API: the request body limit and the Host allow-list.
+"""ASGI middleware of the API: the request body limit, the Host allow-list, safe headers.
 
 `BodyLimit` answers 413 to bodies over a size, declared (``Content-Length``) or sent
 (chunked: such a body is read here, up to the limit, before the app sees it, so the
 answer is 413 and not the framework's 400 for a body it could not read). `HostAllowList`
 answers 421 to requests whose ``Host`` names a host the daemon was not told it is: a web
 page that re-binds its own DNS name to the camera's address (DNS rebinding) sends its own
-name and is refused.
+name and is refused. `SecurityHeaders` gives every answer ``X-Content-Type-Options:
+nosniff`` and ``Referrer-Policy: no-referrer``, and every HTML answer (the control page
+at ``/`` and ``/web/index.html``, ``/docs``) a Content-Security-Policy that allows only
+this daemon and no framing (`HTML_CSP`, unless the answer brings a stricter one of its own).
 """
 
 from __future__ import annotations
@@ -14,7 +17,16 @@ import ipaddress
 import json
 from collections.abc import Iterable
 
+from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+# Only this origin; previews are shown from blob: URLs the page makes itself; no page of
+# another site may frame these (clickjacking).
+HTML_CSP = (
+    "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'; "
+    "style-src 'self'; script-src 'self'; object-src 'none'; base-uri 'none'; "
+    "form-action 'self'; frame-ancestors 'none'"
+)
 
 
 async def _problem(send: Send, status: int, body: dict[str, object]) -> None:
@@ -151,3 +163,28 @@ class HostAllowList:
             )
             return
         await self.app(scope, receive, send)
+
+
+class SecurityHeaders:
+    """Headers every answer carries, and the Content-Security-Policy of HTML answers."""
+
+    def __init__(self, app: ASGIApp, html_csp: str = HTML_CSP) -> None:
+        self.app = app
+        self.html_csp = html_csp
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_safe(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                headers = MutableHeaders(scope=message)
+                headers.setdefault("X-Content-Type-Options", "nosniff")
+                headers.setdefault("Referrer-Policy", "no-referrer")
+                if headers.get("content-type", "").lower().startswith("text/html"):
+                    headers.setdefault("Content-Security-Policy", self.html_csp)
+                    headers.setdefault("X-Frame-Options", "DENY")
+            await send(message)
+
+        await self.app(scope, receive, send_safe)

@@ -6,7 +6,9 @@ IFD is known when the page is written (it follows this page's pixels; 0 for the 
 page), so a burst is sent page by page and the pixel buffer goes out without a copy.
 The result is a plain little-endian TIFF (one strip per page, uncompressed, minisblack)
 that tifffile and ImageJ/Fiji read as a stack; each page's ImageDescription is the frame's
-JSON metadata.
+JSON metadata. A classic TIFF's offsets are 32-bit: a file holds less than 4 GiB, and
+`largest_count` tells how many pages of a size fit, so that a burst that would not fit is
+refused before its first byte.
 """
 
 from __future__ import annotations
@@ -21,6 +23,11 @@ import numpy as np
 _SHORT, _ASCII, _LONG = 3, 2, 4
 _TAGS = 12
 _IFD_BYTES = 2 + 12 * _TAGS + 4
+#: The largest classic TIFF: every offset, the end of the last page included, is 32-bit.
+TIFF_LIMIT_BYTES = 2**32 - 1
+#: An ImageDescription (a frame's JSON metadata) is assumed at most this long when a
+#: burst's size is judged before its frames exist; real ones are about 1 KB.
+DESCRIPTION_BOUND_BYTES = 4096
 
 
 def _even(n: int) -> int:
@@ -78,6 +85,18 @@ def page(
     ifd += struct.pack("<I", 0 if last else end)
     head = bytes(ifd) + description + b"\x00" * (strip_at - desc_at - len(description))
     return head, pixels.data.cast("B"), end
+
+
+def largest_count(width: int, height: int) -> int:
+    """How many 16-bit pages of ``width`` x ``height`` pixels one classic TIFF holds.
+
+    Each page is counted with its IFD, a description of `DESCRIPTION_BOUND_BYTES` and
+    the padding to an even offset, after the 8-byte header.
+    """
+    if width < 1 or height < 1:
+        raise ValueError(f"a page of {width}x{height} pixels; allowed: at least 1x1")
+    page_bytes = _even(_IFD_BYTES + DESCRIPTION_BOUND_BYTES) + _even(width * height * 2)
+    return (TIFF_LIMIT_BYTES - 8) // page_bytes
 
 
 def stream(

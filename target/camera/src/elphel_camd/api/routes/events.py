@@ -3,13 +3,18 @@
 Each event goes out as ``id:``, ``event:`` and one JSON ``data:`` line. A client resumes
 with ``Last-Event-ID``; one that falls a queue's length behind gets a ``dropped`` event
 and the stream ends; the number of streams is bounded (503 beyond it); a daemon shutting
-down ends every stream at once.
+down ends every stream at once. A stream that sent no event of the types it asked for in
+``stream_idle_s`` (keepalive comments do not count) ends with a comment saying so: an
+idle stream does not hold one of the bounded slots for ever, and a client that still
+wants events reconnects with ``Last-Event-ID`` and misses none.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import math
+import time
 from collections.abc import Callable
 from typing import Annotated, Any
 
@@ -63,7 +68,13 @@ class EventStream(Response):
     media_type = "text/event-stream"
 
     def __init__(
-        self, hub: EventHub, sub: Subscription, *, keepalive_s: float, count: int | None
+        self,
+        hub: EventHub,
+        sub: Subscription,
+        *,
+        keepalive_s: float,
+        count: int | None,
+        idle_s: float = math.inf,
     ) -> None:
         # No Response.__init__: it would declare Content-Length: 0 for the empty body.
         self.status_code = 200
@@ -74,7 +85,7 @@ class EventStream(Response):
             (b"x-accel-buffering", b"no"),
         ]
         self.hub, self.sub = hub, sub
-        self.keepalive_s, self.count = keepalive_s, count
+        self.keepalive_s, self.count, self.idle_s = keepalive_s, count, idle_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         sub = self.sub
@@ -110,13 +121,20 @@ class EventStream(Response):
         if sub.missed:
             await send(_body(dropped_notice(sub, "replay", None)))
         sent = 0
+        idle_until = time.monotonic() + self.idle_s
         while self.count is None or sent < self.count:
-            event = await sub.get(self.keepalive_s)
+            idle_left_s = idle_until - time.monotonic()
+            if idle_left_s <= 0:
+                await send(_body(b": no event for %g s: closed\n\n" % self.idle_s))
+                return
+            event = await sub.get(min(self.keepalive_s, idle_left_s))
             if sub.overflowed or sub.closed:
                 break
             if event is None:
-                await send(_body(b": keepalive\n\n"))
+                if idle_until > time.monotonic():
+                    await send(_body(b": keepalive\n\n"))
                 continue
+            idle_until = time.monotonic() + self.idle_s
             # What else is queued goes out with it: one write for a burst of events.
             batch = [event]
             while len(batch) < _BATCH and (self.count is None or sent + len(batch) < self.count):
@@ -181,6 +199,8 @@ async def events(
     events the replay buffer no longer holds are announced by a ``dropped`` event with
     ``reason: replay``. A client that falls a queue's length behind gets a ``dropped``
     event with ``reason: slow`` and the stream ends; acquisition never waits for it.
+    A stream without an event of its types for the daemon's ``stream_idle_s`` (300 s by
+    default; keepalive comments do not count) ends; reconnect with ``Last-Event-ID``.
     503 when as many streams are open as the daemon allows.
     """
     hub = service.events
@@ -202,4 +222,6 @@ async def events(
         ) from e
     except HubClosedError as e:
         raise StarletteHTTPException(503, detail=str(e)) from e
-    return EventStream(hub, sub, keepalive_s=options.keepalive_s, count=count)
+    return EventStream(
+        hub, sub, keepalive_s=options.keepalive_s, count=count, idle_s=options.stream_idle_s
+    )

@@ -1,8 +1,8 @@
 """The browser page: ``GET /`` (index.html) and its static files under ``/web/``.
 
 The files ship inside the package (``elphel_camd/web``); the page talks only to this
-daemon (its Content-Security-Policy allows nothing else), so it works on an isolated
-lab network.
+daemon (its Content-Security-Policy, `elphel_camd.api.middleware.HTML_CSP` on every HTML
+answer, allows nothing else), so it works on an isolated lab network.
 """
 
 from __future__ import annotations
@@ -15,12 +15,6 @@ from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 WEB_DIR = Path(str(files("elphel_camd") / "web"))
-# Only this origin; previews are shown from blob: URLs the page makes itself.
-CSP = (
-    "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'; "
-    "style-src 'self'; script-src 'self'; object-src 'none'; base-uri 'none'; "
-    "frame-ancestors 'none'"
-)
 
 router = APIRouter()
 
@@ -34,7 +28,7 @@ def index() -> HTMLResponse:
     """The browser control page: live view, parameters, capture, events."""
     return HTMLResponse(
         (WEB_DIR / "index.html").read_text(encoding="utf-8"),
-        headers={"Content-Security-Policy": CSP, "Cache-Control": "no-cache"},
+        headers={"Cache-Control": "no-cache"},
     )
 
 
