@@ -37,6 +37,9 @@ TRUTH_FRAMES = 100_000  # frames whose true pose is kept per port (sim_frame_tru
 # a capture that its client gave up on while the image formed (a busy machine) and asked
 # for again gets the same frame, formed once.
 FORMED_KEEP_S = 45.0
+# ... and only the latest of them: a retried quad set needs four, while a long burst asked for
+# at full resolution must not hold gigabytes for those 45 s.
+FORMED_KEEP_FRAMES = 16
 
 # Simulated chips by model name (PortSpec.model).
 SIM_SENSORS: dict[str, Callable[[], SimSensor]] = {
@@ -380,11 +383,16 @@ class SimCameraBoard:
                 return record.image
 
     def _keep_formed(self, record: FrameRecord) -> threading.Lock:
-        """Keep a frame asked for findable for `FORMED_KEEP_S`; its forming lock (lock held)."""
+        """Keep a frame asked for findable (`FORMED_KEEP_S`, `FORMED_KEEP_FRAMES`); its lock.
+
+        Called with the board's lock held.
+        """
         key = (record.port, record.frame)
         kept = self._formed.pop(key, None)
         lock = threading.Lock() if kept is None else kept[2]
         self._formed[key] = (record, time.monotonic(), lock)
+        while len(self._formed) > FORMED_KEEP_FRAMES:
+            self._formed.popitem(last=False)
         return lock
 
     def _forget_formed(self, before: float) -> None:
