@@ -12,10 +12,12 @@ import os
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
+from elphel_host.stage.model import StageModel
 from elphel_sim import pytest_plugin as plugin
 from elphel_sim.cli import build_parser
 
@@ -60,3 +62,10 @@ def run_cli(
         timeout=timeout,
         env={**os.environ, **(env or {})},
     )
+
+
+def nominal_model(folder: Path) -> Path:
+    """A stage calibration file with the nominal mm/step (closed loop does the rest)."""
+    path = folder / "nominal-model.json"
+    StageModel().save(path)
+    return path

@@ -16,7 +16,7 @@ import tifffile
 
 from elphel_host.camera import CameraClient
 
-from .rig import run_cli
+from .rig import nominal_model, run_cli
 
 # a small Bayer window near the optical centre keeps frames and fusion quick
 WINDOW = {"WOI_LEFT": 1200, "WOI_TOP": 880, "WOI_WIDTH": 192, "WOI_HEIGHT": 160}
@@ -48,7 +48,7 @@ def fused_burst(sim_rig, tmp_path_factory):
             )
             assert planned.returncode == 0, planned.stderr
             burst = tmp / "burst"
-            model = str(tmp / "no-model.json")  # the nominal mm/step; closed loop does the rest
+            model = str(nominal_model(tmp))
             done = run_cli(
                 *("burst", "capture", "--plan", str(plan), "--out", str(burst)),
                 *("--model", model, "--start-mm", "2", *OPTICS, "--fuse", "--json"),

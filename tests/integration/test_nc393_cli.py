@@ -17,7 +17,7 @@ from elphel_host.burst.io import read_burst
 from elphel_host.camera import connect
 from elphel_host.tp.dsi import read_dsi
 
-from .rig import run_cli, running_rig
+from .rig import nominal_model, run_cli, running_rig
 
 WINDOW = {"WOI_LEFT": 1200, "WOI_TOP": 880, "WOI_WIDTH": 192, "WOI_HEIGHT": 160}
 # Snapshot mode at 5 frames/s: imgsrv's buffer (64 frames) then holds the last 13 s, longer
@@ -86,7 +86,7 @@ def test_a_sub_pixel_burst_from_the_stock_camera_is_fused(stock_rig, tmp_path):
             burst = tmp_path / "burst"
             done = cli_json(
                 *("burst", "capture", "--plan", str(plan), "--out", str(burst)),
-                *("--model", str(tmp_path / "no-model.json"), "--start-mm", "2", *OPTICS),
+                *("--model", str(nominal_model(tmp_path)), "--start-mm", "2", *OPTICS),
                 env=env,
             )
         finally:

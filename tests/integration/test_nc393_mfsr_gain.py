@@ -21,7 +21,7 @@ from elphel_host.camera import connect
 from elphel_sim.demo.report import reference_image
 from elphel_sim.demo.rig import read_frame_metadata
 
-from .rig import run_cli, start_rig, stop_rig
+from .rig import nominal_model, run_cli, start_rig, stop_rig
 
 SEED = 5
 WINDOW = {"WOI_LEFT": 1200, "WOI_TOP": 880, "WOI_WIDTH": 192, "WOI_HEIGHT": 160}
@@ -55,7 +55,7 @@ def burst_gain(out: Path, *firmware: str) -> dict[str, float]:
         burst = out / "burst"
         cli_json(
             *("burst", "capture", "--plan", str(plan), "--out", str(burst)),
-            *("--model", str(out / "no-model.json"), "--start-mm", "2", *OPTICS),
+            *("--model", str(nominal_model(out)), "--start-mm", "2", *OPTICS),
             env=env,
         )
         first = json.loads((burst / "manifest.json").read_text())["frames"][0]
