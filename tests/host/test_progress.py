@@ -152,6 +152,7 @@ def test_stage_calibrate_reports_each_run_on_stderr(
 def test_stage_move_shows_the_caliper_on_the_way(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from elphel_host.stage.model import StageModel
     from elphel_sim.stage_server import SimStage
 
     with SimStage(seed=4, time_scale=100) as sim:
@@ -159,8 +160,9 @@ def test_stage_move_shows_the_caliper_on_the_way(
         monkeypatch.setenv("ELPHEL_STAGE_URL", sim.tcp_url)
         assert main(["stage", "home", "--json"]) == 0
         capsys.readouterr()
-        model = str(tmp_path / "model.json")
-        assert main(["stage", "move", "12.5", "--model", model, "--json"]) == 0
+        model = tmp_path / "model.json"
+        StageModel().save(model)  # the nominal mm/step
+        assert main(["stage", "move", "12.5", "--model", str(model), "--json"]) == 0
     out, err = capsys.readouterr()
     assert len(out.splitlines()) == 1 and json.loads(out)["target_mm"] == 12.5
     lines = [line for line in err.splitlines() if line.startswith("stage: caliper ")]
