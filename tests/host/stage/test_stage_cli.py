@@ -51,6 +51,8 @@ def test_cli_errors_are_one_line(sim, capsys, monkeypatch):
     monkeypatch.delenv("ELPHEL_STAGE_URL", raising=False)
     assert main(["stage", "status"]) == 1
     assert "ELPHEL_STAGE_URL" in capsys.readouterr().err
+    assert main(["stage", "home", "--stage", sim.tcp_url]) == 0  # the travel is known once homed
+    capsys.readouterr()
     for loop in (["--open-loop"], []):
         assert main(["stage", "move", "500", "--stage", sim.tcp_url, *loop]) == 1
         err = capsys.readouterr().err.strip().splitlines()
