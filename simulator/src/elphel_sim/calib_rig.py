@@ -4,7 +4,7 @@ Each `RigCamera` has its own lens: OpenCV's rational model (`CameraModel`), a sm
 residual the model cannot express (`SmoothResidual`, pixels added after the model), a
 space-variant Gaussian blur (sigma growing with the squared distance from the centre),
 and its own small rotation and focal length. ``R``, ``t_mm`` map camera 0's frame into
-the camera's (DESIGN 4.9). The board (`PrintedBoard`) is posed in camera 0's frame
+the camera's (as calibration.json has them). The board (`PrintedBoard`) is posed in camera 0's frame
 (``X0 = R_board @ Xb + t_board``) and may be bent (``warp_mm``, mrcal's two-parameter
 deformation). `render_view` renders what each camera records (Bayer mosaic, shot and
 read noise), `corner_truth` gives the true pixel of every corner and `write_views` writes
@@ -361,7 +361,7 @@ def board_poses(
 def write_views(
     root: str | Path, rig: CalibRig, board: PrintedBoard, poses: list[BoardPose], *, seed: int
 ) -> list[Path]:
-    """Render and write a views directory (DESIGN 4.9); return the views' paths.
+    """Render and write a views directory (docs/calibration.md); return the views' paths.
 
     One camera: ``viewNNN.tif`` with the Bayer pattern in its metadata. Four: a quad
     directory ``viewNNN/`` per view (quad.json, cam0..3.tif).

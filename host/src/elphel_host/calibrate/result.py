@@ -1,4 +1,4 @@
-"""The calibration directory: calibration.json and camN.yml (DESIGN 4.9), one owner.
+"""The calibration directory: calibration.json and camN.yml (docs/calibration.md), one owner.
 
 calibration.json holds ``version``, ``pattern``, ``rms_px`` and per camera the model
 (``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy``, ``distortion``), ``R`` and

@@ -61,7 +61,7 @@ class CameraResult:
 
 @dataclass(frozen=True)
 class Calibration:
-    """The solve's result; `result.write_calibration` writes it (DESIGN 4.9)."""
+    """The solve's result; `result.write_calibration` writes it (docs/calibration.md)."""
 
     pattern: str
     rms_px: float

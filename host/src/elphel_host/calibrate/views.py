@@ -1,4 +1,4 @@
-"""A views directory (DESIGN 4.9) read and searched for the board.
+"""A views directory (docs/calibration.md) read and searched for the board.
 
 One camera: image files in the directory, one view each (16-bit TIFF as captured, Bayer
 frames included when the TIFF's metadata names ``bayer``; PNG; JPEG). A quad: one quad
@@ -49,7 +49,10 @@ def _read_image(path: Path) -> tuple[NDArray[np.generic], str | None]:
 def view_sources(root: Path) -> tuple[list[Path], bool]:
     """The views (paths) of a views directory and whether they are quad directories."""
     if not root.is_dir():
-        raise InputFormatError(f"{root}: not a directory; allowed: a views directory (DESIGN 4.9)")
+        raise InputFormatError(
+            f"{root}: not a directory; allowed: a views directory of image files, or of quad "
+            "directories (docs/calibration.md)"
+        )
     quads = sorted(p for p in root.iterdir() if (p / MANIFEST).is_file())
     if quads:
         return quads, True
