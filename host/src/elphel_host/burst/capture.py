@@ -89,6 +89,15 @@ class CaptureResult:
     cancelled: bool = False
 
 
+def held_by_all(root: Path, names: Sequence[str], manifests: Sequence[Manifest]) -> list[int]:
+    """Positions whose frame every camera directory ``root/name`` already holds on disk."""
+    held = [
+        {e.index for e in m.frames if e.index is not None and (root / name / e.file).exists()}
+        for m, name in zip(manifests, names, strict=True)
+    ]
+    return sorted(set.intersection(*held))
+
+
 class Mover(Protocol):
     """What `capture_positions` needs of an engine: moves, and a stop after an error."""
 

@@ -25,6 +25,7 @@ from elphel_host.burst.capture import (
     CaptureResult,
     ProgressCallback,
     capture_positions,
+    held_by_all,
     load_progress,
 )
 from elphel_host.burst.manifest import MANIFEST, VERSION, FrameEntry, Manifest, write_manifest
@@ -98,12 +99,7 @@ def capture_multi_burst(
     plan_key = {"start_mm": start_mm, "positions_mm": list(positions_mm)}
     names = [camera_directory(i) for i in range(len(engine.cameras))]
     manifests = [_camera_progress(root / name, i, plan_key, top) for i, name in enumerate(names)]
-    held = [
-        {e.index for e in m.frames if e.index is not None and (root / name / e.file).exists()}
-        for m, name in zip(manifests, names, strict=True)
-    ]
-    done = sorted(set.intersection(*held))
-    result = CaptureResult(root, skipped=list(done))
+    result = CaptureResult(root, skipped=held_by_all(root, names, manifests))
 
     def take(i: int, target: float, moved: MoveResult) -> None:
         frames = engine.acquire_all()

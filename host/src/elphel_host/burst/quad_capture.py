@@ -20,6 +20,7 @@ from elphel_host.burst.capture import (
     CaptureResult,
     ProgressCallback,
     capture_positions,
+    held_by_all,
     load_progress,
 )
 from elphel_host.burst.manifest import MANIFEST, VERSION, FrameEntry, Manifest, write_manifest
@@ -106,12 +107,7 @@ def capture_quad_burst(
     root = Path(out)
     plan_key = {"start_mm": start_mm, "positions_mm": list(positions_mm)}
     manifests = [_camera_progress(root / name, plan_key, top) for name in QUAD_CAMERAS]
-    held = [
-        {e.index for e in m.frames if e.index is not None and (root / name / e.file).exists()}
-        for m, name in zip(manifests, QUAD_CAMERAS, strict=True)
-    ]
-    done = sorted(set.intersection(*held))
-    result = CaptureResult(root, skipped=list(done))
+    result = CaptureResult(root, skipped=held_by_all(root, QUAD_CAMERAS, manifests))
 
     def take(i: int, target: float, moved: MoveResult) -> None:
         tiffs, quad = engine.acquire_quad()
