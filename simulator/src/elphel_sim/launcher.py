@@ -233,10 +233,15 @@ class Served:
 
 
 async def serve_all(
-    served: list[Served], *, on_shutdown: Sequence[Callable[[], None]] = ()
+    served: list[Served],
+    *,
+    on_ready: Callable[[], None] = lambda: None,
+    on_shutdown: Sequence[Callable[[], None]] = (),
 ) -> None:
     """Run every app on its socket until SIGINT or SIGTERM.
 
+    ``on_ready`` runs once the signals are handled (the announcement: whoever reads it may
+    stop the rig at once, and a SIGTERM must then stop it cleanly, not kill it).
     Each server has the daemon's request/idle timeouts; on a signal ``on_shutdown`` runs
     first (ending the event streams), so the rig stops within about a second.
     """
@@ -256,6 +261,7 @@ async def serve_all(
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop)
+    on_ready()
     await asyncio.gather(
         *(srv.serve(sockets=[s.sock]) for srv, s in zip(servers, served, strict=True))
     )
@@ -378,13 +384,18 @@ def up(
         sim_url=sim_served.url,
         **(lens_blur or SHARP).to_json(),
     )
-    if as_json:
-        print(json.dumps(announce), flush=True)
-    else:
-        print_announcement(announce, scenario=scenario, seed=seed)
+
+    def announce_rig() -> None:
+        if as_json:
+            print(json.dumps(announce), flush=True)
+        else:
+            print_announcement(announce, scenario=scenario, seed=seed)
+
     try:
         closing = [camera.events.close for camera in cameras]
-        asyncio.run(serve_all([*served, sim_served], on_shutdown=closing))
+        asyncio.run(
+            serve_all([*served, sim_served], on_ready=announce_rig, on_shutdown=closing)
+        )
     finally:
         stage.close()
         for camera in cameras:
