@@ -69,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--json", action="store_true", help="first stdout line: one JSON object")
     _add_calib_views(sub)
+    _add_calib_scene(sub)
     return p
 
 
@@ -109,11 +110,68 @@ def _calib_views(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_calib_scene(sub: Any) -> None:
+    cs = sub.add_parser(
+        "calib-scene",
+        help="write a quad directory of the quad's scene through the calibration rig's cameras",
+        description="Render the quad's standard scene (planes at known disparities) through "
+        "the cameras `calib-views` renders with the same --width, --height and --seed (their "
+        "own distortion, rotation and focal length): the raw images a real quad records. "
+        "truth.json beside the images holds the true disparity of every tile.",
+    )
+    cs.add_argument("out", metavar="QUAD_DIR", type=Path)
+    cs.add_argument(
+        "--calibration",
+        metavar="CALIB_DIR",
+        help="copy this calibration into QUAD_DIR and name it in quad.json",
+    )
+    cs.add_argument(
+        "--rectified",
+        metavar="DIR",
+        type=Path,
+        help="also write the same scene as ideal cameras in the common model record it",
+    )
+    cs.add_argument("--width", type=int, default=1296)
+    cs.add_argument("--height", type=int, default=968)
+    cs.add_argument("--seed", type=int, default=0, help="seed of the rig (as calib-views)")
+    cs.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _calib_scene(args: argparse.Namespace) -> int:
+    from elphel_sim.calib_rig import make_rig
+    from elphel_sim.calib_scene import rectified_rig, render_raw_quad, write_raw_quad_dir
+    from elphel_sim.quad import render_quad, standard_scene, tile_truth, write_quad_dir
+
+    rig = make_rig(args.width, args.height, cameras=4, seed=args.seed)
+    ideal = rectified_rig(rig)
+    scene = standard_scene(ideal, seed=args.seed)
+    truth = tile_truth(scene)
+    doc = {
+        "disparity": truth.disparity.tolist(),
+        "interior": truth.interior.tolist(),
+        "textured": truth.textured.tolist(),
+        "focal_length_px": ideal.intrinsics.focal_length_px,
+        "baseline_mm": ideal.baseline_mm,
+    }
+    images = render_raw_quad(scene, rig, seed=args.seed + 7)
+    write_raw_quad_dir(args.out, images, rig, calibration=args.calibration)
+    (args.out / "truth.json").write_text(json.dumps(doc) + "\n")
+    result: dict[str, Any] = {"quad_dir": str(args.out), "truth": str(args.out / "truth.json")}
+    if args.rectified is not None:
+        write_quad_dir(args.rectified, render_quad(scene, seed=args.seed + 7), ideal)
+        (args.rectified / "truth.json").write_text(json.dumps(doc) + "\n")
+        result["rectified"] = str(args.rectified)
+    human = f"raw quad in {args.out}, truth in {result['truth']}"
+    print(json.dumps(result) if args.json else human)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.command == "calib-views":
+    commands = {"calib-views": _calib_views, "calib-scene": _calib_scene}
+    if args.command in commands:
         try:
-            return _calib_views(args)
+            return commands[args.command](args)
         except (OSError, ValueError) as e:
             print(f"elphel-sim: {e}", file=sys.stderr)
             return 1

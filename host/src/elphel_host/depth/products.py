@@ -156,16 +156,17 @@ def _colours(
     n = cx.size
     rgb = np.zeros((n, 3), dtype=np.float64)
     h, w = quad.images.shape[1:]
-    for cam, (px, py) in enumerate(quad.geometry.positions):
+    for cam in range(len(quad.geometry.positions)):
         img = quad.images[cam]
+        x, y = quad.geometry.camera_pixels(cam, cx, cy, disparity)
         if rgb_images is not None:
-            col = np.clip(np.floor(cx - disparity * px).astype(np.intp), 0, w - 1)
-            row = np.clip(np.floor(cy - disparity * py).astype(np.intp), 0, h - 1)
+            col = np.clip(np.floor(x).astype(np.intp), 0, w - 1)
+            row = np.clip(np.floor(y).astype(np.intp), 0, h - 1)
             rgb += rgb_images[cam][row, col].astype(np.float64)
             continue
         # continuous coordinate x covers pixel floor(x); the cell containing it starts even
-        col = np.clip(np.floor(cx - disparity * px).astype(np.intp) // 2 * 2, 0, w - 2)
-        row = np.clip(np.floor(cy - disparity * py).astype(np.intp) // 2 * 2, 0, h - 2)
+        col = np.clip(np.floor(x).astype(np.intp) // 2 * 2, 0, w - 2)
+        row = np.clip(np.floor(y).astype(np.intp) // 2 * 2, 0, h - 2)
         if quad.bayer is None:
             v = img[row, col].astype(np.float64)
             rgb += v[:, None]

@@ -13,7 +13,9 @@ take a quad camera from capture to DSI. The capture:
    carry the same ``timestamp_ns``, the same size and the same Bayer pattern;
 5. writes ``cam0..3.tif`` (the daemon's TIFFs, metadata included) and ``quad.json``
    (:class:`~elphel_host.tp.io.QuadManifest`) into a temporary directory next to the
-   target and renames it into place, so a failure never leaves half a quad directory.
+   target and renames it into place, so a failure never leaves half a quad directory;
+   with a calibration, a copy of its calibration.json goes in too, named in quad.json
+   (checked first to be readable and for images of the set's size).
 
 Which port is which camera, and where it sits, is the :mod:`~elphel_host.tp.layout`.
 """
@@ -23,7 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -32,6 +34,7 @@ from elphel_host.camera.client import CameraHTTPError, CapturedFrame
 from elphel_host.camera.protocol import CameraInterface
 from elphel_host.errors import FrameGoneError, QuadCaptureError, QuadCaptureTimeout
 from elphel_host.fileio import replacing_directory
+from elphel_host.tp.calibrated import copy_calibration, read_calibration
 from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
 from elphel_host.tp.layout import QuadLayout
 from elphel_host.tp.trigger import (
@@ -73,6 +76,7 @@ def capture_quad(
     force: bool = False,
     timeout_s: float = 60.0,
     progress: CaptureProgress | None = None,
+    calibration: str | Path | None = None,
 ) -> QuadCapture:
     """Take one trigger-synchronised set from four sensor ports and write a quad directory.
 
@@ -97,6 +101,8 @@ def capture_quad(
         Called as ``progress(done, total, message)`` after each step: the common
         trigger set, the ports synchronised, the set taken, each port's frame fetched
         (most of the time: the frames are large) and the directory written.
+    calibration
+        This quad's calibration.json or its directory: copied in and named in quad.json.
 
     Returns
     -------
@@ -107,7 +113,7 @@ def capture_quad(
     QuadCaptureError
         Too few sensor ports, frames not of one trigger (different ``timestamp_ns``),
         images of different sizes or Bayer patterns; `QuadCaptureTimeout` when the frames
-        stop coming.
+        stop coming; `InputFormatError` for an unreadable or mis-sized ``calibration``.
     FileExistsError
         ``out`` exists, is not empty and ``force`` is not set.
     CameraClientError
@@ -115,7 +121,7 @@ def capture_quad(
     """
     layout = QuadLayout() if layout is None else layout
     target = Path(out)
-    check_target(target, force=force)
+    _check_inputs(target, calibration, force=force)
     info = camera.info()
     sensors = _quad_sensors(camera, info, layout)
     before = _settings_before(camera, info, layout)
@@ -130,9 +136,7 @@ def capture_quad(
     manifest = _manifest(
         camera, info, layout, captured, master=master, period=period, bits=bits, bayer=bayer
     )
-    with replacing_directory(target) as tmp:
-        write_quad_dir(tmp, manifest, [captured[port].tiff for port in layout.ports])
-        check_target(target, force=force)  # again: it may have appeared meanwhile
+    manifest = _write_set(target, manifest, captured, layout, calibration, (width, height), force)
     step(total, total, f"written {target}")
     return QuadCapture(
         path=target,
@@ -143,6 +147,32 @@ def capture_quad(
         bayer=bayer,
         manifest=manifest,
     )
+
+
+def _check_inputs(target: Path, calibration: str | Path | None, *, force: bool) -> None:
+    """Refuse a target in the way or an unreadable calibration before the camera is touched."""
+    check_target(target, force=force)
+    if calibration is not None:
+        read_calibration(calibration)
+
+
+def _write_set(
+    target: Path,
+    manifest: QuadManifest,
+    captured: Mapping[int, CapturedFrame],
+    layout: QuadLayout,
+    calibration: str | Path | None,
+    image_size: tuple[int, int],
+    force: bool,
+) -> QuadManifest:
+    """Write the quad directory (with a copy of the calibration); the manifest written."""
+    with replacing_directory(target) as tmp:
+        if calibration is not None:
+            name = copy_calibration(calibration, tmp, image_size=image_size)
+            manifest = replace(manifest, calibration=name)
+        write_quad_dir(tmp, manifest, [captured[p].tiff for p in layout.ports])
+        check_target(target, force=force)  # again: it may have appeared meanwhile
+    return manifest
 
 
 def _settings_before(

@@ -21,10 +21,11 @@ from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
 from elphel_host.preview import NO_VALUE_RGB, Swatch, save_map_picture
 from elphel_host.progress import ProgressLine
+from elphel_host.tp.calibrated import CalibratedGeometry
 from elphel_host.tp.capture import capture_quad
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_ml_data
-from elphel_host.tp.io import read_quad_dir
+from elphel_host.tp.io import QuadSet, read_quad_dir
 from elphel_host.tp.layout import read_layout
 from elphel_host.tp.sequence import find_quads, plan_jobs, quad_dsi, run_sequence
 from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
@@ -36,7 +37,8 @@ USAGE = """elphel tp QUAD_DIR --out DSI.tif [--no-png] [--ply CLOUD.ply] [--json
                          [tile processor options]
        elphel tp QUAD_DIR... --out-dir DIR [--scheduler ADDRESS] [--workers N] [--json]
        elphel tp capture --camera URL [--token T] --out QUAD_DIR [--geometry FILE]
-                         [--trigger-period-ms MS] [--force] [--json]"""
+                         [--calibration CALIB_DIR] [--trigger-period-ms MS] [--force]
+                         [--json]"""
 
 
 def register(subparsers: Any) -> None:
@@ -76,6 +78,13 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help='JSON {"cameras": [{"port": P, "position": [x, y]}, x4], "optics": {...}} '
         "(a quad.json works); default ports 0..3 on Elphel's square",
+    )
+    cap.add_argument(
+        "--calibration",
+        metavar="CALIB_DIR",
+        help="the quad's calibration (`elphel calibrate solve`'s directory or its "
+        "calibration.json): copied into the quad directory and named in quad.json, so "
+        "`elphel tp` corrects the raw images for it",
     )
     cap.add_argument(
         "--trigger-period-ms",
@@ -137,7 +146,8 @@ def add_depth_options(group: Any) -> None:
         metavar="CLOUD.ply",
         help="also write the point cloud (binary PLY, mm), CLOUD.png (a view of it), "
         "CLOUD_depth.tif (float32 depth in mm per tile) and CLOUD_depth.png; needs "
-        "focal_length_mm, pixel_pitch_um and baseline_mm in quad.json optics",
+        "focal_length_mm, pixel_pitch_um and baseline_mm in quad.json optics, or a "
+        "calibration in quad.json",
     )
     group.add_argument(
         "--min-strength",
@@ -182,7 +192,7 @@ _TP_ONLY = (
     "min_strength",
     "max_disagreement",
 )
-_CAPTURE_ONLY = ("geometry", "trigger_period_ms", "force", "timeout")
+_CAPTURE_ONLY = ("geometry", "calibration", "trigger_period_ms", "force", "timeout")
 _SEQUENCE_ONLY = ("scheduler", "workers")
 
 
@@ -250,6 +260,7 @@ def run_capture(args: argparse.Namespace) -> int:
                 force=args.force,
                 timeout_s=args.timeout,
                 progress=progress,
+                calibration=args.calibration,
             )
     finally:
         line.end()
@@ -264,6 +275,7 @@ def run_capture(args: argparse.Namespace) -> int:
         "bayer": got.bayer,
         "cameras": [{k: c[k] for k in ("file", "port", "position", "frame")} for c in cams],
         "trigger": got.manifest.extra["capture"]["trigger"],
+        "calibration": got.manifest.calibration,
         "seconds": round(seconds, 3),
     }
     frames = ", ".join(f"port {p} #{f}" for p, f in got.frames.items())
@@ -284,9 +296,7 @@ def run_tp(args: argparse.Namespace) -> int:
         args.parser.error(f"--min-strength {args.min_strength:g}; allowed: >= 0")
     if args.ply:
         disagreement = max_disagreement(args)
-        optics = DepthOptics.from_optics(
-            qs.manifest.optics, source=str(Path(args.quad_dir, "quad.json"))
-        )
+        optics = depth_optics(qs, source=str(Path(args.quad_dir, "quad.json")))
     config = TpConfig(
         refine_passes=args.refine,
         scan=tuple(args.scan),
@@ -333,6 +343,20 @@ def run_tp(args: argparse.Namespace) -> int:
         )
     emit(args, result, human)
     return 0
+
+
+def depth_optics(qs: QuadSet, *, source: str) -> DepthOptics:
+    """The optics that turn the quad's disparities into depth.
+
+    A calibrated quad's come from its calibration (the virtual camera's focal length and
+    the square's side; the pixel pitch from quad.json ``optics`` when it is there), any
+    other quad's from quad.json ``optics``.
+    """
+    cal = qs.quad.geometry.calibration
+    if isinstance(cal, CalibratedGeometry):
+        pitch = (qs.manifest.optics or {}).get("pixel_pitch_um")
+        return cal.depth_optics(None if pitch is None else float(pitch))
+    return DepthOptics.from_optics(qs.manifest.optics, source=source)
 
 
 def save_disparity_png(path: Path, dsi: dict[str, Any], *, min_strength: float) -> Path:

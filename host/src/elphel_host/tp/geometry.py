@@ -3,12 +3,15 @@
 Disparity convention (docs/tile-processor.md, Files): a point seen at p by the virtual
 centre camera is seen by camera i at ``p - D * position_i``; positions are in units of
 the square's side, +x right, +y down. Tile (tx, ty) of the virtual camera is centred at
-``(8tx + 4, 8ty + 4)``.
+``(8tx + 4, 8ty + 4)``. A calibrated quad (quad.json ``"calibration"``) places its tiles
+through a :class:`TileMap` instead (:mod:`elphel_host.tp.calibrated`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,12 +23,46 @@ IDEAL_POSITIONS = ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))
 PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (2, 1))
 
 
+class TileMap(Protocol):
+    """Where each camera sees the virtual camera's tiles, when that is not the ideal square."""
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of the images the map is for."""
+        ...
+
+    def pixels(
+        self,
+        camera: int,
+        cx: NDArray[np.floating],
+        cy: NDArray[np.floating],
+        disparity: NDArray[np.floating],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Continuous pixel (x, y) in ``camera`` of the virtual camera's (cx, cy) at a disparity."""
+        ...
+
+    def disparity_gain(
+        self,
+        cx: NDArray[np.floating],
+        cy: NDArray[np.floating],
+        pairs: Sequence[tuple[int, int]],
+        vectors: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """Per tile, the pixels the pairs' separations move per unit of disparity."""
+        ...
+
+
 @dataclass(frozen=True)
 class QuadGeometry:
-    """Camera centres of a quad (in units of the square's side) and the pairs correlated."""
+    """Camera centres of a quad (in units of the square's side) and the pairs correlated.
+
+    ``calibration``: where a calibrated quad's cameras see each tile (None: the ideal
+    square, ``p - D * position``).
+    """
 
     positions: tuple[tuple[float, float], ...] = IDEAL_POSITIONS
     pairs: tuple[tuple[int, int], ...] = field(default=PAIRS)
+    calibration: TileMap | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.positions) != 4 or any(len(p) != 2 for p in self.positions):
@@ -43,6 +80,43 @@ class QuadGeometry:
         """
         p = np.asarray(self.positions, dtype=np.float64)
         return np.array([p[a] - p[b] for a, b in self.pairs])
+
+    def place_camera(
+        self,
+        camera: int,
+        cx: NDArray[np.floating],
+        cy: NDArray[np.floating],
+        disparity: NDArray[np.floating],
+    ) -> TilePlacement:
+        """Camera ``camera``'s tiles centred at (cx, cy) at a disparity (see :func:`place`)."""
+        if self.calibration is None:
+            return place_tiles(cx, cy, disparity, self.positions[camera])
+        x, y = self.calibration.pixels(camera, cx, cy, disparity)
+        left_x, shift_x = window_at(x)
+        top_y, shift_y = window_at(y)
+        return TilePlacement(left_x=left_x, shift_x=shift_x, top_y=top_y, shift_y=shift_y)
+
+    def camera_pixels(
+        self,
+        camera: int,
+        cx: NDArray[np.floating],
+        cy: NDArray[np.floating],
+        disparity: NDArray[np.floating],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Continuous pixel (x, y) in ``camera`` of what the virtual camera sees at (cx, cy)."""
+        if self.calibration is not None:
+            return self.calibration.pixels(camera, cx, cy, disparity)
+        px, py = self.positions[camera]
+        d = np.asarray(disparity, dtype=np.float64)
+        return np.asarray(cx, dtype=np.float64) - d * px, np.asarray(cy, dtype=np.float64) - d * py
+
+    def disparity_gain(
+        self, cx: NDArray[np.floating], cy: NDArray[np.floating]
+    ) -> NDArray[np.float64]:
+        """Per tile, the raw pixels a pair's peak moves per unit of disparity (1 if ideal)."""
+        if self.calibration is None:
+            return np.ones(np.shape(cx))
+        return self.calibration.disparity_gain(cx, cy, self.pairs, self.pair_vectors())
 
 
 def tile_centres(tiles_y: int, tiles_x: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -73,11 +147,20 @@ def place(
         ``left`` = the integer first pixel of the 16-sample window, ``shift`` = s in
         [-0.5, 0.5] such that the tile is the image sampled at ``left - s + j``.
     """
-    p = (
-        np.asarray(centre, dtype=np.float64)
-        - np.asarray(disparity, dtype=np.float64) * position
-        - 8.0
+    return window_at(
+        np.asarray(centre, dtype=np.float64) - np.asarray(disparity, dtype=np.float64) * position
     )
+
+
+def window_at(centre_px: NDArray[np.floating]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Integer left edge and residual shift of 16-sample windows centred at continuous pixels.
+
+    Returns
+    -------
+    left, shift
+        As :func:`place`: the window is the image sampled at ``left - shift + j``.
+    """
+    p = np.asarray(centre_px, dtype=np.float64) - 8.0
     left = np.floor(p + 0.5)
     return left.astype(np.int64), left - p
 

@@ -25,7 +25,8 @@ class QuadImages:
     bayer
         Pattern name or None for mono.
     geometry
-        Camera positions and pairs.
+        Camera positions and pairs (and, for a calibrated quad, its calibration, which
+        must be for images of this size).
     kernels
         Optional aberration-correction kernels ``(4, colours, ky, kx, 15, 15)``
         (pixel domain, convolution): a grid at ``kernel_step`` pixels, kernel (kx, ky)
@@ -48,6 +49,13 @@ class QuadImages:
         if a.dtype != np.float32:
             raise InputFormatError(f"images must be float32, got {a.dtype}")
         tile_grid(a.shape[1], a.shape[2])
+        cal = self.geometry.calibration
+        if cal is not None and cal.image_size != (a.shape[2], a.shape[1]):
+            cw, ch = cal.image_size
+            raise InputFormatError(
+                f"the calibration is for {cw}x{ch} images, the images are "
+                f"{a.shape[2]}x{a.shape[1]}; allowed: a calibration of these cameras at this size"
+            )
         if self.kernels is not None:
             k = self.kernels
             ncol = 1 if self.bayer is None else 3

@@ -8,7 +8,8 @@ simulator) goes through :meth:`QuadManifest.to_json` / :meth:`QuadManifest.from_
 
 The DSI and ML_DATA files live in :mod:`elphel_host.tp.dsi`; their functions are
 importable from here too. The ``kernels`` entry and its array are
-:mod:`elphel_host.tp.kernel_file`'s.
+:mod:`elphel_host.tp.kernel_file`'s; the ``calibration`` entry names a calibration.json
+inside the directory (:mod:`elphel_host.tp.calibrated`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from elphel_host.confined import check_relative, inside
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import replacing, write_atomic
 from elphel_host.tp.bayer import BAYER_PATTERNS
+from elphel_host.tp.calibrated import CALIBRATION_FILE, CalibratedGeometry, read_calibration
 from elphel_host.tp.dsi import DAMAGED_TIFF_ERRORS
 from elphel_host.tp.geometry import QuadGeometry
 from elphel_host.tp.images import QuadImages
@@ -146,6 +148,9 @@ class QuadManifest:
         ``focal_length_mm``, ``pixel_pitch_um``, ``baseline_mm`` (the square's side), ...
     kernels
         Aberration-correction kernels, if any.
+    calibration
+        The quad's calibration.json (or its directory), relative to the quad directory;
+        with it the images are the cameras' raw images (docs/tile-processor.md).
     extra
         Other top-level records, kept in order (a capture writes ``capture``).
     """
@@ -158,6 +163,7 @@ class QuadManifest:
         "full_scale_dn",
         "optics",
         "kernels",
+        "calibration",
     )
 
     cameras: tuple[QuadCamera, ...]
@@ -165,6 +171,7 @@ class QuadManifest:
     full_scale_dn: int | float | None = None
     optics: Mapping[str, Any] | None = None
     kernels: KernelFile | None = None
+    calibration: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -201,6 +208,8 @@ class QuadManifest:
             doc["optics"] = dict(self.optics)
         if self.kernels is not None:
             doc["kernels"] = self.kernels.to_json()
+        if self.calibration is not None:
+            doc["calibration"] = self.calibration
         doc.update(self.extra)
         return doc
 
@@ -246,8 +255,36 @@ class QuadManifest:
             full_scale_dn=full,
             optics=optics,
             kernels=kernel_file(doc.get("kernels"), source),
+            calibration=None
+            if doc.get("calibration") is None
+            else check_relative(doc["calibration"], where=f"{source}: calibration"),
             extra={k: v for k, v in doc.items() if k not in cls.FIELDS},
         )
+
+    def calibration_of(self, root: Path, *, image_size: tuple[int, int]) -> CalibratedGeometry:
+        """The calibration quad.json names, checked to stay in ``root`` and fit ``image_size``.
+
+        Raises
+        ------
+        InputFormatError
+            No calibration named, one outside ``root``, an unreadable one, or one for
+            images of another size (the message names both sizes).
+        """
+        source = root / MANIFEST
+        if self.calibration is None:
+            raise InputFormatError(f"{source}: no 'calibration'")
+        where = f"{source}: calibration"
+        path = inside(root, self.calibration, where=where)
+        if path.is_dir():  # a calibration directory: its calibration.json
+            path = inside(root, f"{self.calibration}/{CALIBRATION_FILE}", where=where)
+        cal = read_calibration(path)
+        if cal.image_size != image_size:
+            raise InputFormatError(
+                f"{source}: calibration {path} is for {cal.image_size[0]}x{cal.image_size[1]} "
+                f"images, the quad's images are {image_size[0]}x{image_size[1]}; allowed: a "
+                "calibration of these cameras at the same image size (WOI)"
+            )
+        return cal
 
     def file_of(self, root: Path, index: int) -> Path:
         """Camera ``index``'s file under ``root``, refused if it (or a link) leaves ``root``."""
@@ -365,10 +402,14 @@ def read_quad_dir(path: str | Path) -> QuadSet:
     kernels = None
     if manifest.kernels is not None:
         kernels = load_kernels(root / manifest.kernels.file, source)
+    geometry = manifest.geometry
+    if manifest.calibration is not None:
+        cal = manifest.calibration_of(root, image_size=(w, h))
+        geometry = QuadGeometry(positions=geometry.positions, calibration=cal)
     quad = QuadImages(
         stack,
         bayer=manifest.bayer,
-        geometry=manifest.geometry,
+        geometry=geometry,
         kernels=kernels,
         kernel_step=16 if manifest.kernels is None else manifest.kernels.step,
     )

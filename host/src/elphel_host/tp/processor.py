@@ -6,7 +6,9 @@ correlation maximum. The first pass uses a fixed target (0 = infinity, or a coar
 of several targets keeping the strongest); each refinement pass re-centres every tile on
 the disparity measured so far, so the final residual is small and the sub-pixel
 estimate works where it is most accurate (near lag 0, where the correlation peak is
-symmetric).
+symmetric). A calibrated quad's cameras move by other than one pixel per unit of
+disparity (:meth:`~elphel_host.tp.geometry.QuadGeometry.disparity_gain`): its measured
+residuals are divided by that gain too.
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
     ty, tx = quad.tiles
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
     prep = prepare(quad, config, reach)
+    # raw pixels of residual per unit of disparity (1 for the ideal square)
+    scale = config.disparity_scale * quad.geometry.disparity_gain(prep.centres[1], prep.centres[0])
     # First pass: at each scan target, keep per tile the target whose neighbourhood
     # correlates best; the refinement then measures every tile on its own data.
     target = np.zeros((ty, tx))
@@ -63,7 +67,7 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
         if step > 1:
             m = {k: _nearest_measured(m[k], step, (ty, tx)) for k in ("levelled", "residual")}
         residual, peak = _neighbourhood_peak(m, prep.profiles.lags)
-        estimate = tgt + residual / config.disparity_scale
+        estimate = tgt + residual / scale
         better = peak > score
         target = np.where(better, estimate, target)
         scanned = np.where(better, tgt, scanned)
@@ -77,8 +81,8 @@ def disparity_map(quad: QuadImages, *, config: TpConfig = DEFAULT_CONFIG) -> dic
         target = np.clip(target, config.min_disparity - 1.0, reach)
         best = measure(quad, target, config=config, prep=prep)
         if n < config.refine_passes - 1:
-            target = target + best["residual"] / config.disparity_scale
-    inv = 1.0 / config.disparity_scale
+            target = target + best["residual"] / scale
+    inv = 1.0 / scale
     out = {
         "disparity": target + inv * best["residual"],
         "strength": best["strength"],

@@ -26,7 +26,7 @@ from scipy import ndimage
 from elphel_host.tp.bayer import colour_weights, lattices
 from elphel_host.tp.clt import TILE, clt_tiles, iclt_tiles, overlap_add
 from elphel_host.tp.correlation import lpf_mask
-from elphel_host.tp.geometry import place_tiles, tile_centres
+from elphel_host.tp.geometry import tile_centres
 from elphel_host.tp.images import QuadImages
 
 F32 = NDArray[np.float32]
@@ -83,9 +83,9 @@ def rendered_images(
     pad = int(np.ceil(np.abs(d).max())) + TILE
     lpf = lpf_mask(lpf_sigma).astype(np.float32)
     out = []
-    for cam, (px, py) in enumerate(quad.geometry.positions):
+    for cam in range(len(quad.geometry.positions)):
         planes = demosaic(quad.images[cam], quad.bayer)
-        at = place_tiles(cx, cy, d, (px, py))
+        at = quad.geometry.place_camera(cam, cx, cy, d)
         colours = []
         for plane in planes:
             padded = np.pad(plane, pad, mode="edge")

@@ -47,7 +47,7 @@ from elphel_host.tp.correlation import (
     window_envelope,
     windowed_centroid,
 )
-from elphel_host.tp.geometry import place_tiles, tile_centres
+from elphel_host.tp.geometry import tile_centres
 from elphel_host.tp.images import QuadImages
 from elphel_host.tp.kernels import kernel_spectra
 
@@ -199,7 +199,7 @@ def _products(
     cx = prep.centres[1].ravel()[tiles]
     per_camera = []
     for cam, (px, py) in enumerate(quad.geometry.positions):
-        at = place_tiles(cx, cy, target, (px, py))
+        at = quad.geometry.place_camera(cam, cx, cy, target)
         if prep.kernels is None:
             per_camera.append(camera_spectra(prep.cells[cam], prep.transform, at))
         else:

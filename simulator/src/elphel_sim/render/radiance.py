@@ -122,7 +122,7 @@ def _quantised(footprint: FloatArray) -> FloatArray:
     return out
 
 
-def _filtered_coefficients(texture: Texture, footprint: FloatArray) -> FloatArray:
+def filtered_coefficients(texture: Texture, footprint: FloatArray) -> FloatArray:
     """Spline coefficients of the texture averaged over a pixel's footprint.
 
     ``footprint`` is the 2x2 Jacobian of grid coordinates (x, y) by pixel (x, y); it is
@@ -239,7 +239,7 @@ def _render(
         grid_per_mm = tex.size / tex.period_mm
         t_mid = float(times_s[int(np.median(k))])
         footprint = _footprint_mm(rays, plane, t_mid, x_mid, y_mid) * grid_per_mm
-        coeffs = _filtered_coefficients(tex, footprint)
+        coeffs = filtered_coefficients(tex, footprint)
         gx = np.mod(s_u[visible] * grid_per_mm, tex.size)
         gy = np.mod(s_v[visible] * grid_per_mm, tex.size)
         value = ndimage.map_coordinates(
