@@ -23,6 +23,7 @@ from elphel_host.depth.products import dsi_depth
 from elphel_host.errors import InputFormatError
 from elphel_host.tp import capture, io
 from elphel_host.tp.calibrated import CalibratedGeometry, copy_calibration, read_calibration
+from elphel_host.tp.dsi import read_dsi
 from elphel_host.tp.geometry import IDEAL_POSITIONS, QuadGeometry, place_tiles, tile_centres
 from elphel_host.tp.layout import QuadLayout
 from elphel_host.tp.processor import disparity_map
@@ -200,6 +201,9 @@ def test_tp_writes_a_metric_cloud_from_the_calibration(
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     assert result["depth"]["points"] > 1000 and ply.is_file()
+    props = read_dsi(dsi)[1]
+    assert props["calibration"] == "calibration.json"
+    assert float(props["baselineMm"]) == pytest.approx(150.0, rel=1e-6)
 
 
 def test_capture_copies_the_calibration_into_the_quad_directory(

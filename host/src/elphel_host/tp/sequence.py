@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from elphel_host.errors import InputFormatError
 from elphel_host.parallel import heap_reuse
+from elphel_host.tp.calibrated import CalibratedGeometry
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_dsi
 from elphel_host.tp.io import MANIFEST, QuadSet, read_quad_dir
@@ -98,7 +99,11 @@ def quad_dsi(
         image_size=(w, h),
         geometry=qs.quad.geometry,
         bayer=qs.quad.bayer,
-        extra={"fatZero": config.fat_zero, "refinePasses": config.refine_passes},
+        extra={
+            "fatZero": config.fat_zero,
+            "refinePasses": config.refine_passes,
+            **calibration_properties(qs),
+        },
     )
     return dsi, {
         "dsi": str(out),
@@ -108,6 +113,19 @@ def quad_dsi(
         "seconds": round(seconds, 3),
         "disparity_median": float(np.nanmedian(dsi["disparity"])),
         "strength_median": float(np.nanmedian(dsi["strength"])),
+    }
+
+
+def calibration_properties(qs: QuadSet) -> dict[str, Any]:
+    """The DSI's record of a calibrated quad's geometry (none for an ideal one)."""
+    cal = qs.quad.geometry.calibration
+    if not isinstance(cal, CalibratedGeometry):
+        return {}
+    return {
+        "calibration": qs.manifest.calibration,
+        "virtualCamera": "pinhole at the cameras' centre, camera 0's axes, centre W/2, H/2",
+        "focalLengthPx": cal.focal_px,
+        "baselineMm": cal.baseline_mm,
     }
 
 
