@@ -228,6 +228,12 @@ def quad_burst_depth(
 ) -> DepthRun:
     """Fuse every camera's burst, run the tile processor on the fused quad, make the depth."""
     say = progress or (lambda _msg: None)
+    if qb.manifest.calibration is not None:
+        raise InputFormatError(
+            f"{source}/quad.json: calibration={qb.manifest.calibration!r}: `elphel depth` does "
+            "not correct raw images for a calibration yet; allowed: a quad burst without one "
+            "(`elphel tp` takes a calibrated quad directory)"
+        )
     optics = DepthOptics.from_optics(qb.manifest.optics, source=f"{source}/quad.json")
     full = np.float32(full_scale(qb))
     bayer = qb.manifest.bayer
