@@ -111,7 +111,8 @@ def raw_radiance(scene: QuadScene, cam: RigCamera, origin_mm: FloatArray) -> Flo
         plane = region.plane
         tex = plane.texture
         grid_per_mm = tex.size / tex.period_mm
-        mid = pixels[seen[seen.size // 2]]
+        # the footprint where the visible part is centred (as render_radiance takes it)
+        mid = np.array([int(np.median(seen % w)), int(np.median(seen // w))], dtype=np.float64)
         coeffs = filtered_coefficients(tex, _footprint(cam, plane, origin_mm, mid) * grid_per_mm)
         su, sv = _plane_coordinates(plane, origin_mm, d[seen], t[seen])
         value = ndimage.map_coordinates(
