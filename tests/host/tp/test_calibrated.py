@@ -25,6 +25,7 @@ from elphel_host.tp import capture, io
 from elphel_host.tp.calibrated import CalibratedGeometry, copy_calibration, read_calibration
 from elphel_host.tp.dsi import read_dsi
 from elphel_host.tp.geometry import IDEAL_POSITIONS, QuadGeometry, place_tiles, tile_centres
+from elphel_host.tp.images import QuadImages
 from elphel_host.tp.layout import QuadLayout
 from elphel_host.tp.processor import disparity_map
 from elphel_sim.calib_rig import make_rig
@@ -147,6 +148,13 @@ def test_a_calibration_for_another_image_size_names_both_sizes(
         io.read_quad_dir(root)
     with pytest.raises(InputFormatError, match=r"320x240 images, the quad's are 640x480"):
         copy_calibration(root, tmp_path, image_size=(W, H))
+
+
+def test_images_of_another_size_than_the_calibration_are_refused(tmp_path: Path) -> None:
+    cal = read_calibration(write_true_calibration(tmp_path, make_rig(W, H, seed=0)))
+    images = np.zeros((4, 240, 320), dtype=np.float32)
+    with pytest.raises(InputFormatError, match="calibration is for 640x480 images, the images"):
+        QuadImages(images, geometry=QuadGeometry(calibration=cal))
 
 
 @pytest.mark.parametrize(
