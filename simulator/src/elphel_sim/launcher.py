@@ -393,9 +393,7 @@ def up(
 
     try:
         closing = [camera.events.close for camera in cameras]
-        asyncio.run(
-            serve_all([*served, sim_served], on_ready=announce_rig, on_shutdown=closing)
-        )
+        asyncio.run(serve_all([*served, sim_served], on_ready=announce_rig, on_shutdown=closing))
     finally:
         stage.close()
         for camera in cameras:
