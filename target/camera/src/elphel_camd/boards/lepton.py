@@ -22,7 +22,7 @@ from elphel_camd.i2c.bus import I2CBus, open_bus
 from elphel_camd.sensors.base import SensorDriver
 from elphel_camd.sensors.lepton35 import Lepton35, LeptonParameters
 from elphel_camd.vospi import telemetry as tm
-from elphel_camd.vospi.frame_source import LEPTON_UNIQUE_FPS, LeptonFrameSource
+from elphel_camd.vospi.frame_source import LEPTON_UNIQUE_FPS, PROBE_TIMEOUT_S, LeptonFrameSource
 from elphel_camd.vospi.reader import VoSPIFrame
 from elphel_camd.vospi.sources import MAX_CLOCK_HZ, ByteSource
 
@@ -95,6 +95,9 @@ class LeptonBoard:
         How long a capture waits for a frame before it fails (504).
     port
         The port's number (a board of several ports, `elphel_camd.boards.mixed`).
+    probe_timeout_s
+        How long the start waits for a first good packet, to refuse a stream that is not
+        VoSPI at once (`LeptonFrameSource.open`); 0 starts without waiting.
     """
 
     name = "lepton"
@@ -112,6 +115,7 @@ class LeptonBoard:
         replay_fps: float = LEPTON_UNIQUE_FPS,
         capture_timeout_s: float = 2.0,
         port: int = 0,
+        probe_timeout_s: float = PROBE_TIMEOUT_S,
     ) -> None:
         if len(bus_urls or []) > 1:
             raise ValueError(f"the lepton board takes one I2C bus (its CCI); got {bus_urls}")
@@ -131,7 +135,7 @@ class LeptonBoard:
         )
         self.capture_timeout_s = capture_timeout_s
         try:
-            self.frames.open()
+            self.frames.open(probe_timeout_s=probe_timeout_s)
         except BaseException:
             self._close_bus()
             raise
