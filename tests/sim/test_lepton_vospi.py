@@ -2,15 +2,18 @@
 
 import io
 import json
+import time
 
 import httpx
 import numpy as np
 import pytest
 import tifffile
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
 
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
-from elphel_sim.lepton_vospi import lepton_ports, vospi_board
+from elphel_sim.lepton_vospi import lepton_ports, vospi_board, vospi_fault_router
 from elphel_sim.pytest_plugin import start_rig, stop_rig
 from elphel_sim.scenarios import build
 
@@ -60,6 +63,33 @@ def test_a_vospi_fault_is_recovered_from_by_the_reader(mixed_board):
         vospi.board.close()
 
 
+def test_vospi_faults_are_injected_over_the_inspection_endpoint(mixed_board):
+    board, _ = mixed_board
+    vospi = vospi_board(board, LEPTON_PORT, seed=1)
+    app = FastAPI()
+    app.include_router(vospi_fault_router([vospi]))
+    try:
+        with TestClient(app) as c:
+            before = vospi.board.capture(0, timeout_s=10).frame
+            r = c.post(f"/lepton/{LEPTON_PORT}/faults", json={"kind": "stall", "duration_s": 0.5})
+            assert r.status_code == 200, r.text
+            deadline = time.monotonic() + 30
+            while not any(
+                f["end_s"] for f in c.get(f"/lepton/{LEPTON_PORT}/faults").json()["faults"]
+            ):
+                assert time.monotonic() < deadline, "the stall never ended"
+                time.sleep(0.1)
+            (fault,) = c.get(f"/lepton/{LEPTON_PORT}/faults").json()["faults"]
+            assert fault["kind"] == "stall" and fault["end_s"] - fault["start_s"] == pytest.approx(
+                0.5
+            )
+            assert vospi.board.capture(0, timeout_s=10).frame > before
+            assert c.post("/lepton/3/faults", json={"kind": "stall"}).status_code == 404
+            assert c.post(f"/lepton/{LEPTON_PORT}/faults", json={"kind": "melt"}).status_code == 422
+    finally:
+        vospi.board.close()
+
+
 @pytest.mark.slow
 def test_elphel_sim_up_announces_a_vospi_daemon_per_lepton_port():
     started = start_rig(scenario="mixed")
@@ -75,6 +105,8 @@ def test_elphel_sim_up_announces_a_vospi_daemon_per_lepton_port():
         health = httpx.get(f"{url}/api/v1/health", headers=headers, timeout=30).json()
         assert health["board"] == "lepton"
         assert health["ports"][0]["stream"]["path"] == "simulated spidev of port 2"
+        r = httpx.post(f"{started.rig.sim_url}/lepton/2/faults", json={"kind": "lose_sync"})
+        assert r.status_code == 200, r.text
     finally:
         stop_rig(started.proc)
     plain = start_rig(scenario="default")

@@ -30,7 +30,7 @@ from elphel_camd.store import new_token
 from elphel_host.cloud.ply import ply_bytes
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.faults import fault_router
-from elphel_sim.lepton_vospi import lepton_ports, vospi_board
+from elphel_sim.lepton_vospi import VoSPIPort, lepton_ports, vospi_board, vospi_fault_router
 from elphel_sim.port_view import PortView
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
@@ -339,21 +339,21 @@ def serve_daemons(
 
 
 def serve_leptons(
-    board: SimCameraBoard, *, seed: int, public_reads: bool
+    ports: list[VoSPIPort], *, public_reads: bool
 ) -> tuple[list[CameraService], list[Served], list[str], list[str]]:
     """A lepton-board daemon per Lepton port, reading the port's frames as VoSPI bytes.
 
-    Each is elphel-camd's lepton board on the port's simulated VoSPI stream
-    (`elphel_sim.lepton_vospi`), with a token of its own; the Lepton's CCI stays on the
-    board's daemon. Returns the services, their servers, URLs and tokens.
+    Each serves elphel-camd's lepton board on the port's simulated VoSPI stream
+    (`elphel_sim.lepton_vospi.vospi_board`), with a token of its own; the Lepton's CCI
+    stays on the board's daemon. Returns the services, their servers, URLs and tokens.
     """
     cameras: list[CameraService] = []
     served: list[Served] = []
     urls: list[str] = []
     tokens: list[str] = []
     try:
-        for port in lepton_ports(board):
-            cameras.append(CameraService(vospi_board(board, port, seed=seed).board))
+        for port in ports:
+            cameras.append(CameraService(port.board))
             tokens.append(new_token())
             app = create_app(
                 cameras[-1], token=tokens[-1], public_reads=public_reads, allowed_hosts=[]
@@ -361,8 +361,8 @@ def serve_leptons(
             served.append(Served(app, bind_loopback(0)))
             urls.append(served[-1].url)
     except BaseException:
-        for camera in cameras:
-            camera.close()
+        for port in ports:
+            port.board.close()
         raise
     return cameras, served, urls, tokens
 
@@ -407,9 +407,11 @@ def up(
             s.sock.close()
         raise
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
+    vospi = [vospi_board(board, port, seed=seed) for port in lepton_ports(board)]
     leptons, lepton_served, lepton_urls, lepton_tokens = serve_leptons(
-        board, seed=seed, public_reads=public_reads
+        vospi, public_reads=public_reads
     )
+    sim_served.app.include_router(vospi_fault_router(vospi))
     announce: dict[str, Any] = {"camera_url": urls[0], "token": tokens[0]}
     if board.daemon_per_port:
         announce.update(camera_urls=urls, tokens=tokens)

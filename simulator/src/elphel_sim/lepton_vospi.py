@@ -6,14 +6,24 @@ rows when the CCI turned them on), behind a `SimSpidev` that keeps real-time pac
 elphel-camd's `LeptonBoard` on top. The bytes go through the same spidev source, VoSPI
 reader and frame source as a real Lepton's. The CCI stays with the board's own daemon
 (the camera's port), so the VoSPI board is the Lepton without its CCI.
+
+`vospi_fault_router` serves the streams' fault hooks on the inspection endpoint:
+``POST {sim_url}/lepton/{port}/faults`` with ``{"kind": "stall", "duration_s": 2}`` (or
+``lose_sync``, ``lose_bytes`` with ``count``, ``crc_errors`` with ``rate``), and ``GET``
+for the faults so far.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
+from fastapi import APIRouter, HTTPException
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
 
 from elphel_camd.boards.lepton import LeptonBoard
 from elphel_camd.errors import CameraError
@@ -92,3 +102,74 @@ def vospi_board(board: SimCameraBoard, port: int, *, seed: int = 0) -> VoSPIPort
         spidev.path, byte_source=source, probe_timeout_s=0, capture_timeout_s=FORMING_WAIT_S
     )
     return VoSPIPort(port, lepton, stream)
+
+
+class VoSPIFault(BaseModel):
+    """A fault of a Lepton port's VoSPI stream, from now on (`SimVoSPIStream`'s hooks)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    kind: Literal["crc_errors", "lose_bytes", "stall", "lose_sync"]
+    rate: float = Field(1e-3, ge=0, le=1, description="crc_errors: per video packet")
+    count: int = Field(1000, ge=1, le=1_000_000, description="lose_bytes: bytes lost")
+    duration_s: float = Field(1.0, gt=0, le=60, description="stall: seconds without segments")
+
+
+def inject(stream: SimVoSPIStream, fault: VoSPIFault) -> None:
+    """Start ``fault`` on ``stream`` at the stream's present time."""
+    if fault.kind == "crc_errors":
+        stream.sim_crc_errors(fault.rate)
+    elif fault.kind == "lose_bytes":
+        stream.sim_lose_bytes(stream.t, fault.count)
+    elif fault.kind == "stall":
+        stream.sim_stall(stream.t, fault.duration_s)
+    else:
+        stream.sim_lose_sync(stream.t)
+
+
+def fault_record(stream: SimVoSPIStream) -> dict[str, Any]:
+    """The stream's faults so far (virtual seconds; ``end_s`` null while one lasts)."""
+    return {
+        "t_s": stream.t,
+        "crc_error_rate": stream.crc_rate,
+        "faults": [
+            {
+                "kind": f.kind,
+                "start_s": f.start_s,
+                "end_s": None if math.isnan(f.end_s) else f.end_s,
+            }
+            for f in stream.faults
+            if f.kind != "crc"
+        ],
+        "crc_errors": sum(f.kind == "crc" for f in stream.faults),
+    }
+
+
+def vospi_fault_router(ports: Sequence[VoSPIPort]) -> APIRouter:
+    """``GET`` and ``POST /lepton/{port}/faults``: the VoSPI faults of each Lepton port."""
+    router = APIRouter()
+    streams = {p.port: p.stream for p in ports}
+
+    def stream_of(port: int) -> SimVoSPIStream:
+        if port not in streams:
+            raise HTTPException(
+                status_code=404,
+                detail=f"port {port} has no VoSPI stream; Lepton ports: {sorted(streams)}",
+            )
+        return streams[port]
+
+    @router.get("/lepton/{port}/faults")
+    def faults(port: int) -> dict[str, Any]:
+        """The VoSPI faults injected so far, and the stream's time."""
+        return fault_record(stream_of(port))
+
+    @router.post("/lepton/{port}/faults")
+    def add(port: int, fault: VoSPIFault) -> dict[str, Any]:
+        """Inject one VoSPI fault now; answers the faults so far.
+
+        The fault is listed once the stream reaches it, at the reader's next transfer.
+        """
+        stream = stream_of(port)
+        inject(stream, fault)
+        return fault_record(stream)
+
+    return router
