@@ -227,6 +227,7 @@ class VoSPIReader:
                 if frame is not None:
                     return frame
                 if self._since > self._silence_limit():
+                    self._silent_resyncs += 1
                     self.resync("no segment")
                 elif self._bad >= BAD_BEFORE_RESYNC:
                     self._bad_packets()
@@ -365,8 +366,6 @@ class VoSPIReader:
         self._check_vospi()
         self.counts.resyncs += 1
         self.counts.reasons[reason] = self.counts.reasons.get(reason, 0) + 1
-        if reason == "no segment":
-            self._silent_resyncs += 1
         self.assembler.reset()
         self._bad = 0
         self._realigns = 0
