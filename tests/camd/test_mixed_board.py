@@ -57,8 +57,12 @@ def capture(client, port, **params):
 
 def test_a_v4l2_port_and_a_lepton_port_serve_side_by_side(recording):
     path, stream = recording
-    ports = [{"video": "/dev/video0", "model": "imx219"}, {"vospi": str(path), "replay_fps": 40}]
+    ports = [
+        {"video": "/dev/video0", "model": "imx219", "timeout_periods": 7},
+        {"vospi": str(path), "replay_fps": 40},
+    ]
     board = MixedBoard(ports, open_video=open_video)
+    assert board.boards[0].timeout_periods == 7
     with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
         info = c.get("/api/v1/info").json()
         assert info["board"] == "mixed" and info["capabilities"] == ["capture"]
@@ -89,6 +93,7 @@ def test_a_v4l2_port_and_a_lepton_port_serve_side_by_side(recording):
         ([{"video": "/dev/video0", "sensor": "imx219"}], r"ports\[0\] \(video\): sensor: Extra"),
         ([{"vospi": "x", "spi_clock_hz": 40_000_000}], r"ports\[0\] \(vospi\): spi_clock_hz: "),
         ([{"vospi": "x", "telemetry_location": "side"}], "telemetry_location: Input should be"),
+        ([{"video": "/dev/video0", "buffers": 1}], r"ports\[0\] \(video\): buffers: Input should"),
         (["/dev/video0"], r"ports\[0\]: a JSON object is needed, not str"),
     ],
 )

@@ -4,9 +4,9 @@ Each entry of the config file's ``ports`` list is one port, numbered in order fr
 with its frame source and its control path:
 
 * ``{"video": "/dev/video0"}``: a V4L2 capture node (`elphel_camd.boards.v4l2`), with
-  optional ``format``, ``size``, ``model`` (the kernel driver, for its gain laws) and
-  ``bus`` (an I2C bus when the project's own driver programs the sensor; without it the
-  node's controls carry the parameters);
+  optional ``format``, ``size``, ``model`` (the kernel driver, for its gain laws), ``bus``
+  (an I2C bus when the project's own driver programs the sensor; without it the node's
+  controls carry the parameters), ``ring_frames``, ``buffers`` and ``timeout_periods``;
 * ``{"vospi": "/dev/spidev0.0"}``: a FLIR Lepton 3.x (`elphel_camd.boards.lepton`), with
   optional ``bus`` (its CCI), ``spi_clock_hz``, ``telemetry_location``, ``replay_fps``
   and ``capture_timeout_s``.
@@ -37,7 +37,7 @@ FRAME_SOURCES = ("video", "vospi")
 
 
 class VideoPort(BaseModel):
-    """A V4L2 port of the config file (fields as `elphel_camd.boards.v4l2.V4L2Port`)."""
+    """A V4L2 port of the config file: a `V4L2Port` and its `V4L2Board` options."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -46,6 +46,9 @@ class VideoPort(BaseModel):
     size: str | None = Field(None, pattern=r"^\d+x\d+$", description="WIDTHxHEIGHT to stream")
     bus: str | None = Field(None, description="I2C bus of a sensor the project's driver runs")
     model: str | None = Field(None, description="kernel driver of the sensor, e.g. imx219")
+    ring_frames: int = Field(8, ge=1, le=1024, description="frames kept for ?frame=N, bursts")
+    buffers: int = Field(4, ge=2, le=32, description="driver buffers of the node")
+    timeout_periods: int = Field(5, ge=1, le=1000, description="frame periods before a 504")
 
 
 class LeptonPort(BaseModel):
@@ -113,7 +116,13 @@ def open_port(
 ) -> PortBoard:
     """The one-port board of a checked port entry (its devices opened)."""
     if isinstance(config, VideoPort):
-        return V4L2Board(ports=[config.model_dump()], open_source=open_video, first_port=port)
+        board_options = {"ring_frames", "buffers", "timeout_periods"}
+        return V4L2Board(
+            ports=[config.model_dump(exclude=board_options)],
+            open_source=open_video,
+            first_port=port,
+            **config.model_dump(include=board_options),
+        )
     options = config.model_dump(exclude={"vospi", "bus"})
     return LeptonBoard(
         config.vospi,
