@@ -2,7 +2,11 @@
 
 import io
 import json
+import re
+import subprocess
+import sys
 
+import httpx
 import numpy as np
 import pytest
 import tifffile
@@ -134,3 +138,40 @@ def test_a_port_that_cannot_open_closes_the_ports_opened_before(tmp_path):
     with pytest.raises(Exception, match="missing: cannot open the Lepton's VoSPI"):
         MixedBoard(ports, open_video=video)
     assert len(made) == 1 and made[0].closed
+
+
+def test_the_daemon_serves_the_ports_of_its_config_file(recording, tmp_path):
+    """elphel-camd --config FILE as a process: the mixed board of two Lepton recordings."""
+    path, stream = recording
+    config = tmp_path / "config.json"
+    ports = [{"vospi": str(path), "replay_fps": 2}, {"vospi": str(path), "replay_fps": 2}]
+    config.write_text(json.dumps({"board": "mixed", "ports": ports, "token": TOKEN}))
+    args = ["--config", str(config), "--port", "0", "--state-dir", str(tmp_path)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "elphel_camd.cli", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stderr is not None
+    try:
+        url = None
+        for line in proc.stderr:
+            found = re.search(r"listening on (http://[\d.]+:\d+)", line)
+            if found:
+                url = found.group(1)
+                break
+        assert url is not None, "the daemon did not start"
+        with httpx.Client(base_url=url, headers=AUTH, timeout=10) as http:
+            assert http.get("/api/v1/info").json()["board"] == "mixed"
+            for port in (0, 1):
+                r = http.post(f"/api/v1/ports/{port}/capture")
+                assert r.status_code == 200, r.text
+                with tifffile.TiffFile(io.BytesIO(r.content)) as tif:
+                    meta = json.loads(tif.pages[0].description)
+                    assert digest(tif.pages[0].asarray()) == stream.truth[meta["frame"]].digest
+                assert meta["port"] == port
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+        proc.stderr.close()

@@ -1,6 +1,7 @@
 """The `elphel-camd` command: run the daemon on a board, or rotate its token.
 
-``elphel-camd --board B ...`` serves the board; ``elphel-camd token rotate`` writes a new
+``elphel-camd --board B ...`` serves the board (or the one the config file names: the
+mixed board's ports are listed there); ``elphel-camd token rotate`` writes a new
 random token to the token file (0600), which a running daemon reads at its next request
 (the old token is refused from then on); ``elphel-camd vospi-record`` records a Lepton's
 VoSPI stream for replay (`elphel_camd.cli_vospi`). Settings come from the command line, then
