@@ -22,6 +22,8 @@ from elphel_sim.vospi import (
 
 MINUTES = 10
 RECOVERY_S = 0.3  # the stream must be back this long after a fault ends
+SEGMENT_S = 1 / SEGMENT_RATE_HZ
+CYCLE_S = SEGMENTS_PER_CYCLE * SEGMENT_S  # from one unique frame to the next
 WINDOWED = ("lost_bytes", "stall", "lost_sync")
 SEGMENTS = 4
 
@@ -47,6 +49,27 @@ def run(stream: SimVoSPIStream, seconds: float, record=None):
     while stream.t < seconds:
         frames.append(reader.read_frame(timeout_s=5))
     return reader, frames
+
+
+def first_clean_after(fault, truths):
+    """The first frame untouched by any fault that the Lepton began one segment period or
+    more after the fault ended, and how many touched frames it began after the fault."""
+    later = sorted((t for t in truths if t.due_s >= fault.end_s + SEGMENT_S), key=lambda t: t.due_s)
+    clean = [t for t in later if not t.touched and t.produced]
+    first = clean[0]
+    return first, sum(t.touched for t in later if t.due_s < first.due_s)
+
+
+def recovery_s(fault, truths, delivered) -> float:
+    """When the stream is back after a fault: the end of the first clean frame sent after
+    it, which the reader must deliver (frames CRC errors touched in between are the
+    Lepton's loss, a frame cycle each, not the reader's)."""
+    first, touched = first_clean_after(fault, truths)
+    assert first.number in delivered, (
+        f"{fault.kind} at {fault.start_s:.3f} s: the first clean frame after it, "
+        f"{first.number}, sent {first.due_s - fault.end_s:.3f} s after its end, was lost"
+    )
+    return first.last_s - fault.end_s - touched * CYCLE_S
 
 
 def excused(truth, faults) -> bool:
@@ -85,6 +108,8 @@ def test_ten_minutes_of_faults_give_no_torn_frame_and_lose_no_untouched_one():
         after = [t.due_s for t in stream.truth.values() if t.due_s > f.end_s + RECOVERY_S]
         assert min(after) < f.end_s + RECOVERY_S + SEGMENTS_PER_CYCLE / SEGMENT_RATE_HZ
     assert reader.counts.crc_errors > 1000
+    recovery = [recovery_s(f, stream.truth.values(), delivered) for f in faults]
+    assert max(recovery) <= RECOVERY_S, recovery
     # Lost sync ends when the reader deselects the Lepton: it must see the loss at once.
     assert all(f.end_s - f.start_s < RECOVERY_S for f in faults if f.kind == "lost_sync")
 

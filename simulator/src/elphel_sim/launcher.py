@@ -30,6 +30,7 @@ from elphel_camd.store import new_token
 from elphel_host.cloud.ply import ply_bytes
 from elphel_sim.board import SimCameraBoard
 from elphel_sim.faults import fault_router
+from elphel_sim.lepton_vospi import VoSPIPort, lepton_ports, vospi_board, vospi_fault_router
 from elphel_sim.port_view import PortView
 from elphel_sim.quad import QuadScene
 from elphel_sim.quad_truth import TileTruth, tile_truth
@@ -337,6 +338,35 @@ def serve_daemons(
     return cameras, served, urls, tokens
 
 
+def serve_leptons(
+    ports: list[VoSPIPort], *, public_reads: bool
+) -> tuple[list[CameraService], list[Served], list[str], list[str]]:
+    """A lepton-board daemon per Lepton port, reading the port's frames as VoSPI bytes.
+
+    Each serves elphel-camd's lepton board on the port's simulated VoSPI stream
+    (`elphel_sim.lepton_vospi.vospi_board`), with a token of its own; the Lepton's CCI
+    stays on the board's daemon. Returns the services, their servers, URLs and tokens.
+    """
+    cameras: list[CameraService] = []
+    served: list[Served] = []
+    urls: list[str] = []
+    tokens: list[str] = []
+    try:
+        for port in ports:
+            cameras.append(CameraService(port.board))
+            tokens.append(new_token())
+            app = create_app(
+                cameras[-1], token=tokens[-1], public_reads=public_reads, allowed_hosts=[]
+            )
+            served.append(Served(app, bind_loopback(0)))
+            urls.append(served[-1].url)
+    except BaseException:
+        for port in ports:
+            port.board.close()
+        raise
+    return cameras, served, urls, tokens
+
+
 def up(
     *,
     scenario: str,
@@ -353,7 +383,9 @@ def up(
     ``public_reads``: elphel-camd answers reads without the token (its ``--public-reads``).
     ``lens_blur``: a lens blur on the cameras' images (None: a perfectly sharp lens).
     A scenario with a daemon per camera (pi-pair) also announces ``camera_urls`` and
-    ``tokens``, camera i being port i of the inspection endpoint.
+    ``tokens``, camera i being port i of the inspection endpoint. A scenario with Lepton
+    ports (mixed) also announces ``lepton_urls`` and ``lepton_tokens``: a lepton-board
+    daemon per Lepton port, reading that port's frames through the VoSPI reader.
     """
     # Frames are formed in child processes: in this one, forming would hold the interpreter
     # lock that the daemon's answers need (a capture unanswered for 30 s on a busy machine).
@@ -375,9 +407,16 @@ def up(
             s.sock.close()
         raise
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
+    vospi = [vospi_board(board, port, seed=seed) for port in lepton_ports(board)]
+    leptons, lepton_served, lepton_urls, lepton_tokens = serve_leptons(
+        vospi, public_reads=public_reads
+    )
+    sim_served.app.include_router(vospi_fault_router(vospi))
     announce: dict[str, Any] = {"camera_url": urls[0], "token": tokens[0]}
     if board.daemon_per_port:
         announce.update(camera_urls=urls, tokens=tokens)
+    if leptons:
+        announce.update(lepton_urls=lepton_urls, lepton_tokens=lepton_tokens)
     announce.update(
         stage_url=stage.tcp_url,
         stage_pty=stage.pty_path,
@@ -392,15 +431,19 @@ def up(
             print_announcement(announce, scenario=scenario, seed=seed)
 
     try:
-        closing = [camera.events.close for camera in cameras]
-        asyncio.run(serve_all([*served, sim_served], on_ready=announce_rig, on_shutdown=closing))
+        closing = [camera.events.close for camera in (*cameras, *leptons)]
+        asyncio.run(
+            serve_all(
+                [*served, sim_served, *lepton_served], on_ready=announce_rig, on_shutdown=closing
+            )
+        )
     finally:
         stage.close()
-        for camera in cameras:
+        for camera in (*leptons, *cameras):  # the VoSPI readers before the board they read
             camera.close()  # a single daemon closes its board too
         if board.daemon_per_port:
             board.close()
-        for s in (*served, sim_served):
+        for s in (*served, sim_served, *lepton_served):
             s.sock.close()
     print("elphel-sim: stopped", file=sys.stderr)
     return 0

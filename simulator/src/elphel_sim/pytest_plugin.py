@@ -54,6 +54,9 @@ class Rig:
     camera_urls, tokens
         Every camera's URL and token: one per camera on a rig with a daemon per camera
         (pi-pair), else ``camera_url`` and ``token`` alone.
+    lepton_urls, lepton_tokens
+        A lepton-board daemon per Lepton port (mixed), reading the port's frames as VoSPI
+        bytes; empty without Lepton ports.
     """
 
     camera_url: str
@@ -66,6 +69,8 @@ class Rig:
     firmware: str
     camera_urls: tuple[str, ...] = ()
     tokens: tuple[str | None, ...] = ()
+    lepton_urls: tuple[str, ...] = ()
+    lepton_tokens: tuple[str, ...] = ()
 
     def fault(self, kind: str, **options: int) -> list[dict[str, Any]]:
         """Inject a fault into the running rig; return the faults now in effect.
@@ -175,6 +180,8 @@ def start_rig(
         firmware=firmware,
         camera_urls=tuple(a.get("camera_urls", [a["camera_url"]])),
         tokens=tuple(a.get("tokens", [a["token"]])),
+        lepton_urls=tuple(a.get("lepton_urls", [])),
+        lepton_tokens=tuple(a.get("lepton_tokens", [])),
     )
     return RigProcess(rig=rig, proc=proc)
 

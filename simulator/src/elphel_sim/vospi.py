@@ -45,6 +45,7 @@ SEGMENT_RATE_HZ = 106.0
 SEGMENTS_PER_CYCLE = 12  # a unique frame's 4 segments, then two invalid frames
 RESYNC_IDLE_S = 0.185  # a deselect longer than this resynchronises the Lepton
 TELEMETRY_REVISION = 14
+MAX_BEHIND_S = 0.05  # a paced stream this far behind the wall clock goes on from there
 _DISCARD = vp.discard_packet()
 
 FrameSource = Callable[[int], NDArray[np.uint16]]
@@ -389,6 +390,8 @@ class SimSpidev:
     time_scale
         Virtual seconds per wall-clock second: transfers and deselects wait so that the
         Lepton's time does not run ahead (None: as fast as the host reads, for tests).
+        When it fell more than `MAX_BEHIND_S` behind (a slow host, slow frames), it goes
+        on from where it is instead of racing to catch up.
     """
 
     def __init__(
@@ -439,9 +442,12 @@ class SimSpidev:
         if self.time_scale is None:
             return
         wall, virtual = self._origin
-        ahead_s = wall + (self.stream.t - virtual) / self.time_scale - time.monotonic()
+        now = time.monotonic()
+        ahead_s = wall + (self.stream.t - virtual) / self.time_scale - now
         if ahead_s > 0:
             time.sleep(ahead_s)
+        elif ahead_s < -MAX_BEHIND_S:
+            self._origin = (now, self.stream.t)
 
     def now_ns(self) -> int:
         return round(self.stream.t * 1e9)

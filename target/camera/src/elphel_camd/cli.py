@@ -1,6 +1,7 @@
 """The `elphel-camd` command: run the daemon on a board, or rotate its token.
 
-``elphel-camd --board B ...`` serves the board; ``elphel-camd token rotate`` writes a new
+``elphel-camd --board B ...`` serves the board (or the one the config file names: the
+mixed board's ports are listed there); ``elphel-camd token rotate`` writes a new
 random token to the token file (0600), which a running daemon reads at its next request
 (the old token is refused from then on); ``elphel-camd vospi-record`` records a Lepton's
 VoSPI stream for replay (`elphel_camd.cli_vospi`). Settings come from the command line, then
@@ -41,12 +42,18 @@ def build_parser() -> argparse.ArgumentParser:
         "ELPHEL_CAMD_* environment (e.g. ELPHEL_CAMD_TOKEN), then the config file.",
     )
     p.add_argument("--version", action="version", version=f"elphel-camd {__version__}")
-    p.add_argument("--board", choices=boards, required=True, help="board type")
+    p.add_argument(
+        "--board",
+        choices=boards,
+        help='board type (or "board" in the config file; the mixed board\'s ports are '
+        "listed there)",
+    )
     p.add_argument(
         "--config",
         type=Path,
         help="JSON settings file (default /etc/elphel-camd/config.json if it exists), e.g. "
-        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "public_reads": true}',
+        '{"bus_urls": ["/dev/i2c-0"], "host": "0.0.0.0", "public_reads": true}, or '
+        '{"board": "mixed", "ports": [{"video": "/dev/video0"}, {"vospi": "/dev/spidev0.0"}]}',
     )
     p.add_argument(
         "--bus",
@@ -186,8 +193,13 @@ def build_service(settings: DaemonSettings) -> CameraService:
         options["video"] = list(settings.video)
     if settings.sensor:
         options["sensor"] = settings.sensor
-    name = settings.board or "i2c"
-    factory = board_factories()[name]
+    if settings.board is None:
+        raise ConfigError('no board: give --board or "board" in the config file')
+    name = settings.board
+    factories = board_factories()
+    if name not in factories:
+        raise ConfigError(f"board {name!r}; allowed: {', '.join(sorted(factories))}")
+    factory = factories[name]
     try:
         accepted = set(inspect.signature(factory).parameters)
     except (TypeError, ValueError):

@@ -22,13 +22,12 @@ from elphel_camd.i2c.bus import I2CBus, open_bus
 from elphel_camd.sensors.base import SensorDriver
 from elphel_camd.sensors.lepton35 import Lepton35, LeptonParameters
 from elphel_camd.vospi import telemetry as tm
-from elphel_camd.vospi.frame_source import LEPTON_UNIQUE_FPS, LeptonFrameSource
+from elphel_camd.vospi.frame_source import LEPTON_UNIQUE_FPS, PROBE_TIMEOUT_S, LeptonFrameSource
 from elphel_camd.vospi.reader import VoSPIFrame
 from elphel_camd.vospi.sources import MAX_CLOCK_HZ, ByteSource
 
 log = logging.getLogger(__name__)
 
-PORT = 0
 TELEMETRY_LOCATIONS = {"header": tm.HEADER, "footer": tm.FOOTER}
 UNITS_K = {0.01: "centikelvin", 0.1: "decikelvin"}
 
@@ -74,7 +73,7 @@ class LeptonWithoutCCI(LeptonParameters, SensorDriver):
 
 
 class LeptonBoard:
-    """One Lepton 3.x on port 0: VoSPI frames, and the CCI when a bus is given.
+    """One Lepton 3.x on one port (0 unless told): VoSPI frames, and the CCI when a bus is given.
 
     Parameters
     ----------
@@ -94,6 +93,11 @@ class LeptonBoard:
         Frames a second at which a recording (a regular file) is replayed; 0: at once.
     capture_timeout_s
         How long a capture waits for a frame before it fails (504).
+    port
+        The port's number (a board of several ports, `elphel_camd.boards.mixed`).
+    probe_timeout_s
+        How long the start waits for a first good packet, to refuse a stream that is not
+        VoSPI at once (`LeptonFrameSource.open`); 0 starts without waiting.
     """
 
     name = "lepton"
@@ -110,11 +114,14 @@ class LeptonBoard:
         bus: I2CBus | None = None,
         replay_fps: float = LEPTON_UNIQUE_FPS,
         capture_timeout_s: float = 2.0,
+        port: int = 0,
+        probe_timeout_s: float = PROBE_TIMEOUT_S,
     ) -> None:
         if len(bus_urls or []) > 1:
             raise ValueError(f"the lepton board takes one I2C bus (its CCI); got {bus_urls}")
         if telemetry_location not in TELEMETRY_LOCATIONS:
             raise ValueError(f"telemetry_location={telemetry_location!r}; allowed: header, footer")
+        self.port = port
         self._bus = open_bus(bus_urls[0]) if bus_urls else bus
         self._subscribers: list[FrameSync] = []
         self.pixel_unit = self._unit_from_cci()
@@ -128,7 +135,7 @@ class LeptonBoard:
         )
         self.capture_timeout_s = capture_timeout_s
         try:
-            self.frames.open()
+            self.frames.open(probe_timeout_s=probe_timeout_s)
         except BaseException:
             self._close_bus()
             raise
@@ -151,11 +158,11 @@ class LeptonBoard:
     # -- the Board protocol ----------------------------------------------------------------
 
     def buses(self) -> Mapping[int, I2CBus]:
-        return {} if self._bus is None else {PORT: self._bus}
+        return {} if self._bus is None else {self.port: self._bus}
 
     def sensors(self) -> Mapping[int, SensorDriver]:
         """Ports whose driver is not found on a bus: the Lepton without its CCI."""
-        return {} if self._bus is not None else {PORT: LeptonWithoutCCI()}
+        return {} if self._bus is not None else {self.port: LeptonWithoutCCI()}
 
     def on_frame_sync(self, callback: FrameSync) -> None:
         """Call ``callback(port, frame, timestamp_ns)`` as each whole frame arrives."""
@@ -163,15 +170,15 @@ class LeptonBoard:
 
     def _on_frame(self, frame: VoSPIFrame) -> None:
         for callback in self._subscribers:
-            callback(PORT, frame.number, frame.timestamp_ns)
+            callback(self.port, frame.number, frame.timestamp_ns)
 
     def program(self, port: int, function: str, state: Mapping[str, int]) -> None:
         """Nothing beyond the sensor: the Lepton runs free."""
 
     def capture(self, port: int, *, frame: int | None = None, timeout_s: float = 10.0) -> Frame:
         """The next whole frame, or frame ``frame`` (recent, or soon to come)."""
-        if port != PORT:
-            raise PortError(f"port {port} does not exist; ports: [{PORT}]")
+        if port != self.port:
+            raise PortError(f"port {port} does not exist; ports: [{self.port}]")
         timeout_s = min(timeout_s, self.capture_timeout_s)
         if frame is None:
             return self._frame(self.frames.read_frame(timeout_s=timeout_s))

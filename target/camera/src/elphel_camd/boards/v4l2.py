@@ -97,6 +97,9 @@ class V4L2Board:
         Frame periods without a frame before a capture gives up (504).
     open_source
         Opens a port's node (tests and benchmarks pass synthetic sources).
+    first_port
+        The number of the first port (a board of several kinds of port,
+        `elphel_camd.boards.mixed`).
     """
 
     name = "v4l2"
@@ -113,6 +116,7 @@ class V4L2Board:
         buffers: int = 4,
         timeout_periods: int = 5,
         open_source: SourceFactory = open_node,
+        first_port: int = 0,
     ) -> None:
         if bus_urls and len(bus_urls) != len(video):
             raise ConfigError(
@@ -125,7 +129,7 @@ class V4L2Board:
         ]
         if not specs:
             raise ConfigError("the v4l2 board needs at least one node (e.g. --video /dev/video0)")
-        self.ports = dict(enumerate(specs))
+        self.ports = dict(enumerate(specs, start=first_port))
         self.timeout_periods = timeout_periods
         self._subscribers: list[FrameSync] = []
         self._event_sinks: list[EventSink] = []

@@ -219,6 +219,7 @@ class LeptonFrameSource:
             "path": self.path,
             "last_frame_age_s": None if age is None else round(age, 3),
             "frames": reader.frames if reader is not None else 0,
+            "realigns": counts.realigns if counts is not None else 0,
             "resyncs": counts.resyncs if counts is not None else 0,
             "crc_errors": counts.crc_errors if counts is not None else 0,
             "frames_dropped": reader.assembler.counts.frames_dropped if reader else 0,

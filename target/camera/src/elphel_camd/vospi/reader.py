@@ -7,11 +7,17 @@ order. Recovery has two levels:
 
 * a bad packet (CRC mismatch) or an out-of-order one drops what was being assembled; the
   reader stays at its packet alignment and re-locks at the next segment start;
-* three bad packets in a row, or no segment (valid or invalid) within `LOST_AFTER_PACKETS`
-  packets, mean sync is lost: the reader resynchronises. The source deselects the device
-  for `RESYNC_IDLE_S` (/CS high, SCK idle: more than the 185 ms a Lepton needs), and the
-  reader hunts for the packet alignment again: a packet with a good CRC (or a discard
-  packet) followed by one that agrees with it.
+* three bad packets in a row mean the packet alignment is lost (bytes went missing): the
+  reader realigns, hunting in the bytes for a packet with a good CRC (or a discard packet)
+  followed by one that agrees with it. The device is not deselected, so the next segment
+  the Lepton sends is taken;
+* sync is lost when the hunt finds no alignment within the source's hunting limit, when
+  `REALIGNS_BEFORE_RESYNC` realignments brought no good packet, or when no segment (valid
+  or invalid) came within `LOST_AFTER_PACKETS` packets. The reader then resynchronises:
+  the source deselects the device for `RESYNC_IDLE_S` (/CS high, SCK idle: more than the
+  185 ms a Lepton needs) and the reader hunts again. A Lepton that still sends only discard
+  packets after that has stalled rather than lost sync: it is deselected again only every
+  `STALLED_RESYNC_PACKETS` packets, so that the reader is reading when it starts again.
 
 Every decision depends on the bytes alone (counts of packets, never clock time), so a
 recording of the bytes the reader consumed (``record``) replays through a file source into
@@ -45,9 +51,16 @@ from elphel_camd.vospi.sources import ByteSource
 
 RESYNC_IDLE_S = 0.186
 BAD_BEFORE_RESYNC = 3
+# Realignments in a row without a good packet before a resync: pixel bytes can look like
+# a pair of discard packets (a low nibble F, 1 in 256 byte positions), so a hunt may lock
+# wrongly and need another.
+REALIGNS_BEFORE_RESYNC = 3
 # About four segment periods of packets read at 20 MHz (a segment is due every 9.4 ms,
 # a packet takes 66 us): a Lepton in sync sends a segment, valid or not, far sooner.
 LOST_AFTER_PACKETS = 600
+# Packets of a stalled stream (discard packets only, also after a resync) between further
+# resyncs: about 5 s at 20 MHz.
+STALLED_RESYNC_PACKETS = 76_000
 MAX_BUFFER_BYTES = 1 << 20
 # A stream that never showed a good packet is not VoSPI after this many bytes other than
 # discard packets, or this many resynchronisations for want of a packet alignment.
@@ -88,6 +101,7 @@ class ReaderCounts:
     packets: int = 0
     discard: int = 0
     crc_errors: int = 0
+    realigns: int = 0
     resyncs: int = 0
     bytes_skipped: int = 0
     bytes_dropped: int = 0
@@ -131,6 +145,8 @@ class VoSPIReader:
         self._hunting = True
         self._hunted = 0
         self._bad = 0
+        self._realigns = 0  # realignments since the last good packet
+        self._silent_resyncs = 0  # resyncs since the last completed segment
         self._since = 0  # packets since the last completed segment
         self._drop = False  # buffered bytes went stale at a resync
 
@@ -210,10 +226,11 @@ class VoSPIReader:
                 frame = self._packet(buf, view)
                 if frame is not None:
                     return frame
-                if self._since > LOST_AFTER_PACKETS:
+                if self._since > self._silence_limit():
+                    self._silent_resyncs += 1
                     self.resync("no segment")
                 elif self._bad >= BAD_BEFORE_RESYNC:
-                    self.resync("bad packets")
+                    self._bad_packets()
                 if self._drop:
                     return None
             return None
@@ -243,10 +260,12 @@ class VoSPIReader:
             self._bad += 1
             return None
         self._bad = 0
+        self._realigns = 0
         self.counts.good_packets += 1
         if outcome is Outcome.NONE:
             return None
         self._since = 0
+        self._silent_resyncs = 0
         self.last_segment_ns = self.source.now_ns()
         return self._frame() if outcome is Outcome.FRAME else None
 
@@ -323,6 +342,25 @@ class VoSPIReader:
         number, following = first & 0x0FFF, second & 0x0FFF
         return following == number + 1 or (following == 0 and number >= PACKETS_PER_SEGMENT - 1)
 
+    def _silence_limit(self) -> int:
+        """Packets without a segment before the next resync.
+
+        `LOST_AFTER_PACKETS`, or `STALLED_RESYNC_PACKETS` once a resync brought no segment.
+        """
+        return STALLED_RESYNC_PACKETS if self._silent_resyncs else LOST_AFTER_PACKETS
+
+    def _bad_packets(self) -> None:
+        """Bad packets in a row: realign in the bytes, or resync if that did not help."""
+        if self._realigns >= REALIGNS_BEFORE_RESYNC:
+            self.resync("bad packets after realigning")
+            return
+        self.counts.realigns += 1
+        self.assembler.reset()
+        self._bad = 0
+        self._realigns += 1
+        self._hunting = True
+        self._hunted = 0
+
     def resync(self, reason: str) -> None:
         """Drop what was being assembled, deselect the device, hunt for the alignment."""
         self._check_vospi()
@@ -330,6 +368,7 @@ class VoSPIReader:
         self.counts.reasons[reason] = self.counts.reasons.get(reason, 0) + 1
         self.assembler.reset()
         self._bad = 0
+        self._realigns = 0
         self._since = 0
         self._hunting = True
         self._hunted = 0
