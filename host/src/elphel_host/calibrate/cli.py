@@ -10,6 +10,7 @@ results.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any, TextIO
@@ -29,6 +30,7 @@ from elphel_host.calibrate.export import write_exports
 from elphel_host.calibrate.guide import CaptureLimits, text_map
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.calibrate.pictures import write_pictures
+from elphel_host.calibrate.psf import check_psf_options, measure_psfs, write_psfs
 from elphel_host.calibrate.result import finite_json, write_calibration
 from elphel_host.calibrate.solve import Calibration, calibrate
 from elphel_host.calibrate.views import read_views
@@ -52,6 +54,7 @@ def register(subparsers: Any) -> None:
     )
     sub = p.add_subparsers(dest="calibrate_action", required=True, metavar="ACTION")
     _register_capture(sub)
+    _register_psf(sub)
     s = sub.add_parser(
         "solve",
         help="detect the board in every view and solve intrinsics, rig, board poses and bend",
@@ -223,6 +226,60 @@ def _capture_result(args: argparse.Namespace, session: CaptureSession, done: lis
         f"next: elphel calibrate solve {args.out} --pattern {session.pattern.spec} --out CALIB_DIR",
     ]
     emit(args, result, "\n".join(lines))
+
+
+def _register_psf(sub: Any) -> None:
+    p = sub.add_parser(
+        "psf",
+        help="measure each camera's blur over its field from the board's edges",
+        description="Measure each camera's point-spread function (a Gaussian sigma per "
+        "field cell) from the edges of the checkerboard in every view of VIEWS_DIR, and "
+        "write the tile processor's aberration kernels (kernels.npy, the `kernels` entry "
+        "of quad.json), one PSF grid per camera for `elphel mfsr --psf` (psf_camN_xS.npy) "
+        "and psf.json into PSF_DIR.",
+    )
+    p.add_argument("views", metavar="VIEWS_DIR", type=Path)
+    _add_pattern_option(p)
+    p.add_argument("--out", required=True, type=Path, metavar="PSF_DIR")
+    p.add_argument(
+        "--cells", type=int, default=4, metavar="N", help="cells along the longer side (1..8)"
+    )
+    p.add_argument(
+        "--scale", type=int, default=2, metavar="S", help="the MFSR scale of the PSF grids"
+    )
+    p.add_argument(
+        "--target-sigma-px",
+        type=float,
+        default=1.3,
+        metavar="PX",
+        help="the Gaussian (sensor px) the kernels turn every cell's PSF into (default 1.3)",
+    )
+    add_json_option(p)
+    p.set_defaults(func=run_psf, parser=p)
+
+
+def run_psf(args: argparse.Namespace) -> int:
+    """Measure the PSFs, write the files, print the per-cell sigmas."""
+    try:
+        pattern = Checkerboard.parse(args.pattern)
+        check_psf_options(args.cells, args.scale, args.target_sigma_px)
+    except ValueError as e:
+        args.parser.error(str(e))
+    fields, bayer = measure_psfs(args.views, pattern, cells=args.cells)
+    doc = write_psfs(
+        fields,
+        args.out,
+        bayer=bayer is not None,
+        scale=args.scale,
+        target_sigma_px=args.target_sigma_px,
+    )
+    lines = [f"PSFs of {len(fields)} camera(s) in {args.out} (cells {fields[0].step} px):"]
+    for cam, field in enumerate(fields):
+        lines.append(f"  cam{cam}: lens sigma per cell (px), {field.used} edges")
+        lines += ["    " + " ".join(f"{s:5.2f}" for s in row) for row in field.sigma_px]
+    lines.append(f'quad.json: "kernels": {json.dumps(doc["kernels"])}')
+    emit(args, {"psf_dir": str(args.out), **doc}, "\n".join(lines))
+    return 0
 
 
 def _human(cal: Calibration, path: Path) -> str:
