@@ -17,6 +17,8 @@ from elphel_camd.service import CameraService
 from elphel_host.calibrate.detect import detect
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_sim.board import SimCameraBoard
+from elphel_sim.calib_rig import BoardPose, board_poses, corner_truth
+from elphel_sim.calib_scene import BoardState
 from elphel_sim.launcher import create_sim_app
 from elphel_sim.scenarios import build
 
@@ -135,3 +137,26 @@ def test_other_scenarios_have_no_board() -> None:
     board = SimCameraBoard(build("quad", seed=0), seed=0)
     with TestClient(create_sim_app(board)) as sim:
         assert sim.get("/board").status_code == 404
+
+
+def test_the_full_size_rig_describes_the_default_window() -> None:
+    scene = build("calib", seed=1).calib
+    assert scene is not None
+    assert scene.window == {"WOI_LEFT": 0, "WOI_TOP": 0, "WOI_WIDTH": 2592, "WOI_HEIGHT": 1944}
+    assert scene.rig.size == (2592, 1944) and len(scene.rig.cameras) == 4
+
+
+def test_outside_the_lens_image_is_the_background() -> None:
+    scene = build("calib-small", seed=1).calib
+    assert scene is not None
+    view = scene.view(0)
+    pose = board_poses(scene.rig, scene.board, 1, seed=2, min_cameras=4)[0]
+    # the board moved left until it straddles the lens image's left edge
+    state = BoardState(BoardPose(pose.R, pose.t_mm - np.array([700.0, 0.0, 0.0])))
+    corners_x = corner_truth(scene.rig, scene.board, state.pose)[0][:, 0]
+    assert corners_x.min() < -20 < 20 < corners_x.max()
+    left, top = view.origin
+    rgb = view.radiance(state, (left - 100, top, 200, 480))
+    grey = rgb[0, ..., 1] / scene.board.colour[1]
+    assert np.all(grey[:, :100] == scene.board.background)  # the lens model reaches there
+    assert grey[:, 100:].min() < 0.2 and grey[:, 100:].max() > 0.8  # black and white squares
