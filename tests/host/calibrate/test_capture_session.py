@@ -97,6 +97,7 @@ def test_a_frame_without_a_board_is_not_kept(views: Path) -> None:
         ([], "capture needs a camera"),
         (["--camera", "http://127.0.0.1:9", "--views", "0"], "allowed at least 1"),
         (["--camera", "http://127.0.0.1:9", "--max-blur-px", "0"], "max_blur_px=0"),
+        (["--camera", "http://127.0.0.1:9", "--quad", "--sensor-port", "1"], "ports 0..3"),
     ],
 )
 def test_capture_usage_errors_name_what_is_allowed(

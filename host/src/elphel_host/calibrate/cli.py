@@ -102,7 +102,7 @@ def _register_capture(sub: Any) -> None:
     c.add_argument(
         "--quad", action="store_true", help="a quad: all four ports on one trigger per view"
     )
-    add_sensor_port_option(c, help="one camera: the sensor port (default 0)")
+    add_sensor_port_option(c, default=None, help="one camera: the sensor port (default 0)")
     c.add_argument("--views", type=int, default=20, metavar="N", help="views wanted (default 20)")
     c.add_argument(
         "--attempts", type=int, default=None, metavar="N", help="stop after N views taken"
@@ -160,7 +160,7 @@ def _attempt_text(attempt: Attempt, session: CaptureSession, wanted: int) -> lis
 def _capture_source(args: argparse.Namespace, camera: Any) -> ViewSource:
     if args.quad:
         return QuadCamera(camera, timeout_s=args.timeout)
-    return SingleCamera(camera, port=args.sensor_port)
+    return SingleCamera(camera, port=args.sensor_port or 0)
 
 
 def run_capture(args: argparse.Namespace) -> int:
@@ -174,6 +174,8 @@ def run_capture(args: argparse.Namespace) -> int:
         args.parser.error("capture needs a camera: give --camera URL or set ELPHEL_CAMERA_URL")
     if args.views < 1 or (args.attempts is not None and args.attempts < 1):
         args.parser.error("--views and --attempts: allowed at least 1")
+    if args.quad and args.sensor_port is not None:
+        args.parser.error("--sensor-port: one camera's port; --quad takes ports 0..3")
     session = open_session(args.out, pattern, cameras=4 if args.quad else 1)
     live: TextIO = sys.stderr
     print(f"{args.out}: {len(session.views)} view(s) so far, {args.views} wanted", file=live)
