@@ -54,6 +54,9 @@ def test_another_pattern_or_kind_of_view_is_refused(views: Path) -> None:
     open_session(views, PATTERN, cameras=1).save()
     with pytest.raises(CaptureSessionError, match="checkerboard:9x6:25 and 1 camera"):
         open_session(views, Checkerboard(7, 4, 25.0), cameras=1)
+    (views / "capture" / "capture.json").write_text("{not json")
+    with pytest.raises(CaptureSessionError, match=r"not a capture state.*remove it"):
+        open_session(views, PATTERN, cameras=1)
     (views / "capture" / "capture.json").unlink()
     with pytest.raises(CaptureSessionError, match=r"image files of one camera.*--quad"):
         open_session(views, PATTERN, cameras=4)

@@ -231,7 +231,7 @@ def open_session(root: str | Path, pattern: Checkerboard, *, cameras: int) -> Ca
     state = session.state_dir / STATE_FILE
     known: dict[str, KeptView] = {}
     if state.is_file():
-        data = json.loads(state.read_text())
+        data = _read_state(state)
         if data.get("pattern") != pattern.spec or data.get("cameras") != cameras:
             raise CaptureSessionError(
                 f"{root} was captured with --pattern {data.get('pattern')} and "
@@ -239,7 +239,13 @@ def open_session(root: str | Path, pattern: Checkerboard, *, cameras: int) -> Ca
                 "another --out)"
             )
         session.size = None if data.get("size") is None else tuple(data["size"])
-        known = {v["name"]: _view_from_json(v) for v in data.get("views", [])}
+        try:
+            known = {v["name"]: _view_from_json(v) for v in data.get("views", [])}
+        except (KeyError, TypeError, ValueError) as e:
+            raise CaptureSessionError(
+                f"{state}: a view's entry is not readable ({type(e).__name__}: {e}); "
+                "remove the file to search the views again"
+            ) from e
     for path in _views_on_disk(session.root, cameras):
         view = known.get(path.name)
         if view is None:
@@ -247,6 +253,18 @@ def open_session(root: str | Path, pattern: Checkerboard, *, cameras: int) -> Ca
             view = _judged_view(path.name, images, bayer, session, CaptureLimits())[0]
         session.views.append(view)
     return session
+
+
+def _read_state(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CaptureSessionError(
+            f"{path}: not a capture state ({e}); remove it to search the views again"
+        ) from e
+    if not isinstance(data, dict):
+        raise CaptureSessionError(f"{path}: not a JSON object; remove it to search the views again")
+    return data
 
 
 def _views_on_disk(root: Path, cameras: int) -> list[Path]:
