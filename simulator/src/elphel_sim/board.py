@@ -20,6 +20,7 @@ import numpy as np
 from elphel_camd.boards import Frame
 from elphel_camd.errors import CaptureUnavailableError, FrameNotAvailableError, PortError
 from elphel_camd.i2c.bus import I2CBus
+from elphel_sim.calib_board import pose_json
 from elphel_sim.chips.bus import SimI2CBus
 from elphel_sim.chips.imx219 import SimIMX219
 from elphel_sim.chips.lepton35 import SimLepton35
@@ -79,6 +80,7 @@ class SimCameraBoard:
         self.noise = noise
         self.ports: dict[int, PortSpec] = dict(enumerate(scenario.ports))
         self.quad = scenario.quad
+        self.calib = scenario.calib
         self.daemon_per_port = scenario.daemon_per_port
         self._buses: dict[int, SimI2CBus] = {}
         self.chips: dict[int, SimSensor] = {}
@@ -254,6 +256,7 @@ class SimCameraBoard:
                 carriage_mm=self.world.rig.carriage_mm,
                 strips=strips,
                 strip_period_s=strip_period_s,
+                board=self.world.board,
             )
         )
         record = fpga.ring[-1]
@@ -271,6 +274,8 @@ class SimCameraBoard:
             "camera_position_mm": record.pose.position_mm.tolist(),
             "strips": record.strips,
         }
+        if record.board is not None:
+            truth[record.frame]["board"] = pose_json(record.board)
         if len(truth) > TRUTH_FRAMES:
             truth.popitem(last=False)
         self._schedule_next(port)

@@ -249,17 +249,35 @@ def _jacobian(u: FloatArray, v: FloatArray) -> FloatArray:
 
 
 def render_grey(
-    cam: RigCamera, board: PrintedBoard, pose: BoardPose, *, samples: int = 4
+    cam: RigCamera,
+    board: PrintedBoard,
+    pose: BoardPose,
+    *,
+    samples: int = 4,
+    window: tuple[int, int, int, int] | None = None,
+    extra_blur_px: float = 0.0,
 ) -> FloatArray:
-    """The grey radiance ``(H, W)`` one camera sees (background off the board's window)."""
-    grey = np.full((cam.lens.height, cam.lens.width), board.background)
-    x0, y0, x1, y1 = _paper_window(cam, board, pose)
+    """The grey radiance one camera sees (background off the board's window).
+
+    ``window`` ``(left, top, width, height)`` in the lens's pixels renders that part of
+    the view (None: the lens's whole image; it may reach beyond the image, the lens model
+    holds there too). ``extra_blur_px`` adds a Gaussian blur of that sigma to the lens's
+    own (a board out of focus or moving), as the root sum of squares.
+    """
+    left, top, width, height = window or (0, 0, cam.lens.width, cam.lens.height)
+    grey = np.full((height, width), board.background)
+    px0, py0, px1, py1 = _paper_window(cam, board, pose)
+    if window is not None and (px0, py0, px1, py1) == (0, 0, cam.lens.width, cam.lens.height):
+        px0, py0, px1, py1 = left, top, left + width, top + height
+    x0, y0 = max(px0, left), max(py0, top)
+    x1, y1 = min(px1, left + width), min(py1, top + height)
     if x1 - x0 < 3 or y1 - y0 < 3:
         return grey
     ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float64)
     u, v = _board_coordinates(cam, board, pose, xs, ys)
-    grey[y0:y1, x0:x1] = board_radiance(
-        board, u, v, _jacobian(u, v), cam.blur_px(xs, ys), samples=samples
+    sigma = np.sqrt(cam.blur_px(xs, ys) ** 2 + extra_blur_px**2)
+    grey[y0 - top : y1 - top, x0 - left : x1 - left] = board_radiance(
+        board, u, v, _jacobian(u, v), sigma, samples=samples
     )
     return grey
 

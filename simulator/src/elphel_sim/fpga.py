@@ -29,6 +29,7 @@ from elphel_camd.params import TRIG_SNAPSHOT, TRIGGERMODE, TRIGSEQ, WINDOW
 from elphel_sim.world import FloatArray, Pose
 
 if TYPE_CHECKING:
+    from elphel_sim.calib_board import BoardState
     from elphel_sim.chips.sensor import SensorTiming
 
 RING_FRAMES = 64
@@ -74,6 +75,7 @@ class FrameRecord:
     strips: int  # 0 = a normal frame; else photo-finish strips in this composite
     strip_period_s: float
     image: NDArray[np.uint16] | None = None
+    board: BoardState | None = None  # the calibration board at the frame's start
 
     def strip_times_s(self) -> FloatArray:
         """Start time of each strip of the frame (one entry for a normal frame)."""

@@ -29,6 +29,7 @@ from elphel_camd.serving import GracefulServer, server_config
 from elphel_camd.store import new_token
 from elphel_host.cloud.ply import ply_bytes
 from elphel_sim.board import SimCameraBoard
+from elphel_sim.calib_board import board_router
 from elphel_sim.faults import fault_router
 from elphel_sim.lepton_vospi import VoSPIPort, lepton_ports, vospi_board, vospi_fault_router
 from elphel_sim.port_view import PortView
@@ -43,11 +44,16 @@ from elphel_sim.stock.server import consecutive_sockets, imgsrv_app, parsedit_ap
 
 
 def create_sim_app(board: SimCameraBoard, stage: SimStage | None = None) -> FastAPI:
-    """The inspection API: what the simulator knows to be true, and its fault hooks."""
+    """The inspection API: what the simulator knows to be true, and its fault hooks.
+
+    A calibration scenario adds ``/board`` (`elphel_sim.calib_board.board_router`).
+    """
     app = FastAPI(title="elphel-sim inspection")
     app.include_router(fault_router(board, stage))
     app.include_router(rig_router(board, stage))
     app.include_router(quad_router(board))
+    if board.calib is not None:
+        app.include_router(board_router(board.world, board.calib))
     return app
 
 

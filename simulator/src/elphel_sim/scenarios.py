@@ -10,6 +10,7 @@ from typing import Any
 
 from elphel_camd.sensors import imx219_registers, mt9f002
 from elphel_camd.sensors import mt9p006 as spec
+from elphel_sim.calib_board import CalibScene, CalibView, calib_scene
 from elphel_sim.chips.lepton35 import lepton_intrinsics
 from elphel_sim.quad import QuadRig, QuadScene, standard_scene
 from elphel_sim.relief import relief_scene
@@ -22,7 +23,8 @@ class PortSpec:
     """A sensor port of the simulated board: which chip, which camera, which mount.
 
     ``lens_blur``: the lens's blur on the Aptina sensors' images; the scenarios' default
-    renders a perfectly sharp lens.
+    renders a perfectly sharp lens. ``calib``: the port sees the world's calibration
+    board through its own lens (`elphel_sim.calib_board`) instead of the scene's planes.
     """
 
     model: str | None
@@ -30,15 +32,25 @@ class PortSpec:
     intrinsics: Intrinsics
     sensor: SensorModel = field(default_factory=SensorModel)
     lens_blur: LensBlur = field(default_factory=LensBlur)
+    calib: CalibView | None = None
 
     def forming_options(self) -> dict[str, Any]:
         """`SimSensor.form_image`'s keyword arguments from this port (the noise aside)."""
-        return {"intrinsics": self.intrinsics, "model": self.sensor, "lens_blur": self.lens_blur}
+        options: dict[str, Any] = {
+            "intrinsics": self.intrinsics,
+            "model": self.sensor,
+            "lens_blur": self.lens_blur,
+        }
+        if self.calib is not None:
+            options["calib"] = self.calib
+        return options
 
 
 @dataclass
 class Scenario:
     """A world and the board's ports; ``quad`` when ports 0..3 form a quad camera.
+
+    ``calib``: ports 0..3 are a calibration rig looking at a printed board.
 
     ``daemon_per_port``: each camera is a board of its own with its own daemon (a rig of
     Raspberry Pis), rather than a port of one multi-sensor board.
@@ -48,6 +60,7 @@ class Scenario:
     ports: list[PortSpec]
     quad: QuadScene | None = None
     daemon_per_port: bool = False
+    calib: CalibScene | None = None
 
 
 # A well-lit lab scene: radiance 0.5 fills half the well in about 10 ms at gain 1.
@@ -305,12 +318,59 @@ def pi_pair(seed: int) -> Scenario:
     return Scenario(world, ports, daemon_per_port=True)
 
 
+#: The lens image of `calib_small`: the centre of the MT9P006's active area.
+CALIB_SMALL_VIEW = (640, 480)
+_ACTIVE = (spec.ACTIVE_WIDTH, spec.ACTIVE_HEIGHT)
+_CLEAR = (spec.CLEAR_LEFT, spec.CLEAR_TOP)
+
+
+def calib(seed: int) -> Scenario:
+    """A quad calibration rig looking at a printed checkerboard (docs/calibration.md).
+
+    Four MT9P006 on ports 0..3 at the corners of a 150 mm square, each behind its own
+    lens (`elphel_sim.calib_rig.make_rig`: OpenCV's rational model, a 1 % spread of focal
+    lengths, about 0.4 degrees of rotation, a blur of 0.7 px at the centre to 1.1 px in
+    the corners) over the default 2592x1944 window. A 9x6 board of 25 mm squares
+    (10 x 7 squares) is posed through ``{sim_url}/board``; the board is out of view
+    until then.
+    """
+    return _calib(calib_scene(*_ACTIVE, active=_ACTIVE, clear=_CLEAR, seed=seed))
+
+
+def calib_small(seed: int) -> Scenario:
+    """`calib` with 640x480 cameras: the lenses describe a centred 640x480 window.
+
+    Set that window (``GET {sim_url}/board`` gives it as ``window``, WOI_* parameters) on
+    every port before capturing: frames are then small and quick to form, for tests and
+    for trying `elphel calibrate capture`.
+    """
+    width, height = CALIB_SMALL_VIEW
+    return _calib(calib_scene(width, height, active=_ACTIVE, clear=_CLEAR, seed=seed))
+
+
+def _calib(scene: CalibScene) -> Scenario:
+    """Ports 0..3 seeing ``scene``'s board through the rig's cameras 0..3."""
+    mounts = {
+        f"cam{i}": CameraMount(f"cam{i}", offset_mm=tuple(-cam.R.T @ cam.t_mm), on_stage=False)
+        for i, cam in enumerate(scene.rig.cameras)
+    }
+    world = World(Scene([]), Rig(axis=(1.0, 0.0, 0.0), mounts=mounts))
+    intrinsics = mt9p006_intrinsics(4.5)  # the array (the lenses are the rig's own)
+    ports = [
+        PortSpec("MT9P006", f"cam{i}", intrinsics, LAB_LIGHT, calib=scene.view(i))
+        for i in range(len(scene.rig.cameras))
+    ]
+    return Scenario(world, ports, calib=scene)
+
+
 SCENARIOS: dict[str, Callable[[int], Scenario]] = {"default": default}
 SCENARIOS["mixed"] = mixed
 SCENARIOS["quad"] = quad
 SCENARIOS["quad-rig"] = quad_rig
 SCENARIOS["quad-rig-small"] = quad_rig_small
 SCENARIOS["pi-pair"] = pi_pair
+SCENARIOS["calib"] = calib
+SCENARIOS["calib-small"] = calib_small
 
 
 def build(name: str, *, seed: int, lens_blur: LensBlur | None = None) -> Scenario:

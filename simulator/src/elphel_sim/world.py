@@ -10,9 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from elphel_sim.calib_board import BoardState
 
 Vec3 = tuple[float, float, float]
 FloatArray = NDArray[np.float64]
@@ -226,11 +230,15 @@ class Rig:
 
 @dataclass
 class World:
-    """The scene, the rig and virtual time."""
+    """The scene, the rig and virtual time.
+
+    ``board`` is a printed calibration board in view (`elphel_sim.calib_board`), or None.
+    """
 
     scene: Scene
     rig: Rig = field(default_factory=Rig)
     time_s: float = 0.0
+    board: BoardState | None = None
 
     def camera_pose(self, mount: str | CameraMount) -> Pose:
         """Pose of a mounted camera now, following the carriage if the mount is on it."""

@@ -1,24 +1,46 @@
-"""``elphel calibrate solve VIEWS_DIR --pattern SPEC --out CALIB_DIR``: the calibration.
+"""``elphel calibrate capture|solve``: views of a checkerboard, and the calibration from them.
 
-Detection is :mod:`elphel_host.calibrate.views`, the solve
-:mod:`elphel_host.calibrate.solve`, the files :mod:`elphel_host.calibrate.result` and
-the pictures :mod:`elphel_host.calibrate.pictures`; this module parses the options and
-renders the result.
+The guided capture is :mod:`elphel_host.calibrate.capture`; detection is
+:mod:`elphel_host.calibrate.views`, the solve :mod:`elphel_host.calibrate.solve`, the
+files :mod:`elphel_host.calibrate.result` and the pictures
+:mod:`elphel_host.calibrate.pictures`; this module parses the options and renders the
+results.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
+from elphel_host.calibrate.capture import (
+    COVERAGE_PNG,
+    STATE_FILE,
+    Attempt,
+    CaptureSession,
+    QuadCamera,
+    SingleCamera,
+    ViewSource,
+    capture_views,
+    open_session,
+)
 from elphel_host.calibrate.export import write_exports
+from elphel_host.calibrate.guide import CaptureLimits, text_map
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.calibrate.pictures import write_pictures
+from elphel_host.calibrate.psf import check_psf_options, measure_psfs, write_psfs
 from elphel_host.calibrate.result import finite_json, write_calibration
 from elphel_host.calibrate.solve import Calibration, calibrate
 from elphel_host.calibrate.views import read_views
-from elphel_host.cli_common import add_json_option, emit
+from elphel_host.camera.backends import connect
+from elphel_host.cli_common import (
+    add_camera_options,
+    add_json_option,
+    add_sensor_port_option,
+    emit,
+)
 from elphel_host.progress import ProgressLine
 
 
@@ -31,6 +53,8 @@ def register(subparsers: Any) -> None:
         "(docs/calibration.md).",
     )
     sub = p.add_subparsers(dest="calibrate_action", required=True, metavar="ACTION")
+    _register_capture(sub)
+    _register_psf(sub)
     s = sub.add_parser(
         "solve",
         help="detect the board in every view and solve intrinsics, rig, board poses and bend",
@@ -42,12 +66,7 @@ def register(subparsers: Any) -> None:
         "COLMAP, Kalibr) into CALIB_DIR.",
     )
     s.add_argument("views", metavar="VIEWS_DIR", type=Path)
-    s.add_argument(
-        "--pattern",
-        required=True,
-        metavar="SPEC",
-        help="checkerboard:COLSxROWS:SQUARE_MM, inner corners (a board of 10 x 7 squares is 9x6)",
-    )
+    _add_pattern_option(s)
     s.add_argument("--out", required=True, type=Path, metavar="CALIB_DIR")
     s.add_argument(
         "--no-cross-validation",
@@ -56,6 +75,213 @@ def register(subparsers: Any) -> None:
     )
     add_json_option(s)
     s.set_defaults(func=run_solve, parser=s)
+
+
+def _add_pattern_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--pattern",
+        required=True,
+        metavar="SPEC",
+        help="checkerboard:COLSxROWS:SQUARE_MM, inner corners (a board of 10 x 7 squares is 9x6)",
+    )
+
+
+def _register_capture(sub: Any) -> None:
+    c = sub.add_parser(
+        "capture",
+        help="take views of a checkerboard from a camera (or a quad), guided, resumable",
+        description="Take views of a checkerboard from a camera URL into VIEWS_DIR until it "
+        "holds --views of them: each view is kept when a camera sees the whole board sharp, "
+        "large enough and where none of its kept views had it, else the reason is shown. "
+        "The coverage (text on stderr, VIEWS_DIR/capture/coverage.png) and hints on what "
+        "is missing follow each view. Running again continues VIEWS_DIR.",
+    )
+    add_camera_options(c)
+    _add_pattern_option(c)
+    c.add_argument("--out", required=True, type=Path, metavar="VIEWS_DIR")
+    c.add_argument(
+        "--quad", action="store_true", help="a quad: all four ports on one trigger per view"
+    )
+    add_sensor_port_option(c, default=None, help="one camera: the sensor port (default 0)")
+    c.add_argument("--views", type=int, default=20, metavar="N", help="views wanted (default 20)")
+    c.add_argument(
+        "--attempts", type=int, default=None, metavar="N", help="stop after N views taken"
+    )
+    c.add_argument(
+        "--interval",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="seconds between views, to move the board (default 1)",
+    )
+    c.add_argument(
+        "--max-blur-px",
+        type=float,
+        default=CaptureLimits.max_blur_px,
+        metavar="PX",
+        help=f"widest edges kept (default {CaptureLimits.max_blur_px:g} px)",
+    )
+    c.add_argument(
+        "--min-area-percent",
+        type=float,
+        default=CaptureLimits.min_area_percent,
+        metavar="P",
+        help="smallest board kept, in %% of the image area "
+        f"(default {CaptureLimits.min_area_percent:g})",
+    )
+    c.add_argument(
+        "--timeout", type=float, default=60.0, metavar="S", help="seconds to wait for a frame"
+    )
+    add_json_option(c)
+    c.set_defaults(func=run_capture, parser=c)
+
+
+def _coverage_text(session: CaptureSession) -> list[str]:
+    """The cameras' coverage grids, two side by side."""
+    maps = [
+        text_map(count, f"cam{cam}: views per cell") for cam, count in enumerate(session.counts())
+    ]
+    lines: list[str] = []
+    for i in range(0, len(maps), 2):
+        pair = maps[i : i + 2]
+        lines += ["   ".join(row) for row in zip(*pair, strict=True)]
+    return lines
+
+
+def _attempt_text(attempt: Attempt, session: CaptureSession, wanted: int) -> list[str]:
+    cams = [f"cam{c}: {s.reason}" for c, s in enumerate(attempt.seen)]
+    if attempt.kept is None:
+        return [f"view {attempt.number}: not kept: {attempt.reason}", *("  " + c for c in cams)]
+    lines = [f"view {attempt.number}: kept as {attempt.kept} ({len(session.views)} of {wanted})"]
+    lines += ["  " + c for c in cams] + _coverage_text(session)
+    return lines + [f"  to do: {h}" for h in session.hints()]
+
+
+def _capture_source(args: argparse.Namespace, camera: Any) -> ViewSource:
+    if args.quad:
+        return QuadCamera(camera, timeout_s=args.timeout)
+    return SingleCamera(camera, port=args.sensor_port or 0)
+
+
+def run_capture(args: argparse.Namespace) -> int:
+    """Take views until VIEWS_DIR holds --views; print the summary."""
+    try:
+        pattern = Checkerboard.parse(args.pattern)
+        limits = CaptureLimits(args.max_blur_px, args.min_area_percent)
+    except ValueError as e:
+        args.parser.error(str(e))
+    if not args.camera:
+        args.parser.error("capture needs a camera: give --camera URL or set ELPHEL_CAMERA_URL")
+    if args.views < 1 or (args.attempts is not None and args.attempts < 1):
+        args.parser.error("--views and --attempts: allowed at least 1")
+    if args.quad and args.sensor_port is not None:
+        args.parser.error("--sensor-port: one camera's port; --quad takes ports 0..3")
+    session = open_session(args.out, pattern, cameras=4 if args.quad else 1)
+    live: TextIO = sys.stderr
+    print(f"{args.out}: {len(session.views)} view(s) so far, {args.views} wanted", file=live)
+    done: list[Attempt] = []
+
+    def report(attempt: Attempt, s: CaptureSession) -> None:
+        done.append(attempt)
+        print("\n".join(_attempt_text(attempt, s, args.views)), file=live, flush=True)
+
+    with connect(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+        try:
+            capture_views(
+                _capture_source(args, camera),
+                session,
+                views=args.views,
+                limits=limits,
+                attempts=args.attempts,
+                interval_s=args.interval,
+                report=report,
+            )
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt(
+                f"{len(session.views)} view(s) in {args.out}; the same command continues it"
+            ) from None
+    _capture_result(args, session, done)
+    return 0
+
+
+def _capture_result(args: argparse.Namespace, session: CaptureSession, done: list[Attempt]) -> None:
+    todo = session.hints()
+    state = session.state_dir
+    result = {
+        "views_dir": str(args.out),
+        "views": len(session.views),
+        "kept": sum(1 for a in done if a.kept),
+        "attempts": len(done),
+        "not_kept": [
+            {"attempt": a.number, "reason": a.reason, "cameras": [s.reason for s in a.seen]}
+            for a in done
+            if a.kept is None
+        ],
+        "hints": todo,
+        "coverage": str(state / COVERAGE_PNG),
+        "state": str(state / STATE_FILE),
+    }
+    lines = [
+        f"{args.out}: {len(session.views)} view(s) ({result['kept']} kept of "
+        f"{len(done)} taken now); coverage map {state / COVERAGE_PNG}",
+        *(f"to do: {h}" for h in todo),
+        f"next: elphel calibrate solve {args.out} --pattern {session.pattern.spec} --out CALIB_DIR",
+    ]
+    emit(args, result, "\n".join(lines))
+
+
+def _register_psf(sub: Any) -> None:
+    p = sub.add_parser(
+        "psf",
+        help="measure each camera's blur over its field from the board's edges",
+        description="Measure each camera's point-spread function (a Gaussian sigma per "
+        "field cell) from the edges of the checkerboard in every view of VIEWS_DIR, and "
+        "write the tile processor's aberration kernels (kernels.npy, the `kernels` entry "
+        "of quad.json), one PSF grid per camera for `elphel mfsr --psf` (psf_camN_xS.npy) "
+        "and psf.json into PSF_DIR.",
+    )
+    p.add_argument("views", metavar="VIEWS_DIR", type=Path)
+    _add_pattern_option(p)
+    p.add_argument("--out", required=True, type=Path, metavar="PSF_DIR")
+    p.add_argument(
+        "--cells", type=int, default=4, metavar="N", help="cells along the longer side (1..8)"
+    )
+    p.add_argument(
+        "--scale", type=int, default=2, metavar="S", help="the MFSR scale of the PSF grids"
+    )
+    p.add_argument(
+        "--target-sigma-px",
+        type=float,
+        default=1.3,
+        metavar="PX",
+        help="the Gaussian (sensor px) the kernels turn every cell's PSF into (default 1.3)",
+    )
+    add_json_option(p)
+    p.set_defaults(func=run_psf, parser=p)
+
+
+def run_psf(args: argparse.Namespace) -> int:
+    """Measure the PSFs, write the files, print the per-cell sigmas."""
+    try:
+        pattern = Checkerboard.parse(args.pattern)
+        check_psf_options(args.cells, args.scale, args.target_sigma_px)
+    except ValueError as e:
+        args.parser.error(str(e))
+    fields, bayer = measure_psfs(args.views, pattern, cells=args.cells)
+    doc = write_psfs(
+        fields,
+        args.out,
+        bayer=bayer is not None,
+        scale=args.scale,
+        target_sigma_px=args.target_sigma_px,
+    )
+    lines = [f"PSFs of {len(fields)} camera(s) in {args.out} (cells {fields[0].step} px):"]
+    for cam, field in enumerate(fields):
+        lines.append(f"  cam{cam}: lens sigma per cell (px), {field.used} edges")
+        lines += ["    " + " ".join(f"{s:5.2f}" for s in row) for row in field.sigma_px]
+    lines.append(f'quad.json: "kernels": {json.dumps(doc["kernels"])}')
+    emit(args, {"psf_dir": str(args.out), **doc}, "\n".join(lines))
+    return 0
 
 
 def _human(cal: Calibration, path: Path) -> str:

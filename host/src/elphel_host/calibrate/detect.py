@@ -65,7 +65,8 @@ def grey_image(image: NDArray[np.generic], bayer: str | None) -> FloatArray:
     return out
 
 
-def _eight_bit(grey: FloatArray) -> NDArray[np.uint8]:
+def eight_bit(grey: FloatArray) -> NDArray[np.uint8]:
+    """``grey`` scaled to 8 bits between its 0.5th and 99.5th percentiles (OpenCV's input)."""
     lo, hi = np.percentile(grey, (0.5, 99.5))
     scaled = (grey - lo) * (255.0 / max(hi - lo, 1e-9))
     out: NDArray[np.uint8] = np.clip(scaled, 0, 255).astype(np.uint8)
@@ -122,7 +123,7 @@ def _search(
 def find_corners(grey: FloatArray, board: Checkerboard) -> FloatArray | None:
     """Corners ``(N, 2)`` to a few tenths of a pixel in the board's order, or None."""
     size = (board.cols, board.rows)
-    image = _eight_bit(grey)
+    image = eight_bit(grey)
     corners = None
     factor = 1
     while image.shape[1] / factor > SEARCH_WIDTH_PX:

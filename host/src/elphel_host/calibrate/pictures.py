@@ -124,8 +124,8 @@ def uncertainty_tile(cal: Calibration, camera: int, hi: float) -> U8:
     )
 
 
-def _side_by_side(tiles: list[U8]) -> U8:
-    """Tiles two to a row on the pictures' background, each padded to the largest."""
+def side_by_side(tiles: list[U8]) -> U8:
+    """Pictures two to a row on the pictures' background, each padded to the largest."""
     h = max(t.shape[0] for t in tiles) + 6
     w = max(t.shape[1] for t in tiles) + 6
     padded = []
@@ -150,4 +150,4 @@ def write_pictures(cal: Calibration, out_dir: str | Path) -> list[Path]:
         "coverage.png": [coverage_tile(cal, c) for c in range(n)],
         "uncertainty.png": [uncertainty_tile(cal, c, max(hi, 1e-6)) for c in range(n)],
     }
-    return [save_png(_side_by_side(tiles), out / name) for name, tiles in pictures.items()]
+    return [save_png(side_by_side(tiles), out / name) for name, tiles in pictures.items()]

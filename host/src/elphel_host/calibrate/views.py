@@ -64,7 +64,8 @@ def view_sources(root: Path) -> tuple[list[Path], bool]:
     return files, False
 
 
-def _view_images(path: Path, quad: bool) -> tuple[list[NDArray[np.generic]], str | None]:
+def view_images(path: Path, *, quad: bool) -> tuple[list[NDArray[np.generic]], str | None]:
+    """The images of one view (a quad directory's four, or one file's) and their Bayer pattern."""
     if quad:
         qs = read_quad_dir(path)
         return list(qs.quad.images), qs.manifest.bayer
@@ -87,7 +88,7 @@ def read_views(
     sources, quad = view_sources(Path(root))
     rows, sizes = [], None
     for k, path in enumerate(sources):
-        images, bayer = _view_images(path, quad)
+        images, bayer = view_images(path, quad=quad)
         shapes = tuple((int(im.shape[1]), int(im.shape[0])) for im in images)
         if sizes is None:
             sizes = shapes

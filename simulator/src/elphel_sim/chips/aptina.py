@@ -106,6 +106,10 @@ class SimAptinaChip(SimLatchedChip, SimSensor):
             bayer=self.bayer,
         )
         intrinsics = context.intrinsics
+        if context.calib is not None:  # the calibration board through the port's own lens
+            board = context.calib.radiance(record.board, readout.window_on(intrinsics))
+            rgb = np.repeat(board, len(record.strip_times_s()), axis=0)
+            return read_out(rgb, readout, model=context.model, rng=context.rng)
         # A still scene seen again from the same pose and window reuses its radiance (the
         # renderer's cache); the lens blur, exposure, gains, flips and this frame's noise
         # are applied here.

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from elphel_sim.render.optics import SHARP, LensBlur
 
 if TYPE_CHECKING:
+    from elphel_sim.calib_board import CalibView
     from elphel_sim.fpga import FrameRecord
     from elphel_sim.render import Intrinsics, SensorModel
     from elphel_sim.world import World
@@ -47,7 +48,8 @@ class ImageContext:
 
     The world seen, the port's camera intrinsics and sensor model, the noise generator
     (None: no noise) and the lens's blur (the Aptina sensors apply it, the Lepton's
-    optics are its own).
+    optics are its own). ``calib``: the port sees the world's calibration board through
+    its own lens instead of the scene (the Aptina sensors).
     """
 
     world: World
@@ -55,6 +57,7 @@ class ImageContext:
     model: SensorModel
     rng: np.random.Generator | None
     lens_blur: LensBlur = SHARP
+    calib: CalibView | None = None
 
 
 class SimSensor(ABC):
@@ -96,9 +99,10 @@ class SimSensor(ABC):
         model: SensorModel,
         rng: np.random.Generator | None,
         lens_blur: LensBlur = SHARP,
+        calib: CalibView | None = None,
     ) -> NDArray[np.uint16]:
         """The image of a recorded frame (from the record alone, not the chip's state)."""
-        return self.render(record, ImageContext(world, intrinsics, model, rng, lens_blur))
+        return self.render(record, ImageContext(world, intrinsics, model, rng, lens_blur, calib))
 
     @abstractmethod
     def render(self, record: FrameRecord, context: ImageContext) -> NDArray[np.uint16]:
