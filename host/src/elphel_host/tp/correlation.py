@@ -204,15 +204,18 @@ def profile_basis(
 
 
 def compact_profiles(full: Profiles, fset: FrequencySet, lpf: NDArray[np.floating]) -> Profiles:
-    """Restrict a :func:`profile_basis` to the kept frequencies.
+    """Restrict a :func:`profile_basis` to the kept frequencies, rows planar.
 
-    Rescaled so that a normalised product of 1 at every kept frequency gives 1 at lag 0.
+    Its rows are (which, re/im, f): they take the planar products of
+    :func:`elphel_host.tp.fused.rotated_pair_products`. Rescaled so that a normalised
+    product of 1 at every kept frequency gives 1 at lag 0.
     """
-    rows = []
-    for which in range(2):
-        for f in range(fset.size):
-            r = ((fset.kh[f] * 2 + which) * 8 + fset.kv[f]) * 2
-            rows.extend([r, r + 1])
+    rows = [
+        ((fset.kh[f] * 2 + which) * 8 + fset.kv[f]) * 2 + part
+        for which in range(2)
+        for part in range(2)
+        for f in range(fset.size)
+    ]
     scale = float(lpf.sum()) / float(lpf[fset.kv, fset.kh].sum())
     return Profiles(
         lags=full.lags,
@@ -243,10 +246,15 @@ def window_envelope(
     return np.stack([one(lags * ex) * one(lags * ey) for ex, ey in pair_vectors])
 
 
-def pair_profiles(products: C64, profiles: Profiles) -> F32:
-    """Per pair: correlation at ``lags``, then derivatives 1 and 2 at ``deriv_lags``."""
+def pair_profiles(products: C64 | F32, profiles: Profiles) -> F32:
+    """Per pair: correlation at ``lags``, then derivatives 1 and 2 at ``deriv_lags``.
+
+    ``products`` is ``(T, pairs, ...)``: complex in the layout of the basis's rows
+    (:func:`profile_basis`), or float32 already in it (:func:`compact_profiles`).
+    """
     t, npairs = products.shape[:2]
-    real = products.view(np.float32).reshape(t, npairs, -1)
+    floats = products.view(np.float32) if np.iscomplexobj(products) else products
+    real = floats.reshape(t, npairs, -1)
     out = np.empty((t, npairs, profiles.basis[0].shape[1]), dtype=np.float32)
     for p in range(npairs):
         out[:, p] = real[:, p] @ profiles.basis[p]
