@@ -144,7 +144,8 @@ def region_rms(est: np.ndarray, truth: simquad.TileTruth, names: list[str]) -> d
 
 def pass_flops(prep: tile_pass.PreparedQuad, tiles: int) -> dict[str, float]:
     """Floating-point operations of the matrix products of one pass over ``tiles`` tiles."""
-    per_camera = sum(2 * m.shape[0] * m.shape[1] for _, m in prep.transform.blocks)
+    # one matrix per colour applies to each tile (the one of its start parity)
+    per_camera = sum(2 * m.shape[-2] * m.shape[-1] for _, m in prep.transform.blocks)
     profiles = sum(2 * b.shape[0] * b.shape[1] for b in prep.profiles.basis)
     return {
         "to_clt": float(tiles * 4 * per_camera),
@@ -155,7 +156,7 @@ def pass_flops(prep: tile_pass.PreparedQuad, tiles: int) -> dict[str, float]:
 def matmul_peak(prep: tile_pass.PreparedQuad, threads: int, seconds: float = 1.0) -> float:
     """GFLOP/s of batched float32 products of the transform's shapes on ``threads`` threads."""
     rng = np.random.default_rng(0)
-    mats = [m for _, m in prep.transform.blocks]
+    mats = [m[0] for _, m in prep.transform.blocks]
     chunk = TpConfig().chunk_tiles
     data = [rng.random((chunk, m.shape[0]), dtype=np.float32) for m in mats]
     flops_one = sum(2 * chunk * m.shape[0] * m.shape[1] for m in mats)

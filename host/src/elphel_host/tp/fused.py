@@ -34,7 +34,10 @@ _GATHER_SIGNATURE = nb.void(
     nb.float32[:, ::1],  # (T, 2) along x
     nb.float32[:, :, :, ::1],  # row window factors (parity, planes, 2, span)
     nb.float32[:, :, :, ::1],  # column window factors (parity, planes, 2, span)
-    nb.float32[:, ::1],  # out (T, planes * span * span)
+    nb.int64[:, ::1],  # first footprint row inside the tile (parity, planes)
+    nb.int64[:, ::1],  # first footprint column inside the tile (parity, planes)
+    nb.int64[::1],  # row of out for each tile
+    nb.float32[:, ::1],  # out (T, planes * inner * inner)
 )
 
 
@@ -49,9 +52,16 @@ def gather_windowed(
     win_x: F32,
     rows_w: F32,
     cols_w: F32,
+    first_y: I64,
+    first_x: I64,
+    dest: I64,
     out: F32,
 ) -> None:
-    """Windowed footprints of tiles: ``out[t, (p, v, u)] = cells[r+v, c+u, p] wy[v] wx[u]``.
+    """Windowed samples of tiles: ``out[dest[t], (p, v, u)] = cells[r+v, c+u, p] wy[v] wx[u]``.
+
+    Only the ``inner x inner`` samples of each plane that lie inside the tile are written
+    (``v`` from ``first_y[parity, p]``, ``u`` from ``first_x[parity, p]``), so that with
+    the rows grouped by start parity each group has one matrix per colour.
 
     Parameters
     ----------
@@ -68,26 +78,33 @@ def gather_windowed(
         ``(parities, planes, 2, span)``: the sine and the cosine window on each plane's
         samples along the axis (zero outside the tile); the shifted window along an axis
         is ``cos * w[0] + sin * w[1]``.
+    first_y, first_x
+        ``(parities, planes)``: the first footprint sample inside the tile.
+    dest
+        ``(T,)``: the row of ``out`` that receives tile t.
     out
-        ``(T, planes * span * span)`` float32, written plane by plane, row by row.
+        ``(T, planes * inner * inner)`` float32, written plane by plane, row by row.
     """
-    span = rows_w.shape[3]
-    fy = np.empty(span, dtype=np.float32)
-    fx = np.empty(span, dtype=np.float32)
+    planes = cells.shape[2]
+    inner = int(np.sqrt(out.shape[1] // planes))
+    fy = np.empty(inner, dtype=np.float32)
+    fx = np.empty(inner, dtype=np.float32)
     for t in range(rows.shape[0]):
-        r0, c0, py, px = rows[t], cols[t], par_y[t], par_x[t]
+        py, px = par_y[t], par_x[t]
         cy, sy, cx, sx = win_y[t, 0], win_y[t, 1], win_x[t, 0], win_x[t, 1]
-        tile = out[t]
-        for p in range(cells.shape[2]):
-            for j in range(span):
-                fy[j] = cy * rows_w[py, p, 0, j] + sy * rows_w[py, p, 1, j]
-                fx[j] = cx * cols_w[px, p, 0, j] + sx * cols_w[px, p, 1, j]
-            for v in range(span):
-                src = cells[r0 + v, c0 : c0 + span, p]
-                start = (p * span + v) * span
-                dst = tile[start : start + span]
+        tile = out[dest[t]]
+        for p in range(planes):
+            v0, u0 = first_y[py, p], first_x[px, p]
+            for j in range(inner):
+                fy[j] = cy * rows_w[py, p, 0, v0 + j] + sy * rows_w[py, p, 1, v0 + j]
+                fx[j] = cx * cols_w[px, p, 0, u0 + j] + sx * cols_w[px, p, 1, u0 + j]
+            r0, c0 = rows[t] + v0, cols[t] + u0
+            for v in range(inner):
+                src = cells[r0 + v, c0 : c0 + inner, p]
+                start = (p * inner + v) * inner
+                dst = tile[start : start + inner]
                 w = fy[v]
-                for u in range(span):
+                for u in range(inner):
                     dst[u] = src[u] * w * fx[u]
 
 
@@ -175,6 +192,7 @@ def _normalised(acc: F32, rot_a: F32, rot_b: F32, fz2: np.float32, scale: F32, o
 
 _PAIRS_SIGNATURE = nb.void(
     nb.float32[:, :, ::1],  # spectra (cameras, T, floats): per colour (which, re/im, f)
+    nb.int64[:, ::1],  # row of spectra holding each tile (cameras, T)
     nb.float32[:, :, :, ::1],  # rotation (cameras, T, 2 axes, cos/sin) of pi s / 16
     nb.int64[:, ::1],  # pairs (P, 2)
     nb.int64[::1],  # kh (F,)
@@ -188,6 +206,7 @@ _PAIRS_SIGNATURE = nb.void(
 @nb.njit(_PAIRS_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
 def rotated_pair_products(
     spectra: F32,
+    where: I64,
     rotation: F32,
     pairs: I64,
     kh: I64,
@@ -211,6 +230,8 @@ def rotated_pair_products(
     spectra
         ``(cameras, T, 4 sum(sizes))``: per camera and tile its colours one after the
         other, each ``(which, re/im, f)`` on its first ``sizes[c]`` frequencies.
+    where
+        ``(cameras, T)``: the row of ``spectra[c]`` that holds tile t.
     rotation
         ``(cameras, T, 2, 2)``: per axis (x, y) the cos and sin of ``pi s / 16`` for the
         camera's rotation shift s.
@@ -246,5 +267,5 @@ def rotated_pair_products(
                 rot[c, 1, 1, f] = xi * yr - xr * yi
         for p in range(pairs.shape[0]):
             a, b = pairs[p, 0], pairs[p, 1]
-            _colour_sum(spectra[a, t], spectra[b, t], sizes, acc)
+            _colour_sum(spectra[a, where[a, t]], spectra[b, where[b, t]], sizes, acc)
             _normalised(acc, rot[a], rot[b], fz2, scale, out[p, t])

@@ -204,13 +204,14 @@ def _products(
     t = tiles.size
     spectra = np.empty((4, t, spectrum_floats(tr)), dtype=np.float32)
     shifts = np.empty((4, t, 2), dtype=np.float32)
+    where = np.empty((4, t), dtype=np.int64)
     for cam, (px, py) in enumerate(quad.geometry.positions):
         at = place_tiles(cx, cy, target, (px, py))
         kernels, index = None, None
         if prep.kernels is not None:
             kernels = prep.kernels[cam]
             index = _kernel_index(quad, cx - target * px, cy - target * py)
-        shifts[cam] = raw_spectra(
+        shifts[cam], where[cam] = raw_spectra(
             prep.cells[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
         )
     if t0 is not None:
@@ -223,6 +224,7 @@ def _products(
     rotation = np.stack([np.cos(angle), np.sin(angle)], axis=-1)  # (cameras, T, x/y, cos/sin)
     rotated_pair_products(
         spectra,
+        where,
         rotation,
         pairs,
         fset.kh.astype(np.int64),

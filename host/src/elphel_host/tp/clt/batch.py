@@ -77,10 +77,15 @@ class CameraTransform:
     fset: FrequencySet
     colour_sizes: tuple[int, ...]  # frequencies per colour (R, B, G) or (mono,)
     cell: int  # 2 (Bayer cell) or 1 (mono)
-    span: int  # samples per plane along an axis: 9 (Bayer) or 16 (mono)
+    span: int  # footprint samples per plane along an axis: 9 (Bayer) or 16 (mono)
+    inner: int  # of which inside the tile: 8 (Bayer) or 16 (mono)
     plane_rows: NDArray[np.intp]  # (planes,) row parity of each plane, colour order
     plane_cols: NDArray[np.intp]  # (planes,) column parity of each plane
-    blocks: tuple[tuple[slice, F32], ...]  # per colour: planes, matrix (n, 2*2*F_c)
+    first_y: NDArray[np.int64]  # (parities, planes) first footprint row inside the tile
+    first_x: NDArray[np.int64]  # (parities, planes) first footprint column inside the tile
+    # per colour: its planes, and per start parity (2 py + px) its matrix
+    # (planes * inner^2, 2*2*F_c) from the samples inside the tile
+    blocks: tuple[tuple[slice, F32], ...]
     rows_w: F32  # (parities, planes, 2, span): sine and cosine window down the columns
     cols_w: F32  # (parities, planes, 2, span): along the rows
     angles: F32  # (2, 2F): rotation angle per (shift_x, shift_y) for (which, f)
@@ -137,26 +142,70 @@ def camera_transform(
     cell = 1 if bayer is None else 2
     # a tile starts on either parity; its cell-aligned footprint is one sample wider
     span = TILE if bayer is None else TILE // 2 + 1
-    rows, cols, blocks = _colour_blocks(lats, colour_weights, fset, sizes, span)
+    rows, cols, full = _colour_blocks(lats, colour_weights, fset, sizes, span)
     f = fset.size
     angles = np.zeros((2, 2 * f))
     angles[0] = np.tile(OMEGA[fset.kh], 2)
     angles[1] = np.concatenate([OMEGA[fset.kv], -OMEGA[fset.kv]])
     plane_rows = np.array(rows, dtype=np.intp)
     plane_cols = np.array(cols, dtype=np.intp)
+    first_y, first_x = _first_inside(cell, plane_rows), _first_inside(cell, plane_cols)
+    inner = TILE // cell
+    blocks = [
+        (planes, _parity_matrices(m, planes, span, inner, first_y, first_x)) for planes, m in full
+    ]
     return CameraTransform(
         fset=fset,
         colour_sizes=sizes,
         cell=cell,
         span=span,
+        inner=inner,
         plane_rows=plane_rows,
         plane_cols=plane_cols,
+        first_y=first_y,
+        first_x=first_x,
         blocks=tuple(blocks),
         rows_w=_window_factors(cell, span, plane_rows),
         cols_w=_window_factors(cell, span, plane_cols),
         angles=angles.astype(np.float32),
         pad=pad,
     )
+
+
+def _first_inside(cell: int, offsets: NDArray[np.intp]) -> NDArray[np.int64]:
+    """``(parities, planes)``: the first footprint sample inside the tile along an axis.
+
+    Sample j of a plane with cell offset o lies at tile-local ``cell j + o - parity``.
+    """
+    parity = np.arange(cell)[:, None]
+    out: NDArray[np.int64] = np.maximum(0, -((offsets[None, :] - parity) // cell)).astype(np.int64)
+    return out
+
+
+def _parity_matrices(
+    m: F32,
+    planes: slice,
+    span: int,
+    inner: int,
+    first_y: NDArray[np.int64],
+    first_x: NDArray[np.int64],
+) -> F32:
+    """A colour's footprint matrix restricted, per start parity, to the samples inside the tile.
+
+    Returns ``(parities, planes * inner^2, columns)``, parity ``py * cell + px``.
+    """
+    cell = first_y.shape[0]
+    out = []
+    for py in range(cell):
+        for px in range(cell):
+            rows = [
+                k * span * span + (first_y[py, p] + v) * span + first_x[px, p] + u
+                for k, p in enumerate(range(planes.start, planes.stop))
+                for v in range(inner)
+                for u in range(inner)
+            ]
+            out.append(m[rows])
+    return np.stack(out)
 
 
 def _colour_blocks(
@@ -166,7 +215,7 @@ def _colour_blocks(
     sizes: tuple[int, ...],
     span: int,
 ) -> tuple[list[int], list[int], list[tuple[slice, F32]]]:
-    """Per colour, its planes' (row, col) in the cell and its weighted transform matrix."""
+    """Per colour, its planes' (row, col) in the cell and its weighted footprint matrix."""
     rows: list[int] = []
     cols: list[int] = []
     blocks: list[tuple[slice, F32]] = []
@@ -260,10 +309,10 @@ def camera_spectra(
     """
     t = at.left_x.shape[0]
     packed = np.empty((t, spectrum_floats(tr)), dtype=np.float32)
-    shifts = raw_spectra(cells, tr, at, packed, kernels=kernels, kernel_index=kernel_index)
+    shifts, rows = raw_spectra(cells, tr, at, packed, kernels=kernels, kernel_index=kernel_index)
     phase = _rotations(shifts, tr)
     return [
-        (v[:, :, 0] + 1j * v[:, :, 1]).astype(np.complex64) * phase[:, :, : v.shape[3]]
+        (v[rows, :, 0] + 1j * v[rows, :, 1]).astype(np.complex64) * phase[:, :, : v.shape[3]]
         for v in colour_views(packed, tr)
     ]
 
@@ -292,12 +341,13 @@ def raw_spectra(
     *,
     kernels: list[C64] | None = None,
     kernel_index: NDArray[np.intp] | None = None,
-) -> F32:
+) -> tuple[F32, NDArray[np.int64]]:
     """One camera's colour spectra before the phase rotation, into ``out``; the rotation.
 
-    Each tile's footprint is gathered and windowed in one pass
-    (:func:`elphel_host.tp.fused.gather_windowed`), then transformed by one matrix
-    product per colour. ``kernels`` and ``kernel_index`` as in :func:`camera_spectra`.
+    Each tile's samples inside the tile are gathered and windowed in one pass
+    (:func:`elphel_host.tp.fused.gather_windowed`) into rows grouped by the tile's start
+    parity, then transformed by one matrix product per parity and colour. ``kernels`` and
+    ``kernel_index`` as in :func:`camera_spectra`.
 
     Parameters
     ----------
@@ -309,32 +359,58 @@ def raw_spectra(
 
     Returns
     -------
-    numpy.ndarray
+    shifts, rows
         ``(T, 2)`` float32: the shift (x, y) each tile's spectra still need to be rotated
-        by (the fractional shift less the start parity).
+        by (the fractional shift less the start parity); ``(T,)``: the row of ``out``
+        that holds tile t.
     """
-    c, span = tr.cell, tr.span
+    c, span, inner = tr.cell, tr.span, tr.inner
     left_x, top_y = at.left_x, at.top_y
+    t = left_x.shape[0]
     # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
     par_x = np.ascontiguousarray(left_x & (c - 1), dtype=np.int64)
     par_y = np.ascontiguousarray(top_y & (c - 1), dtype=np.int64)
     cols = np.clip((left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span).astype(np.int64)
     rows = np.clip((top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span).astype(np.int64)
-    samples = np.empty((rows.shape[0], tr.plane_rows.size * span * span), dtype=np.float32)
+    # tiles grouped by start parity: each group has its own matrices
+    parity = par_y * c + par_x
+    order = np.argsort(parity, kind="stable")
+    dest = np.empty(t, dtype=np.int64)
+    dest[order] = np.arange(t)
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(parity, minlength=c * c))])
+    samples = np.empty((t, tr.plane_rows.size * inner * inner), dtype=np.float32)
     win_y, win_x = _window_trig(at.shift_y), _window_trig(at.shift_x)
-    gather_windowed(cells, rows, cols, par_y, par_x, win_y, win_x, tr.rows_w, tr.cols_w, samples)
-    n_plane = span * span
-    start = 0
-    for colour, ((planes, mat), n) in enumerate(zip(tr.blocks, tr.colour_sizes, strict=True)):
-        part = samples[:, planes.start * n_plane : planes.stop * n_plane]
-        np.matmul(part, mat, out=out[:, start : start + 4 * n])
-        start += 4 * n
-        if kernels is not None and kernel_index is not None:
-            _convolve(colour_views(out, tr)[colour], kernels[colour][kernel_index][:, :, :n])
-    shifts = np.empty((rows.shape[0], 2), dtype=np.float32)
+    gather_windowed(
+        cells,
+        rows,
+        cols,
+        par_y,
+        par_x,
+        win_y,
+        win_x,
+        tr.rows_w,
+        tr.cols_w,
+        tr.first_y,
+        tr.first_x,
+        dest,
+        samples,
+    )
+    n_plane = inner * inner
+    for g in range(c * c):
+        lo, hi = int(bounds[g]), int(bounds[g + 1])
+        start = 0
+        for (planes, mats), n in zip(tr.blocks, tr.colour_sizes, strict=True):
+            part = samples[lo:hi, planes.start * n_plane : planes.stop * n_plane]
+            np.matmul(part, mats[g], out=out[lo:hi, start : start + 4 * n])
+            start += 4 * n
+    if kernels is not None and kernel_index is not None:
+        for colour, n in enumerate(tr.colour_sizes):
+            kern = kernels[colour][kernel_index[order]][:, :, :n]
+            _convolve(colour_views(out, tr)[colour], kern)
+    shifts = np.empty((t, 2), dtype=np.float32)
     shifts[:, 0] = at.shift_x - par_x
     shifts[:, 1] = at.shift_y - par_y
-    return shifts
+    return shifts, dest
 
 
 def _convolve(planar: F32, kernel: C64) -> None:
