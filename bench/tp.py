@@ -266,27 +266,42 @@ def sgbm_accuracy(maps: list[np.ndarray], q: BenchQuad) -> dict[str, Any]:
     }
 
 
-def timed_turns(
-    quads: list[BenchQuad], config: TpConfig, repeat: int
-) -> tuple[list[list[float]], list[list[float]], dict[str, float], list[list[np.ndarray]]]:
-    """TP and SGBM timed in turns over all quads (TP q0, SGBM q0, TP q1, ...), ``repeat`` rounds.
+@dataclass
+class Turns:
+    """Per quad, the wall and CPU seconds of each timed run of the TP and of SGBM."""
 
-    Returns per quad the TP and SGBM times, the stage times of the fastest TP run of
-    the first quad, and per quad SGBM's maps.
-    """
-    tp_times: list[list[float]] = [[] for _ in quads]
-    sgbm_times: list[list[float]] = [[] for _ in quads]
-    maps: list[list[np.ndarray]] = [[] for _ in quads]
-    stages: dict[str, float] = {}
+    tp: list[list[float]]
+    tp_cpu: list[list[float]]
+    sgbm: list[list[float]]
+    sgbm_cpu: list[list[float]]
+    maps: list[list[np.ndarray]]  # SGBM's maps of each quad
+    stages: dict[str, float]  # stage times of the fastest TP run of the first quad
+
+
+def timed_turns(quads: list[BenchQuad], config: TpConfig, repeat: int) -> Turns:
+    """TP and SGBM timed in turns over all quads (TP q0, SGBM q0, TP q1, ...), ``repeat`` rounds."""
+    n = len(quads)
+    turns = Turns(
+        tp=[[] for _ in range(n)],
+        tp_cpu=[[] for _ in range(n)],
+        sgbm=[[] for _ in range(n)],
+        sgbm_cpu=[[] for _ in range(n)],
+        maps=[[] for _ in range(n)],
+        stages={},
+    )
     for _ in range(repeat):
         for i, q in enumerate(quads):
+            c0 = time.process_time()
             dt, st = timed_tp(q.quad, config)
-            if i == 0 and (not tp_times[0] or dt < min(tp_times[0])):
-                stages = st
-            tp_times[i].append(dt)
-            maps[i], t_sgbm = run_sgbm(q.gray, q.rig.positions)
-            sgbm_times[i].append(t_sgbm)
-    return tp_times, sgbm_times, stages, maps
+            turns.tp_cpu[i].append(time.process_time() - c0)
+            if i == 0 and (not turns.tp[0] or dt < min(turns.tp[0])):
+                turns.stages = st
+            turns.tp[i].append(dt)
+            c0 = time.process_time()
+            turns.maps[i], t_sgbm = run_sgbm(q.gray, q.rig.positions)
+            turns.sgbm_cpu[i].append(time.process_time() - c0)
+            turns.sgbm[i].append(t_sgbm)
+    return turns
 
 
 def matmul_figures(q: BenchQuad, config: TpConfig, threads: int, tp_s: float) -> dict[str, Any]:
@@ -347,28 +362,27 @@ def phase_correlate(q: BenchQuad, tp_s: float, tp_fronto: float) -> dict[str, An
     }
 
 
-def per_quad(
-    quads: list[BenchQuad],
-    config: TpConfig,
-    tp_times: list[list[float]],
-    sgbm_times: list[list[float]],
-    maps: list[list[np.ndarray]],
-) -> list[dict[str, Any]]:
+def per_quad(quads: list[BenchQuad], config: TpConfig, turns: Turns) -> list[dict[str, Any]]:
     """Per quad: times, the ratio SGBM / TP, and both sides' accuracy."""
     out = []
-    for q, tpt, sgt, m in zip(quads, tp_times, sgbm_times, maps, strict=True):
+    for i, q in enumerate(quads):
         dsi = processor.disparity_map(q.quad, config=config)
+        tp_s, sgbm_s = min(turns.tp[i]), min(turns.sgbm[i])
+        tp_cpu, sgbm_cpu = min(turns.tp_cpu[i]), min(turns.sgbm_cpu[i])
         out.append(
             {
                 "seed": q.seed,
                 "render_s": round(q.render_s, 1),
-                "tp_seconds": round(min(tpt), 3),
-                "tp_runs_s": [round(t, 3) for t in tpt],
-                "sgbm_seconds_4_pairs": round(min(sgt), 3),
-                "sgbm_runs_s": [round(t, 3) for t in sgt],
-                "sgbm_time_over_tp_time": round(min(sgt) / min(tpt), 3),
+                "tp_seconds": round(tp_s, 3),
+                "tp_runs_s": [round(t, 3) for t in turns.tp[i]],
+                "tp_cpu_seconds": round(tp_cpu, 3),
+                "sgbm_seconds_4_pairs": round(sgbm_s, 3),
+                "sgbm_runs_s": [round(t, 3) for t in turns.sgbm[i]],
+                "sgbm_cpu_seconds": round(sgbm_cpu, 3),
+                "sgbm_time_over_tp_time": round(sgbm_s / tp_s, 3),
+                "sgbm_cpu_over_tp_cpu": round(sgbm_cpu / tp_cpu, 3),
                 "tp": tp_accuracy(dsi, q.truth),
-                "sgbm": sgbm_accuracy(m, q),
+                "sgbm": sgbm_accuracy(turns.maps[i], q),
             }
         )
     return out
@@ -400,6 +414,7 @@ def worst_of(quads: list[dict[str, Any]]) -> dict[str, Any]:
     """The worst figure of each kind over the quads (not necessarily one quad's)."""
     return {
         "sgbm_time_over_tp_time": min(q["sgbm_time_over_tp_time"] for q in quads),
+        "sgbm_cpu_over_tp_cpu": min(q["sgbm_cpu_over_tp_cpu"] for q in quads),
         "tp_seconds": max(q["tp_seconds"] for q in quads),
         "tp_rms_fronto_all_px": max(q["tp"]["rms_fronto_all_px"] for q in quads),
         "tp_rms_slanted_px": max(q["tp"]["rms_px"]["slanted"] for q in quads),
@@ -431,9 +446,9 @@ def main() -> int:
     config = TpConfig(threads=args.threads, refine_passes=1)
     load_before = os.getloadavg()[0]
     _, peak = traced_tp(quads[0].quad, config)  # traced runs are slower: not timed
-    tp_times, sgbm_times, stages, maps = timed_turns(quads, config, args.repeat)
-    results = per_quad(quads, config, tp_times, sgbm_times, maps)
-    tp_s = min(tp_times[0])
+    turns = timed_turns(quads, config, args.repeat)
+    results = per_quad(quads, config, turns)
+    tp_s = min(turns.tp[0])
     result: dict[str, Any] = {
         "conditions": {
             "cpus": os.cpu_count(),
@@ -455,9 +470,10 @@ def main() -> int:
         "worst_quad": worst_of(results),
         "tile_processor": {
             "peak_traced_memory_mb": round(peak / 2**20, 1),
-            "stage_seconds_summed_over_threads": {k: round(v, 3) for k, v in stages.items()},
+            "stage_seconds_summed_over_threads": {k: round(v, 3) for k, v in turns.stages.items()},
             "stage_fraction": {
-                k: round(v / max(sum(stages.values()), 1e-12), 3) for k, v in stages.items()
+                k: round(v / max(sum(turns.stages.values()), 1e-12), 3)
+                for k, v in turns.stages.items()
             },
             "matmul": matmul_figures(quads[0], config, args.threads, tp_s),
         },
