@@ -108,13 +108,7 @@ def gather_windowed(
                     dst[u] = src[u] * w * fx[u]
 
 
-@nb.njit(
-    nb.void(nb.float32, nb.float32, nb.float32[:, ::1]),
-    cache=True,
-    nogil=True,
-    fastmath=True,
-    boundscheck=False,
-)
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
 def _exponentials(cos1: np.float32, sin1: np.float32, out: F32) -> None:
     """``out[k] = exp(i (2k + 1) a)`` (re, im), k = 0..7, from ``cos a``, ``sin a``."""
     step_r = cos1 * cos1 - sin1 * sin1  # exp(2 i a)
@@ -126,13 +120,7 @@ def _exponentials(cos1: np.float32, sin1: np.float32, out: F32) -> None:
         r, i = r * step_r - i * step_i, r * step_i + i * step_r
 
 
-@nb.njit(
-    nb.void(nb.float32[::1], nb.float32[::1], nb.int64[::1], nb.float32[:, :, ::1]),
-    cache=True,
-    nogil=True,
-    fastmath=True,
-    boundscheck=False,
-)
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
 def _colour_sum(sa: F32, sb: F32, sizes: I64, acc: F32) -> None:
     """``acc[which, re/im, f] = sum over colours of conj(A) B`` (planar colour blocks).
 
@@ -160,20 +148,7 @@ def _colour_sum(sa: F32, sb: F32, sizes: I64, acc: F32) -> None:
             base -= 4 * sizes[col - 1]
 
 
-@nb.njit(
-    nb.void(
-        nb.float32[:, :, ::1],
-        nb.float32[:, :, ::1],
-        nb.float32[:, :, ::1],
-        nb.float32,
-        nb.float32[::1],
-        nb.float32[:, :, ::1],
-    ),
-    cache=True,
-    nogil=True,
-    fastmath=True,
-    boundscheck=False,
-)
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
 def _normalised(acc: F32, rot_a: F32, rot_b: F32, fz2: np.float32, scale: F32, out: F32) -> None:
     """``out[which, re/im, f] = acc conj(rot_a) rot_b / sqrt(fz2 + mean |acc|^2 over which)``."""
     nf = acc.shape[2]

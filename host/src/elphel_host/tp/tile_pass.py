@@ -13,6 +13,7 @@ threads do not oversubscribe the cores.
 
 from __future__ import annotations
 
+import importlib
 import math
 import threading
 import time
@@ -46,7 +47,6 @@ from elphel_host.tp.correlation import (
     window_envelope,
     windowed_centroid,
 )
-from elphel_host.tp.fused import rotated_pair_products
 from elphel_host.tp.geometry import place_tiles, tile_centres
 from elphel_host.tp.images import QuadImages
 from elphel_host.tp.kernels import kernel_spectra
@@ -103,6 +103,16 @@ def _record(name: str, t0: float) -> float:
             for sums in _stage_sums:
                 sums[name] += t1 - t0
     return t1
+
+
+def load_kernels() -> None:
+    """Load the compiled per-tile kernels (:mod:`elphel_host.tp.fused`) now.
+
+    They are imported by the first pass otherwise: importing numba and loading the
+    kernels from its disk cache takes about half a CPU-second, once per process, and a
+    command that times its passes loads them first.
+    """
+    importlib.import_module("elphel_host.tp.fused")
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,6 +207,8 @@ def _products(
 
     Planar: (which, re/im, f) per tile and pair (the rows of :attr:`PreparedQuad.profiles`).
     """
+    from elphel_host.tp.fused import rotated_pair_products  # see load_kernels
+
     quad = prep.quad
     tr = prep.transform
     cy = prep.centres[0].ravel()[tiles]

@@ -38,7 +38,6 @@ from numpy.typing import NDArray
 
 from elphel_host.tp.bayer import Lattice, lattices
 from elphel_host.tp.clt.transform import E_COMPLEX, OMEGA, TILE
-from elphel_host.tp.fused import gather_windowed
 from elphel_host.tp.geometry import TilePlacement
 
 F32 = NDArray[np.float32]
@@ -364,39 +363,11 @@ def raw_spectra(
         by (the fractional shift less the start parity); ``(T,)``: the row of ``out``
         that holds tile t.
     """
-    c, span, inner = tr.cell, tr.span, tr.inner
-    left_x, top_y = at.left_x, at.top_y
-    t = left_x.shape[0]
-    # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
-    par_x = np.ascontiguousarray(left_x & (c - 1), dtype=np.int64)
-    par_y = np.ascontiguousarray(top_y & (c - 1), dtype=np.int64)
-    cols = np.clip((left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span).astype(np.int64)
-    rows = np.clip((top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span).astype(np.int64)
-    # tiles grouped by start parity: each group has its own matrices
-    parity = par_y * c + par_x
-    order = np.argsort(parity, kind="stable")
-    dest = np.empty(t, dtype=np.int64)
-    dest[order] = np.arange(t)
-    bounds = np.concatenate([[0], np.cumsum(np.bincount(parity, minlength=c * c))])
-    samples = np.empty((t, tr.plane_rows.size * inner * inner), dtype=np.float32)
-    win_y, win_x = _window_trig(at.shift_y), _window_trig(at.shift_x)
-    gather_windowed(
-        cells,
-        rows,
-        cols,
-        par_y,
-        par_x,
-        win_y,
-        win_x,
-        tr.rows_w,
-        tr.cols_w,
-        tr.first_y,
-        tr.first_x,
-        dest,
-        samples,
-    )
-    n_plane = inner * inner
-    for g in range(c * c):
+    t = at.left_x.shape[0]
+    samples, par_x, par_y, order = _windowed_samples(cells, tr, at)
+    n_plane = tr.inner * tr.inner
+    bounds = np.searchsorted((par_y * tr.cell + par_x)[order], np.arange(tr.cell * tr.cell + 1))
+    for g in range(tr.cell * tr.cell):
         lo, hi = int(bounds[g]), int(bounds[g + 1])
         start = 0
         for (planes, mats), n in zip(tr.blocks, tr.colour_sizes, strict=True):
@@ -410,7 +381,48 @@ def raw_spectra(
     shifts = np.empty((t, 2), dtype=np.float32)
     shifts[:, 0] = at.shift_x - par_x
     shifts[:, 1] = at.shift_y - par_y
+    dest = np.empty(t, dtype=np.int64)
+    dest[order] = np.arange(t)
     return shifts, dest
+
+
+def _windowed_samples(
+    cells: F32, tr: CameraTransform, at: TilePlacement
+) -> tuple[F32, NDArray[np.int64], NDArray[np.int64], NDArray[np.intp]]:
+    """Each tile's windowed samples inside the tile, rows grouped by start parity.
+
+    Returns the samples ``(T, planes * inner^2)``, each tile's start parity along x and
+    y, and ``order``: row i holds tile ``order[i]`` (parity groups in order 2 py + px).
+    """
+    # the compiled kernels load on first use: commands that never run a pass skip numba
+    from elphel_host.tp.fused import gather_windowed
+
+    c, span = tr.cell, tr.span
+    # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
+    par_x = np.ascontiguousarray(at.left_x & (c - 1), dtype=np.int64)
+    par_y = np.ascontiguousarray(at.top_y & (c - 1), dtype=np.int64)
+    cols = np.clip((at.left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span).astype(np.int64)
+    rows = np.clip((at.top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span).astype(np.int64)
+    order = np.argsort(par_y * c + par_x, kind="stable")
+    dest = np.empty(order.size, dtype=np.int64)
+    dest[order] = np.arange(order.size)
+    samples = np.empty((order.size, tr.plane_rows.size * tr.inner**2), dtype=np.float32)
+    gather_windowed(
+        cells,
+        rows,
+        cols,
+        par_y,
+        par_x,
+        _window_trig(at.shift_y),
+        _window_trig(at.shift_x),
+        tr.rows_w,
+        tr.cols_w,
+        tr.first_y,
+        tr.first_x,
+        dest,
+        samples,
+    )
+    return samples, par_x, par_y, order
 
 
 def _convolve(planar: F32, kernel: C64) -> None:
