@@ -6,7 +6,10 @@ complex form of the CLT (see :mod:`elphel_host.tp.clt`): one tile-colour is an a
 (the full layout), or ``(2, F)`` on the frequencies the production path keeps
 (the compact layout of :class:`~elphel_host.tp.clt.batch.FrequencySet`).
 :func:`pair_products` is the full-layout reference of :func:`compact_pair_products`, and
-:func:`profile_basis` of :func:`compact_profiles`.
+:func:`profile_basis` of :func:`compact_profiles`. The tile processor forms its pair
+products, normalised, in one compiled pass
+(:func:`elphel_host.tp.fused.rotated_pair_products`, planar: which, re/im, f), of which
+:func:`compact_pair_products` and :func:`normalise` are the NumPy reference.
 
 The pair product (conjugate of the first camera), the fat-zero normalisation and the
 correlation LPF follow reference 6.2-6.4. The 15x15 pixel-domain correlation of 6.4 is a
@@ -102,7 +105,8 @@ def compact_pair_products(
 ) -> C64:
     """Pair products summed over colours, compact layout: ``(T, pairs, 2, F)``.
 
-    The production form of :func:`pair_products`: the spectra come from
+    The compact form of :func:`pair_products` (and the reference of
+    :func:`elphel_host.tp.fused.rotated_pair_products`): the spectra come from
     :func:`~elphel_host.tp.clt.batch.camera_spectra` with the square roots of the colour
     weights already inside, per camera a list of colours ``(T, 2, F_c)`` (red and blue on
     the first ``fset.n_box`` frequencies, green or mono on all). The result is a

@@ -11,12 +11,13 @@ definition):
   blue are a prefix of green.
 * The mosaic is regrouped once per image by Bayer cell (:func:`image_cells`: per cell
   its four pixels side by side, in colour order), so a tile's samples are a few
-  contiguous runs. The gathered footprint is cell-aligned: 9x9 cells per tile
-  (a tile starting on an odd pixel starts one pixel into its first cell), so every tile
-  has the same colour layout and every colour fixed transform matrices, whatever the
-  parity of the tile's origin. The basis is a pure exponential in the sample index
-  (``E[k, j+1] = E[k, j] exp(i OMEGA[k])``), so the one-pixel offset of an odd start is a
-  phase rotation, folded into the rotation by the fractional shift. The matrices also
+  contiguous runs. The footprint is cell-aligned: 9x9 cells per tile (a tile starting
+  on an odd pixel starts one pixel into its first cell), of which each plane has 8x8
+  samples inside the tile; which 8x8 depends on the tile's start parity, so tiles are
+  grouped by parity and each group and colour has its own matrix. The basis is a pure
+  exponential in the sample index (``E[k, j+1] = E[k, j] exp(i OMEGA[k])``), so the
+  one-pixel offset of an odd start is a phase rotation, folded into the rotation by the
+  fractional shift. The matrices also
   hold the colour weight and colour LPF (as square roots, so a pair product carries them
   once) and, for green, the sum of the two green lattices.
 * The shifted window is ``w_s(j) = cos(pi s/16) w0(j) + sin(pi s/16) w1(j)`` along each
@@ -240,7 +241,7 @@ def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
 
     Plane p of cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
     (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
-    are a few contiguous runs and a batch of tiles is gathered by one indexing operation.
+    are a few contiguous runs (:func:`elphel_host.tp.fused.gather_windowed` reads them).
     Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
     in cells, that is the border cell repeated.
     """
