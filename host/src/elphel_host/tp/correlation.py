@@ -6,7 +6,10 @@ complex form of the CLT (see :mod:`elphel_host.tp.clt`): one tile-colour is an a
 (the full layout), or ``(2, F)`` on the frequencies the production path keeps
 (the compact layout of :class:`~elphel_host.tp.clt.batch.FrequencySet`).
 :func:`pair_products` is the full-layout reference of :func:`compact_pair_products`, and
-:func:`profile_basis` of :func:`compact_profiles`.
+:func:`profile_basis` of :func:`compact_profiles`. The tile processor forms its pair
+products, normalised, in one compiled pass
+(:func:`elphel_host.tp.fused.rotated_pair_products`, planar: which, re/im, f), of which
+:func:`compact_pair_products` and :func:`normalise` are the NumPy reference.
 
 The pair product (conjugate of the first camera), the fat-zero normalisation and the
 correlation LPF follow reference 6.2-6.4. The 15x15 pixel-domain correlation of 6.4 is a
@@ -102,7 +105,8 @@ def compact_pair_products(
 ) -> C64:
     """Pair products summed over colours, compact layout: ``(T, pairs, 2, F)``.
 
-    The production form of :func:`pair_products`: the spectra come from
+    The compact form of :func:`pair_products` (and the reference of
+    :func:`elphel_host.tp.fused.rotated_pair_products`): the spectra come from
     :func:`~elphel_host.tp.clt.batch.camera_spectra` with the square roots of the colour
     weights already inside, per camera a list of colours ``(T, 2, F_c)`` (red and blue on
     the first ``fset.n_box`` frequencies, green or mono on all). The result is a
@@ -204,15 +208,18 @@ def profile_basis(
 
 
 def compact_profiles(full: Profiles, fset: FrequencySet, lpf: NDArray[np.floating]) -> Profiles:
-    """Restrict a :func:`profile_basis` to the kept frequencies.
+    """Restrict a :func:`profile_basis` to the kept frequencies, rows planar.
 
-    Rescaled so that a normalised product of 1 at every kept frequency gives 1 at lag 0.
+    Its rows are (which, re/im, f): they take the planar products of
+    :func:`elphel_host.tp.fused.rotated_pair_products`. Rescaled so that a normalised
+    product of 1 at every kept frequency gives 1 at lag 0.
     """
-    rows = []
-    for which in range(2):
-        for f in range(fset.size):
-            r = ((fset.kh[f] * 2 + which) * 8 + fset.kv[f]) * 2
-            rows.extend([r, r + 1])
+    rows = [
+        ((fset.kh[f] * 2 + which) * 8 + fset.kv[f]) * 2 + part
+        for which in range(2)
+        for part in range(2)
+        for f in range(fset.size)
+    ]
     scale = float(lpf.sum()) / float(lpf[fset.kv, fset.kh].sum())
     return Profiles(
         lags=full.lags,
@@ -243,10 +250,15 @@ def window_envelope(
     return np.stack([one(lags * ex) * one(lags * ey) for ex, ey in pair_vectors])
 
 
-def pair_profiles(products: C64, profiles: Profiles) -> F32:
-    """Per pair: correlation at ``lags``, then derivatives 1 and 2 at ``deriv_lags``."""
+def pair_profiles(products: C64 | F32, profiles: Profiles) -> F32:
+    """Per pair: correlation at ``lags``, then derivatives 1 and 2 at ``deriv_lags``.
+
+    ``products`` is ``(T, pairs, ...)``: complex in the layout of the basis's rows
+    (:func:`profile_basis`), or float32 already in it (:func:`compact_profiles`).
+    """
     t, npairs = products.shape[:2]
-    real = products.view(np.float32).reshape(t, npairs, -1)
+    floats = products.view(np.float32) if np.iscomplexobj(products) else products
+    real = floats.reshape(t, npairs, -1)
     out = np.empty((t, npairs, profiles.basis[0].shape[1]), dtype=np.float32)
     for p in range(npairs):
         out[:, p] = real[:, p] @ profiles.basis[p]

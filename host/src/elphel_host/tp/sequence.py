@@ -27,6 +27,7 @@ from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_dsi
 from elphel_host.tp.io import MANIFEST, QuadSet, read_quad_dir
 from elphel_host.tp.processor import disparity_map
+from elphel_host.tp.tile_pass import load_kernels
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,11 @@ def plan_jobs(quads: Sequence[Path], out_dir: str | Path) -> list[QuadJob]:
 def quad_dsi(
     qs: QuadSet, out: str | Path, config: TpConfig
 ) -> tuple[dict[str, NDArray[np.float32]], dict[str, Any]]:
-    """Compute a quad set's DSI and write it to ``out``; its layers and a summary."""
+    """Compute a quad set's DSI and write it to ``out``; its layers and a summary.
+
+    ``seconds`` is the DSI's time; the compiled kernels are loaded before it starts.
+    """
+    load_kernels()
     t0 = time.perf_counter()
     dsi = disparity_map(qs.quad, config=config)
     seconds = time.perf_counter() - t0

@@ -13,6 +13,7 @@ threads do not oversubscribe the cores.
 
 from __future__ import annotations
 
+import importlib
 import math
 import threading
 import time
@@ -27,20 +28,19 @@ from elphel_host.parallel import parallel_map, single_threaded_blas
 from elphel_host.tp.bayer import colour_weights
 from elphel_host.tp.clt.batch import (
     CameraTransform,
-    camera_spectra,
     camera_transform,
     expand,
     image_cells,
+    raw_spectra,
+    spectrum_floats,
 )
 from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
 from elphel_host.tp.correlation import (
     Profiles,
-    compact_pair_products,
     compact_profiles,
     correlation_2d,
     integer_max,
     lpf_mask,
-    normalise,
     pair_profiles,
     profile_basis,
     subpixel_max,
@@ -103,6 +103,16 @@ def _record(name: str, t0: float) -> float:
             for sums in _stage_sums:
                 sums[name] += t1 - t0
     return t1
+
+
+def load_kernels() -> None:
+    """Load the compiled per-tile kernels (:mod:`elphel_host.tp.fused`) now.
+
+    They are imported by the first pass otherwise: importing numba and loading the
+    kernels from its disk cache takes about half a CPU-second, once per process, and a
+    command that times its passes loads them first.
+    """
+    importlib.import_module("elphel_host.tp.fused")
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,33 +202,52 @@ def _products(
     tiles: NDArray[np.intp],
     target: NDArray[np.float64],
     t0: float | None = None,
-) -> NDArray[np.complex64]:
-    """Normalised pair products of some tiles at their targets: ``(T, pairs, 2, F)``."""
+) -> F32:
+    """Normalised pair products of some tiles at their targets: ``(T, pairs, 2, 2, F)``.
+
+    Planar: (which, re/im, f) per tile and pair (the rows of :attr:`PreparedQuad.profiles`).
+    """
+    from elphel_host.tp.fused import rotated_pair_products  # see load_kernels
+
     quad = prep.quad
+    tr = prep.transform
     cy = prep.centres[0].ravel()[tiles]
     cx = prep.centres[1].ravel()[tiles]
-    per_camera = []
+    t = tiles.size
+    spectra = np.empty((4, t, spectrum_floats(tr)), dtype=np.float32)
+    shifts = np.empty((4, t, 2), dtype=np.float32)
+    where = np.empty((4, t), dtype=np.int64)
     for cam, (px, py) in enumerate(quad.geometry.positions):
         at = quad.geometry.place_camera(cam, cx, cy, target)
-        if prep.kernels is None:
-            per_camera.append(camera_spectra(prep.cells[cam], prep.transform, at))
-        else:
+        kernels, index = None, None
+        if prep.kernels is not None:
+            kernels = prep.kernels[cam]
             index = _kernel_index(quad, cx - target * px, cy - target * py)
-            per_camera.append(
-                camera_spectra(
-                    prep.cells[cam],
-                    prep.transform,
-                    at,
-                    kernels=prep.kernels[cam],
-                    kernel_index=index,
-                )
-            )
+        shifts[cam], where[cam] = raw_spectra(
+            prep.cells[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
+        )
     if t0 is not None:
         t0 = _record("to_clt", t0)
-    p = compact_pair_products(per_camera, quad.geometry.pairs, prep.transform.fset)
-    p = normalise(p, prep.config.fat_zero)
+    pairs = np.array(quad.geometry.pairs, dtype=np.int64)
+    fset = tr.fset
+    # pair-major, so each pair's products are one contiguous block (returned transposed)
+    out = np.empty((len(pairs), t, 2, 2, fset.size), dtype=np.float32)
+    angle = (np.pi / 16) * shifts
+    rotation = np.stack([np.cos(angle), np.sin(angle)], axis=-1)  # (cameras, T, x/y, cos/sin)
+    rotated_pair_products(
+        spectra,
+        where,
+        rotation,
+        pairs,
+        fset.kh.astype(np.int64),
+        fset.kv.astype(np.int64),
+        np.array(tr.colour_sizes, dtype=np.int64),
+        np.float32(prep.config.fat_zero),
+        out,
+    )
     if t0 is not None:
         _record("pair_products", t0)
+    p: F32 = out.transpose(1, 0, 2, 3, 4)
     return p
 
 
@@ -348,7 +377,8 @@ def correlation_tiles(
     out = np.empty((n, npairs, 2 * radius + 1, 2 * radius + 1), dtype=np.float32)
 
     def run(idx: NDArray[np.intp]) -> None:
-        p = expand(_products(prep, idx, flat[idx]), prep.transform.fset)
+        planar = _products(prep, idx, flat[idx])
+        p = expand(planar[:, :, :, 0] + 1j * planar[:, :, :, 1], prep.transform.fset)
         out[idx[0] : idx[-1] + 1] = correlation_2d(p, lpf_sigma=config.lpf_sigma, radius=radius)
 
     _in_chunks(run, n, config)

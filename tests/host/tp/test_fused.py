@@ -1,0 +1,77 @@
+"""The fused pair-product kernel equals rotating each camera, then the NumPy pair products.
+
+`fused.rotated_pair_products` sums the colour products of each pair, normalises them
+with the fat zero and applies both cameras' phase rotations, per tile. Built here from
+its definition: each camera's colour spectra rotated by ``exp(i (x w(kh) +- y w(kv)))``,
+then `correlation.compact_pair_products` and `correlation.normalise`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from elphel_host.tp import fused
+from elphel_host.tp.clt import OMEGA
+from elphel_host.tp.clt.batch import frequency_set
+from elphel_host.tp.correlation import compact_pair_products, normalise
+from elphel_host.tp.geometry import PAIRS
+
+# Products normalised to modulus <= sqrt(2); the kernel builds each rotation by a float32
+# recurrence of up to 7 complex products (~1e-7 relative each) for each of two cameras,
+# the reference by float64 exponentials: they differ by up to ~2e-6 (measured 2.2e-6).
+# A wrong sign or frequency index gives differences of order 1.
+TOL = 5e-6
+
+
+def _planar_to_complex(planar: np.ndarray) -> np.ndarray:
+    """(..., which, re/im, f) float32 -> (..., which, f) complex64."""
+    return (planar[..., 0, :] + 1j * planar[..., 1, :]).astype(np.complex64)
+
+
+@pytest.mark.parametrize("bayer", [None, "GRBG"])
+@pytest.mark.parametrize("fat_zero", [0.0, 0.3])
+def test_kernel_equals_rotation_then_numpy_products(bayer: str | None, fat_zero: float) -> None:
+    rng = np.random.default_rng(7)
+    fset = frequency_set(bayer, green_band=5)
+    sizes = [fset.size] if bayer is None else [fset.n_box, fset.n_box, fset.size]
+    t, ncam = 37, 4
+    planar = [
+        [rng.normal(size=(t, 2, 2, n)).astype(np.float32) for n in sizes] for _ in range(ncam)
+    ]
+    shifts = rng.uniform(-1.5, 0.5, size=(ncam, t, 2)).astype(np.float32)
+    # the kernel reads each camera's rows in its own order (as grouped by start parity)
+    where = np.stack([rng.permutation(t) for _ in range(ncam)]).astype(np.int64)
+    spectra = np.empty((ncam, t, 4 * sum(sizes)), dtype=np.float32)
+    for c in range(ncam):
+        packed = np.concatenate([p.reshape(t, -1) for p in planar[c]], axis=1)
+        spectra[c, where[c]] = packed
+    angle = (np.pi / 16) * shifts
+    rotation = np.stack([np.cos(angle), np.sin(angle)], axis=-1).astype(np.float32)
+    out = np.empty((len(PAIRS), t, 2, 2, fset.size), dtype=np.float32)
+    fused.rotated_pair_products(
+        spectra,
+        where,
+        rotation,
+        np.array(PAIRS, dtype=np.int64),
+        fset.kh.astype(np.int64),
+        fset.kv.astype(np.int64),
+        np.array(sizes, dtype=np.int64),
+        np.float32(fat_zero),
+        out,
+    )
+    rotated = []
+    for c in range(ncam):
+        x, y = shifts[c, :, 0:1].astype(np.float64), shifts[c, :, 1:2].astype(np.float64)
+        wh, wv = OMEGA[fset.kh][None, :], OMEGA[fset.kv][None, :]
+        phase = np.stack([np.exp(1j * (x * wh + y * wv)), np.exp(1j * (x * wh - y * wv))], 1)
+        rotated.append(
+            [
+                _planar_to_complex(p) * phase[:, :, :n].astype(np.complex64)
+                for p, n in zip(planar[c], sizes, strict=True)
+            ]
+        )
+    expected = normalise(compact_pair_products(rotated, PAIRS, fset), fat_zero)
+    got = _planar_to_complex(out).transpose(1, 0, 2, 3)
+    assert np.abs(expected).max() > 0.5  # the comparison is not of near-zero values
+    np.testing.assert_allclose(got, expected, atol=TOL, rtol=0)
