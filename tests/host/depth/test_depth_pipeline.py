@@ -14,7 +14,6 @@ from elphel_host.burst.manifest import read_manifest, write_manifest
 from elphel_host.cli import main
 from elphel_host.cloud.compare import compare_clouds
 from elphel_host.cloud.ply import read_ply
-from elphel_host.depth.pipeline import quad_burst_depth
 from elphel_host.errors import InputFormatError
 from elphel_host.mfsr.local_motion import ParallaxModel, disparity_field
 from elphel_host.tp.dsi import read_dsi
@@ -60,15 +59,6 @@ def test_quad_burst_that_does_not_belong_together(burst: Path, tmp_path: Path) -
     shutil.rmtree(bad / "cam3")
     with pytest.raises(InputFormatError, match=r"cameras\[3\].file='cam3' is not a burst"):
         read_quad_burst(bad)
-
-
-def test_a_calibrated_quad_burst_is_refused_not_ignored(burst: Path, tmp_path: Path) -> None:
-    calibrated = tmp_path / "qb"
-    shutil.copytree(burst / "qb", calibrated)
-    doc = json.loads((calibrated / "quad.json").read_text())
-    (calibrated / "quad.json").write_text(json.dumps({**doc, "calibration": "calibration.json"}))
-    with pytest.raises(InputFormatError, match="`elphel depth` does not correct raw images"):
-        quad_burst_depth(read_quad_burst(calibrated))
 
 
 def test_parallax_model_and_field() -> None:

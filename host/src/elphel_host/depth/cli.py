@@ -30,7 +30,9 @@ def register(subparsers: Any) -> None:
         "depth",
         help="super-resolved depth map and point cloud of a quad burst",
         description="Fuse each camera's burst of a quad-burst directory (MFSR), run the tile "
-        "processor on the fused quad, and write its DSI, a depth map in mm and a point cloud.",
+        "processor on the fused quad, and write its DSI, a depth map in mm and a point cloud. "
+        "When quad.json names a calibration, the bursts are taken as the cameras' raw images "
+        "and corrected for it (docs/depth.md, Calibrated quad bursts).",
     )
     p.add_argument("quad_burst", metavar="QUAD_BURST", type=Path, help="quad-burst directory")
     p.add_argument(

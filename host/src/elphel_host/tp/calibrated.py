@@ -173,6 +173,51 @@ class CalibratedGeometry:
         return DepthOptics(self.focal_px * pitch / 1000.0, pitch, self.baseline_mm)
 
 
+def scaled_lens(lens: CameraModel, scale: int) -> CameraModel:
+    """The lens of the same camera on a grid up-sampled by ``scale`` (as MFSR's output).
+
+    Pixel i of the original grid is centred at ``scale * i + (scale - 1) / 2`` of the
+    up-sampled one (``cv2.resize``'s alignment; pixel (0, 0) at the centre of the first
+    pixel, as calibration.json), so the focal lengths grow by ``scale``, the principal
+    point maps to ``scale * c + (scale - 1) / 2`` and the image size grows by ``scale``;
+    the distortion, acting on normalised coordinates, stays.
+
+    Raises
+    ------
+    ValueError
+        ``scale`` is not an integer >= 1.
+    """
+    if isinstance(scale, bool) or not isinstance(scale, int | np.integer) or scale < 1:
+        raise ValueError(f"scale={scale!r}; allowed: an integer >= 1")
+    s = int(scale)
+    return CameraModel(
+        lens.width * s,
+        lens.height * s,
+        lens.fx * s,
+        lens.fy * s,
+        lens.cx * s + (s - 1) / 2,
+        lens.cy * s + (s - 1) / 2,
+        lens.distortion,
+    )
+
+
+def scaled(calibration: CalibratedGeometry, scale: int) -> CalibratedGeometry:
+    """The calibrated quad on images up-sampled by ``scale`` (each camera's MFSR output).
+
+    Every lens as :func:`scaled_lens`, the virtual camera's focal length times ``scale``;
+    rotations, offsets and the baseline stay. A point at continuous pixel ``p`` and
+    disparity D of the original grid is at ``scale * p`` and ``scale * D`` of the new
+    one, and its depth ``Z = f B / D`` is the same.
+    """
+    return CalibratedGeometry(
+        tuple(scaled_lens(lens, scale) for lens in calibration.lenses),
+        calibration.rotations,
+        calibration.offsets_mm,
+        calibration.focal_px * scale,
+        calibration.baseline_mm,
+    )
+
+
 def read_calibration(path: str | Path) -> CalibratedGeometry:
     """The calibrated geometry of a calibration.json (or of a directory holding one).
 
