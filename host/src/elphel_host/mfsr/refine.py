@@ -13,23 +13,28 @@ from elphel_host.mfsr.forward import C64, F32, FourierSolver
 
 
 class ModelSpectra:
-    """Per-pass spectra of the solution: prediction and its shift derivatives by alias."""
+    """Per-pass spectra of the solution: prediction and its shift derivatives by alias.
 
-    def __init__(self, solver: FourierSolver, X: C64) -> None:
+    ``derivatives=False`` leaves the derivatives out (a pass that only clips).
+    """
+
+    def __init__(self, solver: FourierSolver, X: C64, *, derivatives: bool = True) -> None:
         ny, nx = solver.model.lr_shape
         Ny, Nx = solver.model.hr_shape
         s2 = float(solver.model.scale**2)
         A = len(solver.offsets)
         nxh = solver.nxh
         self.Z = np.empty((A, ny * nxh), np.complex64)
-        self.Zy = np.empty_like(self.Z)
-        self.Zx = np.empty_like(self.Z)
-        d_all = solver._block_factors()[0]
+        self.Zy = np.empty_like(self.Z) if derivatives else None
+        self.Zx = np.empty_like(self.Z) if derivatives else None
+        d_all = solver.block_factors()[0]
         for a, (jy, jx) in enumerate(solver.offsets):
             z = (d_all[a] / np.float32(s2)) * X[a]
+            self.Z[a] = z.ravel()
+            if self.Zy is None or self.Zx is None:
+                continue
             wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
             wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
-            self.Z[a] = z.ravel()
             self.Zy[a] = (z * wy[:, None]).ravel()
             self.Zx[a] = (z * wx[None, :]).ravel()
 
@@ -56,7 +61,7 @@ def refine_and_pseudo(
     ny, nx = solver.model.lr_shape
     nxh = solver.nxh
     ck = solver.C[k].conj()
-    ry, rx = solver._ramps(k)
+    ry, rx = solver.ramps(k)
     ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
     q = (ck @ spectra.Z).reshape(ny, nxh)
     q *= ryc
@@ -65,6 +70,8 @@ def refine_and_pseudo(
     del q
     dt = (0.0, 0.0)
     if refine:
+        if spectra.Zy is None or spectra.Zx is None:
+            raise ValueError("refine=True with spectra made without derivatives")
         gy = (ck @ spectra.Zy).reshape(ny, nxh)
         gx = (ck @ spectra.Zx).reshape(ny, nxh)
         for g in (gy, gx):
