@@ -291,6 +291,18 @@ class FourierSolver:
         """Solve every block; returns X_j(v), shape (A, ny, nxh), the HR spectrum by alias."""
         return solve_joint([self])[0]
 
+    def _shifted(self, x: C64, jy: int, jx: int, shift_hr: tuple[float, float]) -> C64:
+        """Alias (jy, jx)'s block resampled by ``shift_hr`` HR px (itself when zero)."""
+        if shift_hr == (0.0, 0.0):
+            return x
+        ny, nx = self.model.lr_shape
+        Ny, Nx = self.model.hr_shape
+        py = np.exp(2j * np.pi * (self._vy + jy * ny) * shift_hr[0] / Ny).astype(np.complex64)
+        px = np.exp(2j * np.pi * (self._vx + jx * nx) * shift_hr[1] / Nx).astype(np.complex64)
+        out = x * py[:, None]
+        out *= px[None, :]
+        return out
+
     def to_image(self, X: C64, *, shift_hr: tuple[float, float] = (0.0, 0.0)) -> F32:
         """Place the alias blocks into the HR half-spectrum and return the real HR image.
 
@@ -301,21 +313,18 @@ class FourierSolver:
         Ny, Nx = self.model.hr_shape
         Nxh = Nx // 2 + 1
         spec = np.zeros((Ny, Nxh), dtype=np.complex64)
+        blocks = [self._shifted(X[a], jy, jx, shift_hr) for a, (jy, jx) in enumerate(self.offsets)]
         # the conjugate half first, then the solved half (which wins where they meet)
         for direct in (False, True):
             sign = 1 if direct else -1
-            for a, (jy, jx) in enumerate(self.offsets):
+            for block, (jy, jx) in zip(blocks, self.offsets, strict=True):
                 iy = ((sign * (self._vy + jy * ny)) % Ny).astype(np.intp)
                 ix = ((sign * (self._vx + jx * nx)) % Nx).astype(np.intp)
                 keep = ix < Nxh
                 if not keep.any():
                     continue
-                block = X[a][:, keep]
-                if shift_hr != (0.0, 0.0):
-                    py = np.exp(2j * np.pi * (self._vy + jy * ny) * shift_hr[0] / Ny)
-                    px = np.exp(2j * np.pi * (self._vx + jx * nx)[keep] * shift_hr[1] / Nx)
-                    block = block * np.outer(py, px).astype(np.complex64)
-                spec[np.ix_(iy, ix[keep])] = block if direct else np.conj(block)
+                part = block[:, keep]
+                spec[np.ix_(iy, ix[keep])] = part if direct else np.conj(part)
         img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
         return np.ascontiguousarray(img, dtype=np.float32)
 
