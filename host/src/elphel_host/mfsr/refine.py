@@ -39,6 +39,22 @@ class ModelSpectra:
             self.Zx[a] = (z * wx[None, :]).ravel()
 
 
+# No BLAS here: a threaded BLAS sums in an order that depends on its thread count, and a
+# burst must fuse to the same numbers in every process (the fusion fed while capturing
+# and `elphel mfsr` afterwards agree bit for bit); its threads would also spin against the
+# solver's own.
+def _combined(coef: C64, rows: C64) -> C64:
+    """sum_a coef[a] rows[a], alias by alias."""
+    out = rows[0] * coef[0]
+    for a in range(1, len(coef)):
+        out += rows[a] * coef[a]
+    return out
+
+
+def _dot(a: F32, b: F32) -> float:
+    return float(np.einsum("i,i->", a, b, dtype=np.float64))
+
+
 def refine_and_pseudo(
     solver: FourierSolver,
     spectra: ModelSpectra,
@@ -63,7 +79,7 @@ def refine_and_pseudo(
     ck = solver.C[k].conj()
     ry, rx = solver.ramps(k)
     ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
-    q = (ck @ spectra.Z).reshape(ny, nxh)
+    q = _combined(ck, spectra.Z).reshape(ny, nxh)
     q *= ryc
     q *= rxc
     pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
@@ -72,8 +88,8 @@ def refine_and_pseudo(
     if refine:
         if spectra.Zy is None or spectra.Zx is None:
             raise ValueError("refine=True with spectra made without derivatives")
-        gy = (ck @ spectra.Zy).reshape(ny, nxh)
-        gx = (ck @ spectra.Zx).reshape(ny, nxh)
+        gy = _combined(ck, spectra.Zy).reshape(ny, nxh)
+        gx = _combined(ck, spectra.Zx).reshape(ny, nxh)
         for g in (gy, gx):
             g *= ryc
             g *= rxc
@@ -83,8 +99,8 @@ def refine_and_pseudo(
         r = (frame - pred).ravel()
         w = (valid.ravel() & (np.abs(r) <= huber * sigma)).astype(np.float32)
         dyw, dxw = dy * w, dx * w
-        a11, a12, a22 = float(dyw @ dy), float(dyw @ dx), float(dxw @ dx)
-        b1, b2 = float(dyw @ r), float(dxw @ r)
+        a11, a12, a22 = _dot(dyw, dy), _dot(dyw, dx), _dot(dxw, dx)
+        b1, b2 = _dot(dyw, r), _dot(dxw, r)
         det = a11 * a22 - a12 * a12
         if det > 1e-12 * max(a11 * a22, 1e-30):
             dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)

@@ -33,7 +33,6 @@ from elphel_host.mfsr.psf_spec import EstimateBlur, GivenGrid, GivenKernel, NoBl
 from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.mfsr.scale import check_scale
 from elphel_host.mfsr.solve import Geometry, Plane, SolveOptions, fit_noise, solve, solve_planes
-from elphel_host.parallel import single_threaded_blas
 
 F32 = NDArray[np.float32]
 Shifts = Sequence[tuple[float, float]]
@@ -303,9 +302,8 @@ def reconstruct_resolved(
     config: RobustConfig,
 ) -> tuple[F32, dict[str, Any]]:
     """:func:`reconstruct` with the PSF already resolved: noise, window refinement, solve."""
-    with single_threaded_blas():
-        measured = measure([(frames, shifts)], geometry, config, psf)
-        return solve_measured([(frames, shifts)], measured, geometry, [psf], config)[0]
+    measured = measure([(frames, shifts)], geometry, config, psf)
+    return solve_measured([(frames, shifts)], measured, geometry, [psf], config)[0]
 
 
 def reconstruct_planes(
@@ -323,19 +321,17 @@ def reconstruct_planes(
     gives plane c its own PSF from the resolved one (default: the same for all).
     Returns each plane's image and details, and the resolved PSF.
     """
-    # the solver runs its own threads; BLAS's would fight them for the cores
-    with single_threaded_blas():
-        measured = measure(planes, geometry, config, _start(config), key=key, spread=spread)
-        psf = resolve_psf(
-            planes[key][0],
-            measured.shifts[key],
-            geometry,
-            config,
-            measured.noise[key],
-            refined=measured.window_noise if measured.refined else None,
-        )
-        psfs = [psf if colour_psf is None else colour_psf(psf, c) for c in range(len(planes))]
-        return solve_measured(planes, measured, geometry, psfs, config), psf
+    measured = measure(planes, geometry, config, _start(config), key=key, spread=spread)
+    psf = resolve_psf(
+        planes[key][0],
+        measured.shifts[key],
+        geometry,
+        config,
+        measured.noise[key],
+        refined=measured.window_noise if measured.refined else None,
+    )
+    psfs = [psf if colour_psf is None else colour_psf(psf, c) for c in range(len(planes))]
+    return solve_measured(planes, measured, geometry, psfs, config), psf
 
 
 def reconstruct(
