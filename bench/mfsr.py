@@ -15,9 +15,14 @@ baseline in the same run; the blur-free bursts report robust_no_psf as well.
 Field-varying blur: the photographs through a lens blurring 0.4 HR px on the axis to 1.2
 at the corners; one PSF estimated (the default) against one per region given (the lens's
 own, as a 4-D PSF file); see _mfsr_optics.py.
-The speed test fuses 16 frames of 1640x1232 to 3280x2464 in a fresh process per method
-(peak memory = that process's max RSS, including the frames it loads), each method twice
-in turns, the faster run reported.
+Bayer bursts: three RGB photographs as GRBG mosaics, x2, the 16 frames of the Bayer plan
+(``elphel burst plan --bayer``), noise 0.01, sharp and through a 0.7 HR px lens blur;
+PSNR per colour against the RGB truth, averaged over the colours.
+The speed test fuses, in a fresh process per method (peak memory = that process's max
+RSS, including the frames it loads), each method twice in turns, the faster run
+reported: 16 mono frames of 1640x1232 to 3280x2464 through a 0.7 HR px lens blur; 16
+GRBG frames of 1640x1232 (the Bayer plan, the same blur) to RGB 3280x2464; and 16 GRBG
+frames of 640x480 (the README's window) to RGB 1280x960.
 
 Usage: python bench/mfsr.py [--quick] [--no-speed] [--no-blur]
 """
@@ -52,14 +57,24 @@ from _mfsr_optics import (
     summarise_field_varying,
 )
 
+from elphel_host.burst.plan import plan_burst
 from elphel_host.mfsr.fuse import fuse_frames, peak_memory_mb
 from elphel_host.mfsr.metrics import psnr, ssim
 from elphel_host.mfsr.registration import register_frames
 from elphel_host.mfsr.robust import reconstruct
-from elphel_host.mfsr.synth import area_downsample, make_burst, random_shifts, tilted_line_shifts
+from elphel_host.mfsr.synth import (
+    area_downsample,
+    make_bayer_burst,
+    make_burst,
+    random_shifts,
+    tilted_line_shifts,
+)
 
 IMAGES = ("camera", "astronaut", "brick", "text", "coins", "moon")
+RGB_IMAGES = ("astronaut", "coffee", "chelsea")
 SPEED_RUNS = 2
+SPEED_BLUR = 0.7  # HR px, the lens of the speed bursts (no method is told)
+BAYER = "GRBG"
 
 
 def rms(est: list[Any], truth: np.ndarray) -> float:
@@ -196,53 +211,104 @@ def summarise(per: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def bayer_shifts() -> np.ndarray:
+    """The 16 shifts (LR px) of the x2 Bayer plan (``elphel burst plan --bayer``)."""
+    plan = plan_burst(
+        scale=2, focal_length_mm=35, pixel_pitch_um=2.2, distance_mm=500, frames=16, bayer=True
+    )
+    return np.asarray(plan.shifts_px, dtype=np.float64)
+
+
+def load_rgb(name: str, size: tuple[int, int] | None = None) -> np.ndarray:
+    """A scikit-image RGB photograph in [0, 1], resized to ``size`` (width, height)."""
+    import skimage.data as sd
+
+    rgb = np.asarray(getattr(sd, name)(), np.float32) / 255.0
+    if size is not None:
+        rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_CUBIC)
+    h, w = rgb.shape[0] // 4 * 4, rgb.shape[1] // 4 * 4  # whole Bayer cells at x2
+    return np.ascontiguousarray(np.clip(rgb[:h, :w], 0, 1), dtype=np.float32)
+
+
+def bayer_quality(seed: int) -> dict[str, Any]:
+    """Bayer bursts (GRBG, x2, the Bayer plan): PSNR per method, mean over the colours."""
+    per: dict[str, Any] = {}
+    shifts = bayer_shifts()
+    for n_img, name in enumerate(RGB_IMAGES):
+        hr = load_rgb(name)
+        row: dict[str, Any] = {}
+        for blur in (0.0, SPEED_BLUR):
+            seen = np.stack([gaussian_blur(hr[..., c], blur) for c in range(3)], axis=-1)
+            frames = make_bayer_burst(
+                seen, shifts, scale=2, noise_sigma=SIGMA, seed=seed + 400 + 3 * n_img, bayer=BAYER
+            )
+            scores = {}
+            for m in ("bicubic", "baseline", "robust"):
+                img = fuse_frames(frames, scale=2, method=m, bayer=BAYER).image
+                db = [psnr(hr[..., c], img[..., c], data_range=1.0, border=8) for c in range(3)]
+                scores[m] = round(float(np.mean(db)), 3)
+            row[f"sigma_{blur}"] = scores
+        per[name] = row
+    return per
+
+
+def summarise_bayer(per: dict[str, Any]) -> dict[str, Any]:
+    def gains(a: str, b: str) -> list[float]:
+        return [v[k][a] - v[k][b] for v in per.values() for k in v]
+
+    return {
+        "robust_gain_over_bicubic_db_mean": mean_db(gains("robust", "bicubic")),
+        "robust_gain_over_baseline_db_mean": mean_db(gains("robust", "baseline")),
+        "robust_gain_over_baseline_db_min": round(float(np.min(gains("robust", "baseline"))), 3),
+    }
+
+
 def speed_child(path: str, method: str) -> None:
     frames = list(np.load(path))
-    truth = np.load(str(Path(path).with_name("shifts.npy")))
+    meta = json.loads(Path(path).with_suffix(".json").read_text())
+    truth = np.asarray(meta["shifts"])
+    bayer = meta["bayer"]
     t0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_SELF)
     if method == "robust_no_psf":
-        res = fuse_frames(frames, scale=2, method="robust", config=NO_PSF)
+        res = fuse_frames(frames, scale=2, method="robust", bayer=bayer, config=NO_PSF)
     else:
-        res = fuse_frames(frames, scale=2, method=method)
+        res = fuse_frames(frames, scale=2, method=method, bayer=bayer)
     dt = time.perf_counter() - t0
     c1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
-    if method.startswith("robust"):
-        est = res.info["shifts_refined"]
-    else:
-        est = [s if s is not None else [np.nan, np.nan] for s in res.info["shifts"]]
-    rss = peak_memory_mb()
     out = {
         "seconds": round(dt, 3),
         "cpu_seconds": round(cpu, 3),
         "excluded": res.excluded,
         "shape": list(res.image.shape),
-        "registration_rms_lr_px": round(rms(est, truth), 4),
-        "peak_rss_mb": round(rss, 1),
+        "peak_rss_mb": round(peak_memory_mb(), 1),
     }
+    if bayer is None:  # mono: how well each method found the shifts
+        if method.startswith("robust"):
+            est = res.info["shifts_refined"]
+        else:
+            est = [s if s is not None else [np.nan, np.nan] for s in res.info["shifts"]]
+        out["registration_rms_lr_px"] = round(rms(est, truth), 4)
     print(json.dumps(out))
 
 
-def speed(seed: int) -> dict[str, Any]:
-    big = cv2.resize(load("astronaut"), (3280, 2464), interpolation=cv2.INTER_CUBIC)
-    rng = np.random.default_rng(seed)
-    tex = cv2.GaussianBlur(rng.normal(0, 1, big.shape).astype(np.float32), (0, 0), 1.0)
-    hr = np.clip(big + 0.08 * tex, 0, 1).astype(np.float32)
-    shifts = random_shifts(16, seed=seed, spread=2.0)
-    frames = np.stack(make_burst(hr, shifts, scale=2, noise_sigma=SIGMA, seed=seed + 1))
-    out: dict[str, Any] = {"input": [16, 1232, 1640], "output": [2464, 3280]}
+def race(frames: np.ndarray, shifts: np.ndarray, bayer: str | None, methods: tuple[str, ...]):
+    """Each method on ``frames`` in fresh processes, SPEED_RUNS times in turns, the faster run.
+
+    A fresh process's first run after the burst is made was seen 1.7x slower than the
+    same run next, hence the turns.
+    """
+    out: dict[str, Any] = {"input": list(frames.shape), "bayer": bayer}
     with tempfile.TemporaryDirectory() as d:
-        p = str(Path(d) / "frames.npy")
+        p = Path(d) / "frames.npy"
         np.save(p, frames)
-        np.save(str(Path(d) / "shifts.npy"), shifts)
-        del frames, hr, big, tex
-        # each method twice, in turns, its faster run kept: a fresh process's first run
-        # after the burst is made was seen 1.7x slower than the same run next
+        meta = {"shifts": np.asarray(shifts).tolist(), "bayer": bayer}
+        p.with_suffix(".json").write_text(json.dumps(meta))
         for _ in range(SPEED_RUNS):
-            for method in ("robust", "robust_no_psf", "baseline"):
+            for method in methods:
                 cp = subprocess.run(
-                    [sys.executable, __file__, "--speed-child", p, method],
+                    [sys.executable, __file__, "--speed-child", str(p), method],
                     capture_output=True,
                     text=True,
                     check=True,
@@ -251,13 +317,42 @@ def speed(seed: int) -> dict[str, Any]:
                 if method not in out or run["seconds"] < out[method]["seconds"]:
                     out[method] = run
     out["runs_per_method"] = SPEED_RUNS
-    out["speedup_vs_baseline"] = round(out["baseline"]["seconds"] / out["robust"]["seconds"], 2)
-    out["no_psf_speedup_vs_baseline"] = round(
-        out["baseline"]["seconds"] / out["robust_no_psf"]["seconds"], 2
-    )
-    out["cpu_speedup_vs_baseline"] = round(
-        out["baseline"]["cpu_seconds"] / out["robust"]["cpu_seconds"], 2
-    )
+    for m in methods[:-1]:  # the last is the peer
+        key = (
+            "speedup_vs_baseline"
+            if m == "robust"
+            else f"{m.removeprefix('robust_')}_speedup_vs_baseline"
+        )
+        out[key] = round(out["baseline"]["seconds"] / out[m]["seconds"], 2)
+        out["cpu_" + key] = round(out["baseline"]["cpu_seconds"] / out[m]["cpu_seconds"], 2)
+    return out
+
+
+def speed(seed: int, which: tuple[str, ...]) -> dict[str, Any]:
+    """Robust against the baseline on the same frames in one run: mono, Bayer, Bayer 640x480."""
+    out: dict[str, Any] = {}
+    if "mono" in which:
+        big = cv2.resize(load("astronaut"), (3280, 2464), interpolation=cv2.INTER_CUBIC)
+        rng = np.random.default_rng(seed)
+        tex = cv2.GaussianBlur(rng.normal(0, 1, big.shape).astype(np.float32), (0, 0), 1.0)
+        hr = gaussian_blur(np.clip(big + 0.08 * tex, 0, 1).astype(np.float32), SPEED_BLUR)
+        shifts = random_shifts(16, seed=seed, spread=2.0)
+        frames = np.stack(make_burst(hr, shifts, scale=2, noise_sigma=SIGMA, seed=seed + 1))
+        del big, tex, hr
+        out["mono"] = race(frames, shifts, None, ("robust", "robust_no_psf", "baseline"))
+        del frames
+    shifts = bayer_shifts()
+    for key, size in (("bayer", (3280, 2464)), ("bayer_640x480", (1280, 960))):
+        if key not in which:
+            continue
+        rgb = load_rgb("astronaut", size)
+        rgb = np.stack([gaussian_blur(rgb[..., c], SPEED_BLUR) for c in range(3)], axis=-1)
+        frames = np.stack(
+            make_bayer_burst(rgb, shifts, scale=2, noise_sigma=SIGMA, seed=seed + 2, bayer=BAYER)
+        )
+        del rgb
+        out[key] = race(frames, shifts, BAYER, ("robust", "baseline"))
+        del frames
     return out
 
 
@@ -266,6 +361,14 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="three images only")
     ap.add_argument("--no-speed", action="store_true")
     ap.add_argument("--no-blur", action="store_true", help="skip the bursts through a lens")
+    ap.add_argument(
+        "--speed",
+        nargs="+",
+        choices=("mono", "bayer", "bayer_640x480"),
+        default=("mono", "bayer", "bayer_640x480"),
+        help="which speed cases to run",
+    )
+    ap.add_argument("--speed-only", action="store_true", help="the speed cases alone")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--speed-child", nargs=2, metavar=("NPY", "METHOD"), help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -274,9 +377,6 @@ def main() -> None:
         return
     t0 = time.perf_counter()
     names = IMAGES[:3] if a.quick else IMAGES
-    makers: dict[str, Maker] = {n: image_maker(n) for n in names}
-    makers["simulator"] = simulator_maker()
-    per = quality(makers, a.seed)
     result: dict[str, Any] = {
         "bench": "mfsr",
         "conditions": {
@@ -290,20 +390,32 @@ def main() -> None:
             "seed": a.seed,
             "images": list(names),
         },
-        "summary": summarise(per),
-        "per_image": per,
     }
-    if not a.no_blur:
-        bl = blurred(makers, a.seed)
-        result["blurred_summary"] = summarise_blurred(bl)
-        result["blurred_per_image"] = bl
-        fv = field_varying(names, a.seed)
-        result["field_varying_summary"] = summarise_field_varying(fv)
-        result["field_varying_per_image"] = fv
+    if not a.speed_only:
+        result.update(quality_parts(names, a.seed, blur=not a.no_blur))
     if not a.no_speed:
-        result["speed"] = speed(a.seed)
+        result["speed"] = speed(a.seed, tuple(a.speed))
     result["bench_seconds"] = round(time.perf_counter() - t0, 1)
     print(json.dumps(result, sort_keys=True))
+
+
+def quality_parts(names: tuple[str, ...], seed: int, *, blur: bool) -> dict[str, Any]:
+    """Every quality figure: blur-free, Bayer and (``blur``) through a lens."""
+    makers: dict[str, Maker] = {n: image_maker(n) for n in names}
+    makers["simulator"] = simulator_maker()
+    per = quality(makers, seed)
+    out: dict[str, Any] = {"summary": summarise(per), "per_image": per}
+    bq = bayer_quality(seed)
+    out["bayer_summary"] = summarise_bayer(bq)
+    out["bayer_per_image"] = bq
+    if blur:
+        bl = blurred(makers, seed)
+        out["blurred_summary"] = summarise_blurred(bl)
+        out["blurred_per_image"] = bl
+        fv = field_varying(names, seed)
+        out["field_varying_summary"] = summarise_field_varying(fv)
+        out["field_varying_per_image"] = fv
+    return out
 
 
 if __name__ == "__main__":

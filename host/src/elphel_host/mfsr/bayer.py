@@ -27,23 +27,48 @@ def bayer_sites(bayer: str) -> dict[str, list[tuple[int, int]]]:
     return out
 
 
+def site_shifts(
+    shifts: Sequence[tuple[float, float]], sites: list[tuple[int, int]]
+) -> list[tuple[float, float]]:
+    """Each frame's shift seen by each of its colour sites, in plane px (frame-major).
+
+    A site at (oy, ox) of a frame shifted by s sees the full-resolution grid at
+    ``(o + s - 0.5) / 2`` plane px.
+    """
+    return [((oy + s[0] - 0.5) / 2, (ox + s[1] - 0.5) / 2) for s in shifts for oy, ox in sites]
+
+
+def frame_shifts(
+    plane_shifts: Sequence[tuple[float, float]], sites: list[tuple[int, int]]
+) -> list[tuple[float, float]]:
+    """The frames' shifts (full-resolution px) from a plane's, the inverse of `site_shifts`.
+
+    A frame with several sites of the colour (green) gets the mean of theirs.
+    """
+    n = len(sites)
+    if len(plane_shifts) % n:
+        raise ValueError(f"{len(plane_shifts)} plane shifts; allowed: a multiple of {n} sites")
+    out = []
+    for k in range(len(plane_shifts) // n):
+        per = [
+            (2 * p[0] - oy + 0.5, 2 * p[1] - ox + 0.5)
+            for p, (oy, ox) in zip(plane_shifts[k * n : (k + 1) * n], sites, strict=True)
+        ]
+        out.append((float(np.mean([a for a, _ in per])), float(np.mean([b for _, b in per]))))
+    return out
+
+
 def colour_planes(
     frames: Sequence[F32], shifts: Sequence[tuple[float, float]], bayer: str
 ) -> list[Plane]:
     """Each colour's samples (R, G, B) as frames of half size with their shifts.
 
-    A site at (oy, ox) of a frame shifted by s sees the full-resolution grid at
-    ``(o + s - 0.5) / 2`` plane px (both green sites make frames of one green plane).
+    Both green sites make frames of one green plane; shifts as `site_shifts` gives them.
     """
     planes: list[Plane] = []
     for sites in bayer_sites(bayer).values():
-        pf: list[F32] = []
-        ps: list[tuple[float, float]] = []
-        for f, s in zip(frames, shifts, strict=True):
-            for oy, ox in sites:
-                pf.append(np.ascontiguousarray(f[oy::2, ox::2]))
-                ps.append(((oy + s[0] - 0.5) / 2, (ox + s[1] - 0.5) / 2))
-        planes.append((pf, ps))
+        pf = [np.ascontiguousarray(f[oy::2, ox::2]) for f in frames for oy, ox in sites]
+        planes.append((pf, site_shifts(shifts, sites)))
     return planes
 
 

@@ -195,7 +195,7 @@ class FourierSolver:
         return np.asarray((self.t - (s - 1) / 2.0) / s, dtype=np.float64)
 
     # -- frame spectra -------------------------------------------------------------------
-    def _ramps(self, k: int) -> tuple[C64, C64]:
+    def ramps(self, k: int) -> tuple[C64, C64]:
         Ny, Nx = self.model.hr_shape
         ty, tx = self.t[k]
         ry = np.exp(-2j * np.pi * self._vy * ty / Ny).astype(np.complex64)
@@ -205,7 +205,7 @@ class FourierSolver:
     def frame_term(self, k: int, frame: F32, *, workers: int = -1) -> C64:
         """FFT of a frame times its frequency ramp (P_k in the module notes)."""
         spec = sfft.rfft2(frame, workers=workers)
-        ry, rx = self._ramps(k)
+        ry, rx = self.ramps(k)
         spec *= ry[:, None]
         spec *= rx[None, :]
         return np.asarray(spec, dtype=np.complex64)
@@ -229,7 +229,7 @@ class FourierSolver:
             rhs += term
 
     # -- solve ---------------------------------------------------------------------------
-    def _block_factors(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    def block_factors(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Per alias: aperture transfer D and gradient-prior weight L, (A, ny, nxh) each.
 
         Both are outer products of per-axis factors, formed in place in float32.
@@ -289,20 +289,18 @@ class FourierSolver:
 
     def solve(self) -> C64:
         """Solve every block; returns X_j(v), shape (A, ny, nxh), the HR spectrum by alias."""
-        ny = self.model.lr_shape[0]
-        s2 = np.float32(self.model.scale**2)
-        d_all, l_all = self._block_factors()
-        g = self.G.astype(np.complex64)
-        out = np.empty_like(self.rhs)
+        return solve_joint([self])[0]
 
-        # single precision is enough: the prior keeps every block well conditioned
-        def rows(r0: int) -> None:
-            r1 = min(ny, r0 + _SOLVE_ROWS)
-            D = d_all[:, r0:r1]
-            mu = np.float32(self.lam) * s2 * l_all[:, r0:r1]
-            out[:, r0:r1] = solve_blocks(D, g, mu, s2 * D * self.rhs[:, r0:r1])
-
-        parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
+    def _shifted(self, x: C64, jy: int, jx: int, shift_hr: tuple[float, float]) -> C64:
+        """Alias (jy, jx)'s block resampled by ``shift_hr`` HR px (itself when zero)."""
+        if shift_hr == (0.0, 0.0):
+            return x
+        ny, nx = self.model.lr_shape
+        Ny, Nx = self.model.hr_shape
+        py = np.exp(2j * np.pi * (self._vy + jy * ny) * shift_hr[0] / Ny).astype(np.complex64)
+        px = np.exp(2j * np.pi * (self._vx + jx * nx) * shift_hr[1] / Nx).astype(np.complex64)
+        out = x * py[:, None]
+        out *= px[None, :]
         return out
 
     def to_image(self, X: C64, *, shift_hr: tuple[float, float] = (0.0, 0.0)) -> F32:
@@ -315,20 +313,62 @@ class FourierSolver:
         Ny, Nx = self.model.hr_shape
         Nxh = Nx // 2 + 1
         spec = np.zeros((Ny, Nxh), dtype=np.complex64)
+        blocks = [self._shifted(X[a], jy, jx, shift_hr) for a, (jy, jx) in enumerate(self.offsets)]
         # the conjugate half first, then the solved half (which wins where they meet)
         for direct in (False, True):
             sign = 1 if direct else -1
-            for a, (jy, jx) in enumerate(self.offsets):
+            for block, (jy, jx) in zip(blocks, self.offsets, strict=True):
                 iy = ((sign * (self._vy + jy * ny)) % Ny).astype(np.intp)
                 ix = ((sign * (self._vx + jx * nx)) % Nx).astype(np.intp)
                 keep = ix < Nxh
                 if not keep.any():
                     continue
-                block = X[a][:, keep]
-                if shift_hr != (0.0, 0.0):
-                    py = np.exp(2j * np.pi * (self._vy + jy * ny) * shift_hr[0] / Ny)
-                    px = np.exp(2j * np.pi * (self._vx + jx * nx)[keep] * shift_hr[1] / Nx)
-                    block = block * np.outer(py, px).astype(np.complex64)
-                spec[np.ix_(iy, ix[keep])] = block if direct else np.conj(block)
+                part = block[:, keep]
+                spec[np.ix_(iy, ix[keep])] = part if direct else np.conj(part)
         img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
         return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
+    """Solve the blocks of several solvers of one shape and scale in one batched pass.
+
+    The solvers (a Bayer burst's colour planes, each with its own frames, shifts,
+    optics and prior weight) share the LR shape and the scale, so their block systems
+    stack along a batch axis and are factored together (:func:`solve_blocks`).
+
+    Returns
+    -------
+    C64
+        (P, A, ny, nxh): each solver's :meth:`FourierSolver.solve`.
+    """
+    first = solvers[0]
+    for other in solvers[1:]:
+        if (other.model.lr_shape, other.model.scale) != (first.model.lr_shape, first.model.scale):
+            raise ValueError(
+                f"solver of {other.model.lr_shape} at x{other.model.scale}; allowed: the "
+                f"first's {first.model.lr_shape} at x{first.model.scale}"
+            )
+    ny = first.model.lr_shape[0]
+    s2 = np.float32(first.model.scale**2)
+    factors = [s.block_factors() for s in solvers]
+    # one factor array for all when the optics agree (the usual case): no copies
+    same = all(f[0] is factors[0][0] or np.array_equal(f[0], factors[0][0]) for f in factors)
+    same = same and all(np.array_equal(f[1], factors[0][1]) for f in factors)
+    # (A, P or 1, ny, nxh): the batch axis second, as in the stacked right-hand sides
+    d_all = factors[0][0][:, None] if same else np.stack([f[0] for f in factors], axis=1)
+    l_all = factors[0][1][:, None] if same else np.stack([f[1] for f in factors], axis=1)
+    p = len(solvers)
+    g = np.stack([s.G for s in solvers], axis=-1).astype(np.complex64)[..., None, None]
+    lam = np.array([s.lam for s in solvers], np.float32)[:, None, None]
+    rhs = first.rhs[:, None] if p == 1 else np.stack([s.rhs for s in solvers], axis=1)
+    out = np.empty_like(rhs)
+
+    # single precision is enough: the prior keeps every block well conditioned
+    def rows(r0: int) -> None:
+        r1 = min(ny, r0 + _SOLVE_ROWS)
+        D = d_all[:, :, r0:r1]
+        mu = lam * s2 * l_all[:, :, r0:r1]
+        out[:, :, r0:r1] = solve_blocks(D, g, mu, s2 * D * rhs[:, :, r0:r1])
+
+    parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
+    return np.moveaxis(out, 1, 0)

@@ -68,7 +68,11 @@ def aligned(frame: F32, reference: F32, n: tuple[int, int]) -> tuple[F32, NDArra
 
 
 def padded(a: NDArray[Any], pad: tuple[int, int, int, int], *, mode: str) -> NDArray[Any]:
+    """``a`` padded by (top, bottom, left, right): mirrored (``reflect``) or with zeros."""
     top, bottom, left, right = pad
     if mode == "reflect":
         return np.asarray(cv2.copyMakeBorder(a, top, bottom, left, right, cv2.BORDER_REFLECT_101))
-    return np.pad(a, ((top, bottom), (left, right)), constant_values=False)
+    h, w = a.shape
+    out = np.zeros((h + top + bottom, w + left + right), a.dtype)
+    out[top : top + h, left : left + w] = a
+    return out

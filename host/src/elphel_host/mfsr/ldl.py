@@ -2,7 +2,8 @@
 
 The forward model (:mod:`elphel_host.mfsr.forward`) decouples into one S^2 x S^2 system
 ``(D G D + diag(mu)) x = b`` per LR frequency; :func:`solve_blocks` solves all of them at
-once, vectorised over the frequencies.
+once, vectorised over the frequencies, and over a batch of such problems (the folds of a
+cross-validation, the colour planes of a Bayer burst) that each have their own ``G``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,23 @@ C64 = NDArray[np.complex64]
 def solve_blocks(D: NDArray[np.float32], G: C64, mu: NDArray[np.float32], b: C64) -> C64:
     """Solve (D G D + diag(mu)) x = b for every pixel of the trailing axes (LDL^H).
 
+    Parameters
+    ----------
+    D, mu
+        (A, ...) real diagonal factors and prior weights.
+    G
+        (A, A) Hermitian, the same for every pixel; or (A, A, P, 1, ..., 1), one per
+        problem of a batch of P, its trailing axes broadcasting against those of ``b``.
+    b
+        (A, ...) right-hand sides; with a batched ``G``, (A, P, ...).
+
+    Returns
+    -------
+    x
+        The solutions, shaped as ``b``.
+
+    Notes
+    -----
     The pivots d of a Hermitian matrix are real: they are kept as real arrays, which
     halves the arithmetic of every product with them.
     """
@@ -29,7 +47,7 @@ def solve_blocks(D: NDArray[np.float32], G: C64, mu: NDArray[np.float32], b: C64
             for e in range(c):
                 acc = acc - (L[a][e] * d[e]) * np.conj(L[c][e])
             L[a][c] = acc / d[c]
-        piv = D[a] * D[a] * np.float32(G[a, a].real) + mu[a]
+        piv = D[a] * D[a] * np.asarray(G[a, a].real, np.float32) + mu[a]
         for e in range(a):
             z = L[a][e]
             piv = piv - d[e] * (z.real * z.real + z.imag * z.imag)

@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from elphel_host.mfsr.psf_cv import CrossValidation
+from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -168,10 +169,10 @@ def cross_validated_tau(
     if optics.kernel is not None and cv.fit_scale != int(scale):
         return None
     fit = optics.at_scale(cv.fit_scale / float(scale))
-    return min(
-        TAU_GRID,
-        key=lambda t: float(cv.errors(fit.blur_sigma, t, fit.kernel, fit.prior_sigma).sum()),
+    totals = parallel_map(
+        lambda t: float(cv.errors(fit.blur_sigma, t, fit.kernel, fit.prior_sigma).sum()), TAU_GRID
     )
+    return TAU_GRID[int(np.argmin(totals))]
 
 
 class _Search:
@@ -187,6 +188,12 @@ class _Search:
             self.cache[key] = self.cv.errors(sig, tau)
         return self.cache[key]
 
+    def fill(self, candidates: Sequence[tuple[float, float]]) -> None:
+        """Compute the candidates (sigma, tau) not yet known, on every core."""
+        todo = sorted({(round(sg, 4), t) for sg, t in candidates} - set(self.cache))
+        for key, e in zip(todo, parallel_map(lambda c: self.cv.errors(*c), todo), strict=True):
+            self.cache[key] = e
+
     def total(self, sig: float, tau: float) -> float:
         return float(self.errs(sig, tau).sum())
 
@@ -194,15 +201,18 @@ class _Search:
     # steps around the best (each candidate's errors are kept)
     def tau(self, taus: Sequence[float]) -> float:
         """The tau of ``taus`` with the least error at the middle sigma of the grid."""
+        self.fill([(SIGMA_GRID[len(SIGMA_GRID) // 2], t) for t in taus])
         return min(taus, key=lambda t: self.total(SIGMA_GRID[len(SIGMA_GRID) // 2], t))
 
     def curve(self, tau: float) -> tuple[list[float], dict[float, F64]]:
         """Sigmas of the grid and 0.05 steps around its best at ``tau``, with their errors."""
+        self.fill([(sg, tau) for sg in SIGMA_GRID])
         sig0 = min(SIGMA_GRID, key=lambda sg: self.total(sg, tau))
         fine = sorted(
             {round(sig0 + d, 3) for d in np.arange(-0.1, 0.101, 0.05) if sig0 + d >= 0}
             | set(SIGMA_GRID)
         )
+        self.fill([(sg, tau) for sg in fine])
         return fine, {sg: self.errs(sg, tau) for sg in fine}
 
 

@@ -5,8 +5,9 @@ reconstruction does them, and split into interleaved groups (frames k with
 ``k % folds == g``). For each group the others' spectra are accumulated once (the
 right-hand side of the Fourier solver does not depend on the optics or the prior); a
 candidate model (blur sigma or kernel, prior shape, prior weight) is then solved exactly
-from them and the group's frames are predicted. The mean squared prediction error over
-the groups' interior valid pixels scores the candidate (:mod:`elphel_host.mfsr.psf`).
+from them and the group's frames are predicted, every group in one batched block solve
+and one batched inverse FFT. The mean squared prediction error over the groups' interior
+valid pixels scores the candidate (:mod:`elphel_host.mfsr.psf`).
 """
 
 from __future__ import annotations
@@ -17,75 +18,64 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import ForwardModel, FourierSolver
+from elphel_host.mfsr.forward import C64, ForwardModel, FourierSolver
 from elphel_host.mfsr.frames import aligned, central_window, check_frames, estimate_noise, padded
 from elphel_host.mfsr.ldl import solve_blocks
-from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+Bool = NDArray[np.bool_]
 
 
-class Fold:
-    """One cross-validation group: the others' right-hand side, its own frames to predict."""
+def _fit_scale(n: int, folds: int, scale: int, aperture: int) -> int:
+    """The largest scale s <= scale whose training sets stay determined.
 
-    def __init__(
-        self,
-        shape: tuple[int, int],
-        scale: int,
-        aperture: int,
-        frac: F64,
-        frames: Sequence[F32],
-        valid: Sequence[NDArray[np.bool_]],
-        test: list[int],
-        interior: NDArray[np.bool_],
-    ) -> None:
-        train = [k for k in range(len(frames)) if k not in test]
-        self.shape, self.scale, self.aperture = shape, scale, aperture
-        self.train_shifts = [(float(frac[k, 0]), float(frac[k, 1])) for k in train]
-        acc = FourierSolver(ForwardModel(shape, scale, aperture), self.train_shifts, lam=1.0)
-        # the solver's frames are numbered 0..len(train)-1
-        acc.add_frames(list(range(len(train))), [frames[k] for k in train])
-        self.rhs = acc.rhs
-        self.test = test
-        pred = FourierSolver(
-            ForwardModel(shape, scale, aperture),
-            [(float(frac[k, 0]), float(frac[k, 1])) for k in test],
-            lam=1.0,
+    Its pixel aperture must be whole in its HR px; the sigma found there is converted to
+    the output's HR px.
+    """
+    train_n = n - (n + folds - 1) // folds
+    fit = next(
+        (s for s in range(scale, 1, -1) if train_n >= s * s and (aperture * s) % scale == 0),
+        None,
+    )
+    if folds < 2 or fit is None:
+        raise ValueError(
+            f"{n} frames; allowed: at least 5 frames, so that a fit at x2 without one of "
+            f"{folds} groups is determined"
         )
-        self.pred_solver = pred
-        self.targets = np.stack([frames[k] for k in test])
-        self.masks = np.stack([valid[k] & interior for k in test])
+    return fit
 
-    def error(
-        self,
-        sigma: float,
-        lam: float,
-        kernel: NDArray[np.float64] | None = None,
-        prior_sigma: float = 0.0,
-    ) -> float:
-        """Mean squared prediction error of the held-out frames for (sigma, lam)."""
-        model = ForwardModel(self.shape, self.scale, self.aperture, sigma, kernel, prior_sigma)
-        solver = FourierSolver(model, self.train_shifts, lam=lam)
-        s2 = np.float32(self.scale**2)
-        d, l2 = solver._block_factors()
-        mu = np.float32(lam) * s2 * l2
-        X = solve_blocks(d, solver.G.astype(np.complex64), mu, s2 * d * self.rhs)
-        ps = self.pred_solver
-        ny, nx = self.shape
-        z = ((d / s2) * X).reshape(len(solver.offsets), -1)
-        q = (ps.C.conj() @ z).reshape(len(self.test), ny, ps.nxh)
-        for i in range(len(self.test)):
-            ry, rx = ps._ramps(i)
-            q[i] *= ry.conj()[:, None]
-            q[i] *= rx.conj()[None, :]
-        pred = sfft.irfft2(q, s=(ny, nx), axes=(-2, -1), workers=1)
-        r = (self.targets - pred)[self.masks]
-        return float(np.dot(r, r)) / max(int(r.size), 1)
+
+def _window_frames(
+    crop: Sequence[F32], n_int: NDArray[np.int_]
+) -> tuple[list[F32], list[Bool], Bool]:
+    """The window's frames aligned and padded as the solve does, their masks, the interior."""
+    wy, wx = crop[0].shape
+    p = min(16, wy - 1, wx - 1)
+    ny, nx = sfft.next_fast_len(wy + 2 * p), sfft.next_fast_len(wx + 2 * p)
+    pads = (p, ny - wy - p, p, nx - wx - p)
+    if pads[1] >= wy or pads[3] >= wx:
+        ny, nx = wy + 2 * p, wx + 2 * p
+        pads = (p, p, p, p)
+    fr: list[F32] = []
+    va: list[Bool] = []
+    for k, frame in enumerate(crop):
+        f, v = aligned(frame, crop[0], (int(n_int[k, 0]), int(n_int[k, 1])))
+        fr.append(np.asarray(padded(f, pads, mode="reflect"), np.float32))
+        va.append(np.asarray(padded(v, pads, mode="zero"), bool))
+    interior = np.zeros((ny, nx), bool)
+    m = 4  # LR px kept clear of the padding's seam
+    interior[p + m : p + wy - m, p + m : p + wx - m] = True
+    return fr, va, interior
 
 
 class CrossValidation:
-    """A burst's central window, aligned and padded, in interleaved groups of frames."""
+    """A burst's central window, aligned and padded, in interleaved groups of frames.
+
+    Per group: the other frames' right-hand side and normal matrix (stacked along a batch
+    axis, group second), and the group's own frames with their couplings and frequency
+    ramps for the prediction (groups of fewer frames padded with empty masks).
+    """
 
     def __init__(
         self,
@@ -104,48 +94,67 @@ class CrossValidation:
             raise ValueError(f"len(shifts)={len(shifts)}; allowed: {n} (one per frame)")
         ap = int(aperture or scale)
         folds = min(folds, n)
-        train_n = n - (n + folds - 1) // folds
-        # the largest scale s <= scale whose training sets stay determined (and whose pixel
-        # aperture is whole in its HR px); its sigma is converted to the output's HR px
-        fit_scale = next(
-            (s for s in range(int(scale), 1, -1) if train_n >= s * s and (ap * s) % scale == 0),
-            None,
-        )
-        if folds < 2 or fit_scale is None:
-            raise ValueError(
-                f"{n} frames; allowed: at least 5 frames, so that a fit at x2 without one of "
-                f"{folds} groups is determined"
-            )
-        ap_fit = ap * fit_scale // int(scale)
+        self.fit_scale = _fit_scale(n, folds, int(scale), ap)
+        self.aperture = ap * self.fit_scale // int(scale)
         crop = central_window([np.asarray(f, np.float32) for f in frames], window)
-        wy, wx = crop[0].shape
-        ref = crop[0]
         sh = np.asarray(shifts, np.float64) + np.asarray(origin_shift, np.float64)
         n_int = np.rint(sh).astype(int)
-        frac = sh - n_int
-        p = min(16, wy - 1, wx - 1)
-        ny, nx = sfft.next_fast_len(wy + 2 * p), sfft.next_fast_len(wx + 2 * p)
-        pads = (p, ny - wy - p, p, nx - wx - p)
-        if pads[1] >= wy or pads[3] >= wx:
-            ny, nx = wy + 2 * p, wx + 2 * p
-            pads = (p, p, p, p)
-        fr: list[F32] = []
-        va: list[NDArray[np.bool_]] = []
-        for k in range(n):
-            f, v = aligned(crop[k], ref, (int(n_int[k, 0]), int(n_int[k, 1])))
-            fr.append(np.asarray(padded(f, pads, mode="reflect"), np.float32))
-            va.append(np.asarray(padded(v, pads, mode="zero"), bool))
-        interior = np.zeros((ny, nx), bool)
-        m = 4  # LR px kept clear of the padding's seam
-        interior[p + m : p + wy - m, p + m : p + wx - m] = True
+        frac = [(float(a), float(b)) for a, b in sh - n_int]
+        fr, va, interior = _window_frames(crop, n_int)
+        self.shape = fr[0].shape
         groups = [[k for k in range(n) if k % folds == g] for g in range(folds)]
-        self.fit_scale = fit_scale
-        self.folds = [Fold((ny, nx), fit_scale, ap_fit, frac, fr, va, g, interior) for g in groups]
-
-        lo, hi = np.percentile(ref, [0.1, 99.9])
+        self._training(fr, frac, groups)
+        self._held_out(fr, va, interior, frac, groups)
+        lo, hi = np.percentile(crop[0], [0.1, 99.9])
         self.span = max(float(hi - lo), 1e-6)
-        sigma_n = float(noise_sigma) if noise_sigma is not None else estimate_noise(ref)
+        sigma_n = float(noise_sigma) if noise_sigma is not None else estimate_noise(crop[0])
         self.sigma_n = max(sigma_n, 1e-6 * self.span)
+
+    def _model(
+        self, sigma: float = 0.0, kernel: F64 | None = None, prior: float = 0.0
+    ) -> ForwardModel:
+        return ForwardModel(self.shape, self.fit_scale, self.aperture, sigma, kernel, prior)
+
+    def _training(
+        self, frames: list[F32], frac: list[tuple[float, float]], groups: list[list[int]]
+    ) -> None:
+        """Each group's training right-hand side and normal matrix, stacked by group."""
+        rhs, gram = [], []
+        for test in groups:
+            train = [k for k in range(len(frames)) if k not in test]
+            acc = FourierSolver(self._model(), [frac[k] for k in train], lam=1.0)
+            # the solver's frames are numbered 0..len(train)-1
+            acc.add_frames(list(range(len(train))), [frames[k] for k in train])
+            rhs.append(acc.rhs)
+            gram.append(acc.G)
+        self.rhs = np.stack(rhs, axis=1)  # (A, F, ny, nxh)
+        self.gram = np.stack(gram, axis=-1).astype(np.complex64)[..., None, None]
+
+    def _held_out(
+        self,
+        frames: list[F32],
+        valid: list[Bool],
+        interior: Bool,
+        frac: list[tuple[float, float]],
+        groups: list[list[int]],
+    ) -> None:
+        """Each group's frames to predict: targets, masks, couplings and ramps, (F, T, ...)."""
+        t = max(len(g) for g in groups)
+        ny, nx = self.shape
+        self.targets = np.zeros((len(groups), t, ny, nx), np.float32)
+        self.masks = np.zeros((len(groups), t, ny, nx), bool)
+        model = self._model()
+        self.coupling = np.zeros((len(groups), t, len(model.alias_offsets())), np.complex64)
+        self.ramps = np.zeros((len(groups), t, ny, nx // 2 + 1), np.complex64)
+        for f, test in enumerate(groups):
+            pred = FourierSolver(model, [frac[k] for k in test], lam=1.0)
+            for i, k in enumerate(test):
+                self.targets[f, i] = frames[k]
+                self.masks[f, i] = valid[k] & interior
+                self.coupling[f, i] = pred.C[i].conj()
+                ry, rx = pred.ramps(i)
+                self.ramps[f, i] = np.outer(ry.conj(), rx.conj())
+        self.counts = np.maximum(self.masks.sum(axis=(1, 2, 3)), 1)
 
     def errors(
         self,
@@ -156,6 +165,17 @@ class CrossValidation:
     ) -> F64:
         """Each group's prediction error for the model (sigma, tau, kernel, prior_sigma)."""
         lam = max((self.sigma_n / (tau * self.span)) ** 2, 1e-6)
-        return np.array(
-            parallel_map(lambda f: f.error(sigma, lam, kernel, prior_sigma), self.folds)
-        )
+        model = self._model(sigma, kernel, prior_sigma)
+        d, l2 = FourierSolver(model, [(0.0, 0.0)], lam=lam).block_factors()
+        s2 = np.float32(self.fit_scale**2)
+        d = d[:, None]
+        mu = np.float32(lam) * s2 * l2[:, None]
+        X: C64 = solve_blocks(d, self.gram, mu, s2 * d * self.rhs)
+        X *= d / s2  # the model's LR spectra by alias
+        q = np.einsum("fta,afyx->ftyx", self.coupling, X)
+        q *= self.ramps
+        ny, nx = self.shape
+        pred = sfft.irfft2(q, s=(ny, nx), axes=(-2, -1), workers=1)
+        r = np.where(self.masks, self.targets - pred, np.float32(0))
+        sq = np.einsum("ftyx,ftyx->f", r, r, dtype=np.float64)
+        return np.asarray(sq / self.counts, np.float64)

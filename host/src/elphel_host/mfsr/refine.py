@@ -13,25 +13,46 @@ from elphel_host.mfsr.forward import C64, F32, FourierSolver
 
 
 class ModelSpectra:
-    """Per-pass spectra of the solution: prediction and its shift derivatives by alias."""
+    """Per-pass spectra of the solution: prediction and its shift derivatives by alias.
 
-    def __init__(self, solver: FourierSolver, X: C64) -> None:
+    ``derivatives=False`` leaves the derivatives out (a pass that only clips).
+    """
+
+    def __init__(self, solver: FourierSolver, X: C64, *, derivatives: bool = True) -> None:
         ny, nx = solver.model.lr_shape
         Ny, Nx = solver.model.hr_shape
         s2 = float(solver.model.scale**2)
         A = len(solver.offsets)
         nxh = solver.nxh
         self.Z = np.empty((A, ny * nxh), np.complex64)
-        self.Zy = np.empty_like(self.Z)
-        self.Zx = np.empty_like(self.Z)
-        d_all = solver._block_factors()[0]
+        self.Zy = np.empty_like(self.Z) if derivatives else None
+        self.Zx = np.empty_like(self.Z) if derivatives else None
+        d_all = solver.block_factors()[0]
         for a, (jy, jx) in enumerate(solver.offsets):
             z = (d_all[a] / np.float32(s2)) * X[a]
+            self.Z[a] = z.ravel()
+            if self.Zy is None or self.Zx is None:
+                continue
             wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
             wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
-            self.Z[a] = z.ravel()
             self.Zy[a] = (z * wy[:, None]).ravel()
             self.Zx[a] = (z * wx[None, :]).ravel()
+
+
+# No BLAS here: a threaded BLAS sums in an order that depends on its thread count, and a
+# burst must fuse to the same numbers in every process (the fusion fed while capturing
+# and `elphel mfsr` afterwards agree bit for bit); its threads would also spin against the
+# solver's own.
+def _combined(coef: C64, rows: C64) -> C64:
+    """sum_a coef[a] rows[a], alias by alias."""
+    out = rows[0] * coef[0]
+    for a in range(1, len(coef)):
+        out += rows[a] * coef[a]
+    return out
+
+
+def _dot(a: F32, b: F32) -> float:
+    return float(np.einsum("i,i->", a, b, dtype=np.float64))
 
 
 def refine_and_pseudo(
@@ -56,17 +77,19 @@ def refine_and_pseudo(
     ny, nx = solver.model.lr_shape
     nxh = solver.nxh
     ck = solver.C[k].conj()
-    ry, rx = solver._ramps(k)
+    ry, rx = solver.ramps(k)
     ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
-    q = (ck @ spectra.Z).reshape(ny, nxh)
+    q = _combined(ck, spectra.Z).reshape(ny, nxh)
     q *= ryc
     q *= rxc
     pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
     del q
     dt = (0.0, 0.0)
     if refine:
-        gy = (ck @ spectra.Zy).reshape(ny, nxh)
-        gx = (ck @ spectra.Zx).reshape(ny, nxh)
+        if spectra.Zy is None or spectra.Zx is None:
+            raise ValueError("refine=True with spectra made without derivatives")
+        gy = _combined(ck, spectra.Zy).reshape(ny, nxh)
+        gx = _combined(ck, spectra.Zx).reshape(ny, nxh)
         for g in (gy, gx):
             g *= ryc
             g *= rxc
@@ -76,8 +99,8 @@ def refine_and_pseudo(
         r = (frame - pred).ravel()
         w = (valid.ravel() & (np.abs(r) <= huber * sigma)).astype(np.float32)
         dyw, dxw = dy * w, dx * w
-        a11, a12, a22 = float(dyw @ dy), float(dyw @ dx), float(dxw @ dx)
-        b1, b2 = float(dyw @ r), float(dxw @ r)
+        a11, a12, a22 = _dot(dyw, dy), _dot(dyw, dx), _dot(dxw, dx)
+        b1, b2 = _dot(dyw, r), _dot(dxw, r)
         det = a11 * a22 - a12 * a12
         if det > 1e-12 * max(a11 * a22, 1e-30):
             dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)

@@ -1,9 +1,11 @@
 """The robust method on registered frames with one PSF: a mono image or a Bayer burst's RGB.
 
 A Bayer burst's colour planes are each reconstructed on the full output grid from their
-own samples, with the pixel aperture of the full-resolution pixel; one lens serves the
-three colours, resolved on green (twice the samples), unless the given PSF has each
-colour's own.
+own samples, with the pixel aperture of the full-resolution pixel, and solved together
+(:func:`~elphel_host.mfsr.robust.reconstruct_planes`): their noise measured per colour,
+the shifts refined once and the lens resolved once, on green (twice the samples), and
+every solve of the three one batched block solve. One lens serves the three colours
+unless the given PSF has each colour's own.
 """
 
 from __future__ import annotations
@@ -14,13 +16,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.bayer import colour_planes
+from elphel_host.mfsr.bayer import bayer_sites, colour_planes, frame_shifts, site_shifts
 from elphel_host.mfsr.psf_spec import GivenKernel
-from elphel_host.mfsr.robust import reconstruct, reconstruct_resolved, resolve_psf
+from elphel_host.mfsr.robust import ResolvedPsf, reconstruct, reconstruct_planes
 from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.solve import Geometry
 
 F32 = NDArray[np.float32]
+_GREEN = 1
 
 
 def fuse_robust(
@@ -38,16 +41,26 @@ def fuse_robust(
     """
     if bayer is None:
         return reconstruct(frames, shifts, scale=scale, config=config)
-    colours = colour_planes(frames, shifts, bayer)
-    geometry = Geometry(2 * scale, scale)
-    psf = resolve_psf(*colours[1], geometry, config)
-    planes, noise = [], []
-    for c, (pf, ps) in enumerate(colours):
-        own = psf.for_colour(config.psf, c)
-        plane, rinfo = reconstruct_resolved(pf, ps, geometry, own, config)
-        planes.append(plane)
-        noise.append(rinfo["noise_sigma"])
+    sites = list(bayer_sites(bayer).values())
+
+    def spread(green: list[tuple[float, float]]) -> list[list[tuple[float, float]]]:
+        refined = frame_shifts(green, sites[_GREEN])
+        return [site_shifts(refined, s) for s in sites]
+
+    def own(psf: ResolvedPsf, colour: int) -> ResolvedPsf:
+        return psf.for_colour(config.psf, colour)
+
+    results, psf = reconstruct_planes(
+        colour_planes(frames, shifts, bayer),
+        Geometry(2 * scale, scale),
+        config,
+        key=_GREEN,
+        spread=spread,
+        colour_psf=own,
+    )
     report = dict(psf.report)
     if isinstance(config.psf, GivenKernel) and config.psf.rgb is not None:
         report["per_colour"] = True
-    return np.stack(planes, axis=-1), {"noise_sigma_rgb": noise, "psf": report}
+    noise = [info["noise_sigma"] for _, info in results]
+    image = np.stack([img for img, _ in results], axis=-1)
+    return image, {"noise_sigma_rgb": noise, "psf": report}

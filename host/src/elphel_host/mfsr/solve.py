@@ -13,20 +13,23 @@ Steps (see :mod:`elphel_host.mfsr.forward` for the model and the solver):
    regression by pseudo-data; invalid pixels take the prediction), and the system solved
    again.
 
+:func:`solve_planes` solves several sets of frames on one grid together (a Bayer burst's
+colour planes): each set keeps its own frames, shifts, optics and noise, and their block
+systems are factored in one batched pass (:func:`~elphel_host.mfsr.forward.solve_joint`).
 :func:`fit_noise` measures a burst's noise with the same solve on a central window.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.forward import C64, ForwardModel, FourierSolver
+from elphel_host.mfsr.forward import C64, ForwardModel, FourierSolver, solve_joint
 from elphel_host.mfsr.frames import aligned, central_window, estimate_noise, padded
 from elphel_host.mfsr.psf import Optics
 from elphel_host.mfsr.refine import ModelSpectra, refine_and_pseudo
@@ -138,6 +141,121 @@ def _range(ref: F32) -> float:
     return max(float(hi - lo), 1e-6)
 
 
+@dataclass(frozen=True)
+class Plane:
+    """One set of registered frames to solve: a mono burst, or one colour of a Bayer burst.
+
+    ``frames`` and ``shifts`` as for :func:`elphel_host.mfsr.robust.reconstruct`;
+    ``optics`` the blur deconvolved and the prior's shape; ``noise_sigma`` the noise
+    (input units) that sets the prior's weight and the first clipping.
+    """
+
+    frames: Sequence[F32]
+    shifts: Shifts
+    optics: Optics
+    noise_sigma: float
+
+
+class _PlaneSolve:
+    """A plane's solver, its frames kept for the passes, and its noise as the passes see it."""
+
+    def __init__(self, plane: Plane, geometry: Geometry, tau: float, opts: SolveOptions):
+        scale = int(geometry.scale)
+        # refining shifts needs a determined model: at least one frame per HR unknown
+        self.opts = replace(opts, refine=opts.refine and len(plane.frames) >= scale * scale)
+        h, w = plane.frames[0].shape
+        self.shape = (int(h), int(w))
+        sh = np.asarray(plane.shifts, np.float64) + np.asarray(geometry.origin_shift, np.float64)
+        self.n_int = np.rint(sh).astype(int)
+        lr_shape, self.pads = _pads(h, w, opts.pad)
+        optics = plane.optics
+        model = ForwardModel(
+            lr_shape,
+            scale,
+            int(geometry.aperture or scale),
+            optics.blur_sigma,
+            optics.kernel,
+            optics.prior_sigma,
+        )
+        self.source = _Frames(plane.frames, self.n_int, self.pads, keep=opts.passes > 0)
+        self.span = _range(self.source.ref)
+        self.tau_dn, self.sigma, self.noise = tau * self.span, plane.noise_sigma, plane.noise_sigma
+        frac = [(float(a), float(b)) for a, b in sh - self.n_int]
+        lam = max((self.sigma / self.tau_dn) ** 2, 1e-6)
+        self.solver = FourierSolver(model, frac, lam=lam)
+        self.t0_start = self.solver.t[0].copy()
+        n = len(plane.frames)
+        for start in range(0, n, _CHUNK):
+            chunk = list(range(start, min(start + _CHUNK, n)))
+            self.solver.add_frames(chunk, [self.source(k)[0] for k in chunk])
+
+    def robust_pass(self, X: C64) -> None:
+        """Refine and clip every frame against the solution ``X``; the noise re-measured."""
+        opts = self.opts
+        spectra = ModelSpectra(self.solver, X, derivatives=opts.refine)
+        mads = _robust_pass(self.solver, spectra, self.source, self.sigma, opts)
+        del spectra
+        if not opts.adapt_noise:
+            return
+        n, s2 = len(self.source.frames), self.solver.model.scale**2
+        dof = max(1.0 - s2 / n, 0.25)
+        # the residual spread sets the clipping level only: with few frames per unknown it
+        # under-estimates the noise, so it must not weaken the prior
+        self.sigma = max(1.4826 * float(np.median(mads)) / np.sqrt(dof), 1e-6 * self.span)
+        if n >= 2 * s2:  # enough frames per unknown for the estimate to hold
+            self.noise = self.sigma
+            self.solver.lam = max((self.noise / self.tau_dn) ** 2, 1e-6)
+
+    def result(self, X: C64, geometry: Geometry) -> tuple[F32, dict[str, Any]]:
+        return _on_reference_grid(
+            self.solver,
+            X,
+            self.t0_start,
+            self.n_int,
+            geometry,
+            self.shape,
+            self.pads[0],
+            self.noise,
+        )
+
+
+def solve_planes(
+    planes: Sequence[Plane], geometry: Geometry, *, tau: float, options: SolveOptions
+) -> list[tuple[F32, dict[str, Any]]]:
+    """Fuse each plane's registered frames (one solve + robust passes), solved together.
+
+    The planes share the frame size and ``geometry``; each has its own frames, shifts,
+    optics and noise. Shifts are refined (``options.refine``) in planes of at least
+    ``scale**2`` frames. Every solve of every plane is one batched block solve
+    (:func:`~elphel_host.mfsr.forward.solve_joint`); the robust passes run plane by plane.
+
+    Parameters
+    ----------
+    planes
+        The sets of frames, all of one size.
+    geometry
+        Scale, pixel aperture and the output grid's offset.
+    tau
+        The prior's expected HR gradient (fraction of each plane's reference range).
+    options
+        Passes, clipping, padding, refinement, whether the passes may re-measure the noise.
+
+    Returns
+    -------
+    list of (image, info)
+        Per plane: the HR image (float32) and ``noise_sigma`` (the one that set the prior's
+        weight), ``lambda`` and ``shifts_refined``.
+    """
+    states = [_PlaneSolve(p, geometry, tau, options) for p in planes]
+    X = solve_joint([st.solver for st in states])
+    for _ in range(options.passes):
+        for st, x in zip(states, X, strict=True):
+            st.robust_pass(x)
+        del X, x
+        X = solve_joint([st.solver for st in states])
+    return [st.result(x, geometry) for st, x in zip(states, X, strict=True)]
+
+
 def solve(
     frames: Sequence[F32],
     shifts: Shifts,
@@ -150,63 +268,11 @@ def solve(
 ) -> tuple[F32, dict[str, Any]]:
     """Fuse registered frames with known optics, prior and noise (one solve + robust passes).
 
-    Parameters
-    ----------
-    frames, shifts
-        As for :func:`elphel_host.mfsr.robust.reconstruct` (checked there).
-    geometry
-        Scale, pixel aperture and the output grid's offset.
-    optics
-        The blur deconvolved and the prior's shape.
-    tau
-        The prior's expected HR gradient (fraction of the reference's range).
-    noise_sigma
-        Noise standard deviation (input units): the prior's weight and the first clipping.
-    options
-        Passes, clipping, padding, refinement, whether the passes may re-measure the noise.
-
-    Returns
-    -------
-    image, info
-        The HR image (float32) and ``noise_sigma`` (the one that set the prior's weight),
-        ``lambda`` and ``shifts_refined``.
+    :func:`solve_planes` with one plane; arguments as there, and ``frames`` and
+    ``shifts`` as for :func:`elphel_host.mfsr.robust.reconstruct` (checked there).
     """
-    scale = int(geometry.scale)
-    h, w = frames[0].shape
-    sh = np.asarray(shifts, np.float64) + np.asarray(geometry.origin_shift, np.float64)
-    n_int = np.rint(sh).astype(int)
-    lr_shape, pads = _pads(h, w, options.pad)
-    aperture = int(geometry.aperture or scale)
-    model = ForwardModel(
-        lr_shape, scale, aperture, optics.blur_sigma, optics.kernel, optics.prior_sigma
-    )
-    source = _Frames(frames, n_int, pads, keep=options.passes > 0)
-    span = _range(source.ref)
-    tau_dn, sigma, noise = tau * span, noise_sigma, noise_sigma
-    solver = FourierSolver(
-        model, [tuple(v) for v in sh - n_int], lam=max((sigma / tau_dn) ** 2, 1e-6)
-    )
-    t0_start = solver.t[0].copy()
-    for start in range(0, len(frames), _CHUNK):
-        chunk = list(range(start, min(start + _CHUNK, len(frames))))
-        solver.add_frames(chunk, [source(k)[0] for k in chunk])
-    X = solver.solve()
-    s2 = scale * scale
-    dof = max(1.0 - s2 / len(frames), 0.25)
-    for _ in range(options.passes):
-        spectra = ModelSpectra(solver, X)
-        del X
-        mads = _robust_pass(solver, spectra, source, sigma, options)
-        del spectra
-        if options.adapt_noise:
-            # the residual spread sets the clipping level only: with few frames per
-            # unknown it under-estimates the noise, so it must not weaken the prior
-            sigma = max(1.4826 * float(np.median(mads)) / np.sqrt(dof), 1e-6 * span)
-            if len(frames) >= 2 * s2:  # enough frames per unknown for the estimate to hold
-                noise = sigma
-                solver.lam = max((noise / tau_dn) ** 2, 1e-6)
-        X = solver.solve()
-    return _on_reference_grid(solver, X, t0_start, n_int, geometry, (h, w), pads[0], noise)
+    plane = Plane(frames, shifts, optics, noise_sigma)
+    return solve_planes([plane], geometry, tau=tau, options=options)[0]
 
 
 def _on_reference_grid(

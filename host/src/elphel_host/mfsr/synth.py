@@ -93,3 +93,37 @@ def make_burst(
             lr = lr + rng.normal(0.0, noise_sigma, lr.shape).astype(np.float32)
         frames.append(lr.astype(np.float32))
     return frames
+
+
+def make_bayer_burst(
+    rgb: NDArray[np.floating],
+    shifts: Sequence[Sequence[float]] | NDArray[np.float64],
+    *,
+    scale: int,
+    noise_sigma: float,
+    seed: int,
+    bayer: str = "GRBG",
+) -> list[F32]:
+    """Bayer mosaics of an HR RGB image at the given shifts: :func:`make_burst` per colour.
+
+    Each colour is shifted, area down-sampled and given noise as :func:`make_burst` does
+    (colour c with seed ``seed + c``); each frame keeps, at every site of the 2x2 cell, the
+    colour ``bayer`` names there (row-major, e.g. ``GRBG``). ``rgb`` is (H, W, 3) with H
+    and W multiples of ``2 * scale``.
+    """
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb.shape={rgb.shape}; allowed: (H, W, 3)")
+    if sorted(bayer) != ["B", "G", "G", "R"]:
+        raise ValueError(f"bayer={bayer!r}; allowed: a 2x2 pattern such as RGGB or GRBG")
+    per = [
+        make_burst(rgb[..., c], shifts, scale=scale, noise_sigma=noise_sigma, seed=seed + c)
+        for c in range(3)
+    ]
+    frames: list[F32] = []
+    for k in range(len(per[0])):
+        mosaic = np.empty_like(per[0][k])
+        for idx, colour in enumerate(bayer):
+            oy, ox = idx // 2, idx % 2
+            mosaic[oy::2, ox::2] = per["RGB".index(colour)][k][oy::2, ox::2]
+        frames.append(mosaic)
+    return frames

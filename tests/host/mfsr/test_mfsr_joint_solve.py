@@ -1,0 +1,68 @@
+"""The batched solves: cross-validation folds and a Bayer burst's colour planes together."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from elphel_host.mfsr.bayer import bayer_sites, colour_planes, frame_shifts, site_shifts
+from elphel_host.mfsr.ldl import solve_blocks
+from elphel_host.mfsr.psf import NO_OPTICS, Optics
+from elphel_host.mfsr.solve import Geometry, Plane, SolveOptions, solve, solve_planes
+from elphel_host.mfsr.synth import make_bayer_burst, random_shifts
+
+
+def test_batched_block_solve_matches_each_problem_alone():
+    rng = np.random.default_rng(5)
+    a, p = 9, 3
+    grams = []
+    for _ in range(p):
+        c = rng.normal(size=(20, a)) + 1j * rng.normal(size=(20, a))
+        grams.append((c.conj().T @ c).astype(np.complex64))
+    d = rng.uniform(0.1, 1.0, (a, 6, 7)).astype(np.float32)
+    mu = rng.uniform(0.01, 1.0, (a, p, 6, 7)).astype(np.float32)
+    b = (rng.normal(size=(a, p, 6, 7)) + 1j * rng.normal(size=(a, p, 6, 7))).astype(np.complex64)
+    batched = solve_blocks(d[:, None], np.stack(grams, axis=-1)[..., None, None], mu, b)
+    for k in range(p):
+        alone = solve_blocks(d, grams[k], mu[:, k], b[:, k])
+        # the same single-precision operations on the same numbers, broadcast
+        assert np.array_equal(batched[:, k], alone)
+
+
+def test_frame_shifts_undo_site_shifts():
+    shifts = [(0.0, 0.0), (0.3, -0.7), (1.25, 0.5)]
+    for sites in bayer_sites("GRBG").values():
+        back = frame_shifts(site_shifts(shifts, sites), sites)
+        assert np.allclose(back, shifts, atol=1e-12)
+    with pytest.raises(ValueError, match="multiple of 2"):
+        frame_shifts([(0.0, 0.0)] * 3, bayer_sites("GRBG")["G"])
+
+
+@pytest.mark.parametrize("optics", [NO_OPTICS, Optics(0.6, None, 0.4)])
+def test_colour_planes_solved_together_match_each_solved_alone(hr, optics):
+    # a Bayer burst's three planes: one batched block solve per step against three solves;
+    # each plane's own frames, shifts and noise (red and blue 16 frames, green 32)
+    rgb = np.stack([hr, np.roll(hr, 5, axis=1), hr[::-1]], axis=-1)[:128, :128]
+    shifts = random_shifts(16, seed=6, spread=2.0)
+    frames = make_bayer_burst(rgb, shifts, scale=2, noise_sigma=0.01, seed=3)
+    planes = colour_planes(frames, [tuple(s) for s in shifts], "GRBG")
+    geometry = Geometry(4, 2)
+    options = SolveOptions(passes=1, refine=True)
+    noise = (0.011, 0.009, 0.012)
+    todo = [Plane(f, s, optics, n) for (f, s), n in zip(planes, noise, strict=True)]
+    together = solve_planes(todo, geometry, tau=0.05, options=options)
+    for plane, (img, info) in zip(todo, together, strict=True):
+        alone, alone_info = solve(
+            plane.frames,
+            plane.shifts,
+            geometry,
+            optics,
+            tau=0.05,
+            noise_sigma=plane.noise_sigma,
+            options=options,
+        )
+        # the batch only broadcasts: every frequency's block sees the same single-precision
+        # operations on the same numbers, and the frames are added in the same order
+        assert np.array_equal(img, alone), np.abs(img - alone).max()
+        assert info["noise_sigma"] == alone_info["noise_sigma"]
+        assert info["shifts_refined"] == alone_info["shifts_refined"]
