@@ -10,17 +10,18 @@ camera's tile of a point at infinity against where the drifted camera sees that 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from elphel_host.calibrate.field import CORRECTIONS, apply_corrections
 from elphel_host.cli import main as elphel_main
 from elphel_host.tp.calibrated import CalibratedGeometry, read_calibration
 from elphel_sim.calib_rig import CalibRig, make_rig
 from elphel_sim.calib_scene import (
+    drifted_rig,
+    misalignment_px,
+    random_drift_px,
     rectified_rig,
     render_raw_quad,
     write_raw_quad_dir,
@@ -31,54 +32,13 @@ from elphel_sim.quad import standard_scene
 W, H = 640, 480
 
 
-def drift_px(seed: int) -> np.ndarray:
-    """Per camera (tilt, azimuth, roll, zoom) in pixels at the image's edge: 0.3-5 px each."""
-    rng = np.random.default_rng(seed)
-    out = rng.uniform(0.3, 5.0, (4, len(CORRECTIONS))) * rng.choice([-1.0, 1.0], (4, 4))
-    out[0] = 0.0
-    return out
-
-
-def drifted(rig: CalibRig, corrections: np.ndarray) -> CalibRig:
-    cams = apply_corrections([(c.lens, c.R, c.t_mm) for c in rig.cameras], corrections)
-    moved = [
-        replace(c, lens=lens, R=r, t_mm=t)
-        for c, (lens, r, t) in zip(rig.cameras, cams, strict=True)
-    ]
-    return CalibRig(tuple(moved), rig.bayer)
-
-
-def mismatch_at_infinity_px(got: CalibratedGeometry, truth: CalibratedGeometry) -> np.ndarray:
-    """Per camera 1-3: RMS over the image of where ``got`` puts the tile of a point at infinity
-    against where ``truth``'s camera sees the point camera 0 sees there (no gauge involved)."""
-    cy, cx = (a.ravel() + 4.0 for a in np.mgrid[16 : H - 16 : 8, 16 : W - 16 : 8].astype(float))
-    zero = np.zeros_like(cx)
-    want0 = np.stack(got.pixels(0, cx, cy, zero), -1)
-    ux, uy = cx.copy(), cy.copy()
-    for _ in range(8):  # the truth's virtual pixel whose camera 0 pixel is want0 (Newton)
-        at = np.stack(truth.pixels(0, ux, uy, zero), -1)
-        jx = np.stack(truth.pixels(0, ux + 0.5, uy, zero), -1) - at
-        jy = np.stack(truth.pixels(0, ux, uy + 0.5, zero), -1) - at
-        step = np.linalg.solve(np.stack([jx, jy], -1) / 0.5, (want0 - at)[..., None])[..., 0]
-        ux, uy = ux + step[:, 0], uy + step[:, 1]
-    out = []
-    for cam in (1, 2, 3):
-        diff = np.stack(got.pixels(cam, cx, cy, zero), -1) - np.stack(
-            truth.pixels(cam, ux, uy, zero), -1
-        )
-        out.append(float(np.sqrt(np.mean(np.sum(diff**2, -1)))))
-    return np.array(out)
-
-
 @pytest.fixture(scope="module")
 def drifted_quads(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Path], CalibRig]:
     """The rig's calibration, two scenes through its drifted cameras, the drifted rig."""
     root = tmp_path_factory.mktemp("field")
     rig = make_rig(W, H, seed=0)
     calib = write_true_calibration(root / "calib", rig).parent
-    lens = rig.cameras[0].lens
-    per_px = np.array([lens.fx, lens.fx, np.hypot(W, H) / 2, np.hypot(W, H) / 2])
-    moved = drifted(rig, drift_px(seed=4) / per_px)
+    moved = drifted_rig(rig, random_drift_px(5.0, seed=4))
     quads = []
     for seed in (0, 1):
         scene = standard_scene(rectified_rig(moved), seed=seed)
@@ -94,13 +54,13 @@ def test_field_calibration_removes_drifts_of_up_to_5_px(
 ) -> None:
     calib, quads, moved = drifted_quads
     truth = CalibratedGeometry.from_cameras([(c.lens, c.R, c.t_mm) for c in moved.cameras])
-    before = mismatch_at_infinity_px(read_calibration(calib), truth)
+    before = misalignment_px(read_calibration(calib), truth)
     assert before.min() > 1.0  # the drift is there
     out = tmp_path / "calib2"
     argv = [*map(str, quads), "--calibration", str(calib), "--out", str(out), "--json"]
     assert elphel_main(["calibrate", "field", *argv]) == 0
     result = json.loads(capsys.readouterr().out)
-    after = mismatch_at_infinity_px(read_calibration(out), truth)
+    after = misalignment_px(read_calibration(out), truth)
     assert after.max() <= 0.02, after
     assert result["mismatch_before_px"] > 1.0
     assert result["mismatch_after_px"] <= 0.02

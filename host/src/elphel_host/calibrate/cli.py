@@ -29,7 +29,12 @@ from elphel_host.calibrate.capture import (
     open_session,
 )
 from elphel_host.calibrate.export import write_exports
-from elphel_host.calibrate.field import CORRECTIONS, FieldResult, refine_extrinsics
+from elphel_host.calibrate.field import (
+    CORRECTIONS,
+    FieldResult,
+    pixels_per_unit,
+    refine_extrinsics,
+)
 from elphel_host.calibrate.guide import CaptureLimits, text_map
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.calibrate.pictures import write_pictures
@@ -394,19 +399,19 @@ def _field_quads(paths: list[Path], image_size: tuple[int, int]) -> list[QuadIma
 
 
 def _field_json(result: FieldResult) -> dict[str, Any]:
-    lens = result.cameras[0][0]
-    half_diagonal_px = float(np.hypot(lens.width, lens.height) / 2)
     cameras = []
     for n, corr in enumerate(result.corrections):
-        angles = dict(zip(CORRECTIONS[:3], (float(v) * 1e3 for v in corr[:3]), strict=True))
+        scale = pixels_per_unit(result.cameras[n][0])
         cameras.append(
             {
                 "mismatch_before_px": float(result.mismatch_before_px[n]),
                 "mismatch_after_px": float(result.mismatch_after_px[n]),
-                **{f"{k}_mrad": v for k, v in angles.items()},
+                **{
+                    f"{k}_mrad": float(v) * 1e3
+                    for k, v in zip(CORRECTIONS[:3], corr[:3], strict=True)
+                },
                 "zoom_ppm": float(corr[3]) * 1e6,
-                "roll_px": float(corr[2]) * half_diagonal_px,
-                "zoom_px": float(corr[3]) * half_diagonal_px,
+                **{f"{k}_px": float(v) for k, v in zip(CORRECTIONS, corr * scale, strict=True)},
             }
         )
     return {

@@ -82,6 +82,16 @@ class FieldResult:
     infinity_tiles: int
 
 
+def pixels_per_unit(lens: CameraModel) -> F64:
+    """Pixels per unit of each correction (tilt, azimuth, roll, zoom).
+
+    Tilt and azimuth at the image's centre (the focal length along y and x), roll and zoom
+    at its corner (half the diagonal).
+    """
+    half_diagonal_px = float(np.hypot(lens.width, lens.height)) / 2
+    return np.array([lens.fy, lens.fx, half_diagonal_px, half_diagonal_px])
+
+
 def apply_corrections(cameras: Sequence[Camera], corrections: F64) -> tuple[Camera, ...]:
     """Cameras turned and zoomed by ``corrections`` ``(4, 4)`` (module docstring)."""
     out = []
