@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
+import tifffile
 
 from elphel_host.calibrate.camera_model import CameraModel
 from elphel_host.tp.calibrated import CalibratedGeometry
@@ -97,3 +101,17 @@ def test_the_misalignment_of_a_drift_is_about_its_pixels() -> None:
     assert np.allclose(misalignment_px(truth, truth), 0.0, atol=1e-9)
     error = misalignment_px(got, truth)
     assert error[1] == pytest.approx(0.5, abs=0.05) and error[0] < 1e-6 and error[2] < 1e-6
+
+
+def test_calib_scene_drifts_the_cameras_it_renders_through(tmp_path: Path) -> None:
+    from elphel_sim.cli import main as sim_main
+
+    size = ["--width", str(W), "--height", str(H)]
+    assert sim_main(["calib-scene", str(tmp_path / "still"), *size]) == 0
+    argv = ["calib-scene", str(tmp_path / "moved"), "--drift-px", "2", "--drift-seed", "3"]
+    assert sim_main([*argv, *size]) == 0
+    truth = json.loads((tmp_path / "moved" / "truth.json").read_text())
+    assert np.allclose(truth["drift_px"], random_drift_px(2.0, seed=3))
+    assert "drift_px" not in json.loads((tmp_path / "still" / "truth.json").read_text())
+    still, moved = (tifffile.imread(tmp_path / d / "cam1.tif") for d in ("still", "moved"))
+    assert np.mean(np.abs(still.astype(float) - moved)) > 10  # the same scene, moved

@@ -378,7 +378,7 @@ def _register_field(sub: Any) -> None:
     f.add_argument("--calibration", required=True, type=Path, metavar="CALIB_DIR")
     f.add_argument("--out", required=True, type=Path, metavar="CALIB_DIR2")
     f.add_argument(
-        "--iterations", type=int, default=5, metavar="N", help="most updates (default 5)"
+        "--iterations", type=int, default=8, metavar="N", help="most updates (default 8)"
     )
     add_json_option(f)
     f.set_defaults(func=run_field, parser=f)

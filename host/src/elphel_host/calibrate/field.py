@@ -20,7 +20,7 @@ disparities, within ``infinity_band_px``) keep their disparity at 0 and fix the 
 combination the others cannot see (all cameras moving as a disparity would). The
 equations are weighted by each peak's strength (squared), outliers beyond 4 robust
 standard deviations dropped, and solved by weighted least squares; the calibration is
-updated, every quad measured again with it, and so on until the corrections are below
+updated, every quad measured again with it, and so on until every camera's mismatch is below
 ``tolerance_px``.
 """
 
@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_host.calibrate.camera_model import CameraModel, rotation_matrix
+from elphel_host.calibrate.camera_model import CameraModel, rotation_matrix, rotation_vector
 from elphel_host.calibrate.mismatch import PairOffsets, pair_offsets
 from elphel_host.errors import InputFormatError
 from elphel_host.tp.calibrated import CalibratedGeometry
@@ -63,7 +63,8 @@ class FieldResult:
         ``(4, 4)``: per camera the total (tilt, azimuth, roll, zoom) applied (camera 0 zero).
     mismatch_before_px, mismatch_after_px
         ``(4,)``: per camera, RMS over the used tiles of the pixel offset of its image
-        from the four cameras' mean that the fitted drift explains, before and after.
+        from the four cameras' mean: before, that of all the drift found (at the first
+        measurement's tiles); after, that of the drift the last measurement still finds.
     scatter_px
         RMS of the pair offsets left after the final fit (measurement noise).
     iterations
@@ -277,8 +278,7 @@ def measure_quad(
 
 
 def _total(initial: Sequence[Camera], final: Sequence[Camera]) -> F64:
-    from elphel_host.calibrate.camera_model import rotation_vector
-
+    """Per camera the corrections that turn ``initial`` into ``final``."""
     out = np.zeros((4, len(CORRECTIONS)))
     for cam, ((lens0, r0, _), (lens1, r1, _)) in enumerate(zip(initial, final, strict=True)):
         out[cam, :3] = rotation_vector(r1 @ r0.T)
@@ -290,7 +290,7 @@ def refine_extrinsics(
     quads: Sequence[QuadImages],
     cameras: Sequence[Camera],
     *,
-    iterations: int = 5,
+    iterations: int = 8,
     tolerance_px: float = 0.002,
     infinity_band_px: float = 0.15,
     first_search_px: int = 6,
@@ -329,15 +329,17 @@ def refine_extrinsics(
             f"infinity_band_px={infinity_band_px}; allowed: >= 1, > 0, > 0"
         )
     current = tuple(cameras)
-    before = np.zeros(4)
+    found = np.zeros(3 * len(CORRECTIONS))  # the drift found so far, applied or not
+    first: list[tuple[TileEquations, F64]] = []  # the first measurement, for "before"
     search = first_search_px
     for it in range(iterations + 1):
         geometry = CalibratedGeometry.from_cameras(current)
         eq = _concat([measure_quad(q, geometry, config=config, search_px=search) for q in quads])
         _check_texture(eq)
         x, weight, infinity = robust_solve(eq, infinity_band_px)
+        found += x
+        first += [] if first else [(eq, weight)]
         mismatch = camera_mismatch_px(eq, x, weight)
-        before = mismatch if it == 0 else before
         if it == iterations or mismatch.max() < tolerance_px:
             break
         step = np.zeros((4, len(CORRECTIONS)))
@@ -347,7 +349,7 @@ def refine_extrinsics(
     return FieldResult(
         cameras=current,
         corrections=_total(cameras, current),
-        mismatch_before_px=before,
+        mismatch_before_px=camera_mismatch_px(first[0][0], found, first[0][1]),
         mismatch_after_px=mismatch,
         scatter_px=_scatter_px(eq, x, weight, infinity),
         iterations=it,
