@@ -11,9 +11,10 @@ gradient and curvature. The peak of two tiles cut by the same window from images
 by ``s`` lies at about ``disparity_scale * s`` (the window pulls it towards lag 0), so
 the offsets are divided by that scale.
 
-The peak lag of pair (a, b) is the offset of camera b's content relative to camera a's:
-``e_b - e_a``, with ``e_i`` where camera i sees the tile's point minus where the tile was
-placed.
+A quad's aberration kernels are not applied: the peaks are those of the tiles as
+recorded. The peak lag of pair (a, b) is the offset of camera b's content relative to
+camera a's: ``e_b - e_a``, with ``e_i`` where camera i sees the tile's point minus where
+the tile was placed.
 """
 
 from __future__ import annotations
