@@ -374,9 +374,19 @@ def _register_field(sub: Any) -> None:
         "pair correlations of ordinary scenes (no pattern; part of each scene far away), "
         "and write the updated calibration.json and camN.yml into CALIB_DIR2.",
     )
-    f.add_argument("quads", metavar="QUAD_DIR", type=Path, nargs="+")
-    f.add_argument("--calibration", required=True, type=Path, metavar="CALIB_DIR")
-    f.add_argument("--out", required=True, type=Path, metavar="CALIB_DIR2")
+    f.add_argument(
+        "quads", metavar="QUAD_DIR", type=Path, nargs="+", help="quad directories of scenes"
+    )
+    f.add_argument(
+        "--calibration",
+        required=True,
+        type=Path,
+        metavar="CALIB_DIR",
+        help="the calibration to refine (a directory or its calibration.json)",
+    )
+    f.add_argument(
+        "--out", required=True, type=Path, metavar="CALIB_DIR2", help="where to write it"
+    )
     f.add_argument(
         "--iterations", type=int, default=8, metavar="N", help="most updates (default 8)"
     )
