@@ -9,6 +9,8 @@ pinhole cameras with the rig's mean focal length, looking along camera 0's axis 
 same centres; `elphel_sim.quad.render_quad` of the same scene with it gives the images a
 common-model quad records, and `elphel_sim.quad.tile_truth` the true disparity of every
 tile of the virtual centre camera, which is also the calibrated tile processor's.
+`drifted_rig` is the rig after its cameras 1-3 turned and zoomed a little (as a warm rig
+does; `elphel calibrate field` finds it again).
 
 The scene's frame is the rectified rig's: the virtual centre camera at the origin
 looking along +z, which is camera 0's frame moved to the centre of the four cameras.
@@ -20,14 +22,16 @@ centred, as `elphel_sim.render.render_radiance` does).
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from elphel_host.calibrate.field import CORRECTIONS, apply_corrections, pixels_per_unit
 from elphel_host.tp import io as quad_format
-from elphel_host.tp.calibrated import CALIBRATION_FILE, copy_calibration
+from elphel_host.tp.calibrated import CALIBRATION_FILE, CalibratedGeometry, copy_calibration
 from elphel_sim.calib_rig import QUAD_POSITIONS, CalibRig, RigCamera
 from elphel_sim.quad import QuadRig, QuadScene
 from elphel_sim.quad_truth import nearest_hits
@@ -193,3 +197,66 @@ def write_true_calibration(path: str | Path, rig: CalibRig) -> Path:
     target = out / CALIBRATION_FILE
     target.write_text(json.dumps(true_calibration(rig), indent=1) + "\n")
     return target
+
+
+def random_drift_px(max_px: float, *, seed: int, min_px: float = 0.3) -> FloatArray:
+    """A drift ``(4, 4)`` for `drifted_rig`: camera 0 stays, cameras 1-3 drift.
+
+    Each correction of cameras 1-3 is between ``min_px`` and ``max_px`` pixels, of random
+    sign.
+    """
+    if not 0 < min_px <= max_px:
+        raise ValueError(f"drift of {min_px}..{max_px} px; allowed: 0 < min_px <= max_px")
+    rng = np.random.default_rng(seed)
+    out = rng.uniform(min_px, max_px, (4, len(CORRECTIONS)))
+    out *= rng.choice([-1.0, 1.0], out.shape)
+    out[0] = 0.0
+    return out
+
+
+def drifted_rig(rig: CalibRig, drift_px: FloatArray) -> CalibRig:
+    """The rig with each camera turned and zoomed by ``drift_px`` ``(4, 4)``.
+
+    Per camera (tilt, azimuth, roll, zoom) in pixels: tilt and azimuth at the image's
+    centre, roll and zoom at its corner (`elphel_host.calibrate.field.pixels_per_unit`);
+    each camera turns about its own centre (`elphel_host.calibrate.field.apply_corrections`).
+    """
+    drift = np.asarray(drift_px, dtype=np.float64)
+    if drift.shape != (len(rig.cameras), len(CORRECTIONS)):
+        raise ValueError(f"drift of shape {drift.shape}; allowed: ({len(rig.cameras)}, 4)")
+    units = np.stack([d / pixels_per_unit(c.lens) for d, c in zip(drift, rig.cameras, strict=True)])
+    cams = apply_corrections([(c.lens, c.R, c.t_mm) for c in rig.cameras], units)
+    moved = [
+        replace(c, lens=lens, R=r, t_mm=t)
+        for c, (lens, r, t) in zip(rig.cameras, cams, strict=True)
+    ]
+    return replace(rig, cameras=tuple(moved))
+
+
+def misalignment_px(got: CalibratedGeometry, truth: CalibratedGeometry) -> FloatArray:
+    """How far ``got`` puts cameras 1-3's tiles of points at infinity from ``truth``'s.
+
+    For every tile centre (8 px apart, 16 px from the edges) at disparity 0, camera 0's
+    pixel in ``got`` is seen by ``truth``'s camera 0 in some direction; each other
+    camera's pixel in ``got`` is compared with where ``truth``'s camera sees that
+    direction. Returns per camera 1-3 the RMS of the distance (px). Neither geometry's
+    choice of virtual camera enters: only the cameras relative to camera 0 do.
+    """
+    w, h = got.image_size
+    grid = np.mgrid[16 : h - 16 : 8, 16 : w - 16 : 8].astype(np.float64) + 4.0
+    cy, cx = grid[0].ravel(), grid[1].ravel()
+    zero = np.zeros_like(cx)
+    want0 = np.stack(got.pixels(0, cx, cy, zero), -1)
+    ux, uy = cx.copy(), cy.copy()
+    for _ in range(8):  # truth's virtual pixel whose camera 0 pixel is want0 (Newton)
+        at = np.stack(truth.pixels(0, ux, uy, zero), -1)
+        jx = np.stack(truth.pixels(0, ux + 0.5, uy, zero), -1) - at
+        jy = np.stack(truth.pixels(0, ux, uy + 0.5, zero), -1) - at
+        step = np.linalg.solve(np.stack([jx, jy], -1) / 0.5, (want0 - at)[..., None])[..., 0]
+        ux, uy = ux + step[:, 0], uy + step[:, 1]
+    out = []
+    for cam in (1, 2, 3):
+        placed = np.stack(got.pixels(cam, cx, cy, zero), -1)
+        seen = np.stack(truth.pixels(cam, ux, uy, zero), -1)
+        out.append(float(np.sqrt(np.mean(np.sum((placed - seen) ** 2, -1)))))
+    return np.array(out)

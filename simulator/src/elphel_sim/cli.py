@@ -134,17 +134,41 @@ def _add_calib_scene(sub: Any) -> None:
     cs.add_argument("--width", type=int, default=1296)
     cs.add_argument("--height", type=int, default=968)
     cs.add_argument("--seed", type=int, default=0, help="seed of the rig (as calib-views)")
+    cs.add_argument(
+        "--scene-seed", type=int, default=None, metavar="N", help="seed of the scene (--seed)"
+    )
+    cs.add_argument(
+        "--drift-px",
+        type=float,
+        default=None,
+        metavar="PX",
+        help="cameras 1-3 turned and zoomed by 0.3..PX px each (tilt, azimuth, roll, zoom) "
+        "since the rig was calibrated, as a warm rig drifts",
+    )
+    cs.add_argument(
+        "--drift-seed", type=int, default=0, metavar="N", help="seed of the drift (default 0)"
+    )
     cs.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def _calib_scene(args: argparse.Namespace) -> int:
     from elphel_sim.calib_rig import make_rig
-    from elphel_sim.calib_scene import rectified_rig, render_raw_quad, write_raw_quad_dir
+    from elphel_sim.calib_scene import (
+        drifted_rig,
+        random_drift_px,
+        rectified_rig,
+        render_raw_quad,
+        write_raw_quad_dir,
+    )
     from elphel_sim.quad import render_quad, standard_scene, tile_truth, write_quad_dir
 
     rig = make_rig(args.width, args.height, cameras=4, seed=args.seed)
+    drift = None
+    if args.drift_px is not None:
+        drift = random_drift_px(args.drift_px, seed=args.drift_seed)
+        rig = drifted_rig(rig, drift)
     ideal = rectified_rig(rig)
-    scene = standard_scene(ideal, seed=args.seed)
+    scene = standard_scene(ideal, seed=args.seed if args.scene_seed is None else args.scene_seed)
     truth = tile_truth(scene)
     doc = {
         "disparity": truth.disparity.tolist(),
@@ -153,6 +177,8 @@ def _calib_scene(args: argparse.Namespace) -> int:
         "focal_length_px": ideal.intrinsics.focal_length_px,
         "baseline_mm": ideal.baseline_mm,
     }
+    if drift is not None:
+        doc["drift_px"] = drift.tolist()
     images = render_raw_quad(scene, rig, seed=args.seed + 7)
     write_raw_quad_dir(args.out, images, rig, calibration=args.calibration)
     (args.out / "truth.json").write_text(json.dumps(doc) + "\n")

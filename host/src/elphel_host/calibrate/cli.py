@@ -1,4 +1,4 @@
-"""``elphel calibrate capture|solve``: views of a checkerboard, and the calibration from them.
+"""``elphel calibrate capture|solve|psf|field``: a calibration from a checkerboard, and its upkeep.
 
 The guided capture is :mod:`elphel_host.calibrate.capture`; detection is
 :mod:`elphel_host.calibrate.views`, the solve :mod:`elphel_host.calibrate.solve`, the
@@ -15,6 +15,8 @@ import sys
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+
 from elphel_host.calibrate.capture import (
     COVERAGE_PNG,
     STATE_FILE,
@@ -27,11 +29,22 @@ from elphel_host.calibrate.capture import (
     open_session,
 )
 from elphel_host.calibrate.export import write_exports
+from elphel_host.calibrate.field import (
+    CORRECTIONS,
+    FieldResult,
+    pixels_per_unit,
+    refine_extrinsics,
+)
 from elphel_host.calibrate.guide import CaptureLimits, text_map
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.calibrate.pictures import write_pictures
 from elphel_host.calibrate.psf import check_psf_options, measure_psfs, write_psfs
-from elphel_host.calibrate.result import finite_json, write_calibration
+from elphel_host.calibrate.result import (
+    finite_json,
+    read_cameras,
+    write_calibration,
+    write_updated_cameras,
+)
 from elphel_host.calibrate.solve import Calibration, calibrate
 from elphel_host.calibrate.views import read_views
 from elphel_host.camera.backends import connect
@@ -41,7 +54,11 @@ from elphel_host.cli_common import (
     add_sensor_port_option,
     emit,
 )
+from elphel_host.errors import InputFormatError
 from elphel_host.progress import ProgressLine
+from elphel_host.tp.calibrated import calibration_file, read_calibration
+from elphel_host.tp.images import QuadImages
+from elphel_host.tp.io import read_quad_dir
 
 
 def register(subparsers: Any) -> None:
@@ -55,6 +72,7 @@ def register(subparsers: Any) -> None:
     sub = p.add_subparsers(dest="calibrate_action", required=True, metavar="ACTION")
     _register_capture(sub)
     _register_psf(sub)
+    _register_field(sub)
     s = sub.add_parser(
         "solve",
         help="detect the board in every view and solve intrinsics, rig, board poses and bend",
@@ -344,4 +362,105 @@ def run_solve(args: argparse.Namespace) -> int:
         "exports": exports,
     }
     emit(args, finite_json(result), _human(cal, path))
+    return 0
+
+
+def _register_field(sub: Any) -> None:
+    f = sub.add_parser(
+        "field",
+        help="refine a quad's calibration for drift (lazy eye), from ordinary scenes",
+        description="Estimate how cameras 1-3 of a calibrated quad have turned (tilt, "
+        "azimuth, roll) and zoomed relative to camera 0 since CALIB_DIR was made, from the "
+        "pair correlations of ordinary scenes (no pattern; part of each scene far away), "
+        "and write the updated calibration.json and camN.yml into CALIB_DIR2.",
+    )
+    f.add_argument(
+        "quads", metavar="QUAD_DIR", type=Path, nargs="+", help="quad directories of scenes"
+    )
+    f.add_argument(
+        "--calibration",
+        required=True,
+        type=Path,
+        metavar="CALIB_DIR",
+        help="the calibration to refine (a directory or its calibration.json)",
+    )
+    f.add_argument(
+        "--out", required=True, type=Path, metavar="CALIB_DIR2", help="where to write it"
+    )
+    f.add_argument(
+        "--iterations", type=int, default=8, metavar="N", help="most updates (default 8)"
+    )
+    add_json_option(f)
+    f.set_defaults(func=run_field, parser=f)
+
+
+def _field_quads(paths: list[Path], image_size: tuple[int, int]) -> list[QuadImages]:
+    quads = []
+    for path in paths:
+        quad = read_quad_dir(path).quad
+        h, w = quad.images.shape[1:]
+        if (w, h) != image_size:
+            raise InputFormatError(
+                f"{path}: images of {w}x{h}, the calibration is for {image_size[0]}x"
+                f"{image_size[1]}; allowed: quads of the calibrated cameras at that size"
+            )
+        quads.append(quad)
+    return quads
+
+
+def _field_json(result: FieldResult) -> dict[str, Any]:
+    cameras = []
+    for n, corr in enumerate(result.corrections):
+        scale = pixels_per_unit(result.cameras[n][0])
+        cameras.append(
+            {
+                "mismatch_before_px": float(result.mismatch_before_px[n]),
+                "mismatch_after_px": float(result.mismatch_after_px[n]),
+                **{
+                    f"{k}_mrad": float(v) * 1e3
+                    for k, v in zip(CORRECTIONS[:3], corr[:3], strict=True)
+                },
+                "zoom_ppm": float(corr[3]) * 1e6,
+                **{f"{k}_px": float(v) for k, v in zip(CORRECTIONS, corr * scale, strict=True)},
+            }
+        )
+    return {
+        "mismatch_before_px": float(np.sqrt(np.mean(result.mismatch_before_px**2))),
+        "mismatch_after_px": float(np.sqrt(np.mean(result.mismatch_after_px**2))),
+        "scatter_px": result.scatter_px,
+        "iterations": result.iterations,
+        "tiles": result.tiles,
+        "infinity_tiles": result.infinity_tiles,
+        "cameras": cameras,
+    }
+
+
+def run_field(args: argparse.Namespace) -> int:
+    """Refine the calibration for drift, write CALIB_DIR2, print the mismatch."""
+    if args.iterations < 1:
+        args.parser.error(f"--iterations {args.iterations}; allowed: at least 1")
+    source = calibration_file(args.calibration)
+    geometry = read_calibration(source)  # checked: a readable calibration of a quad
+    quads = _field_quads(list(args.quads), geometry.image_size)
+    result = refine_extrinsics(quads, read_cameras(source), iterations=args.iterations)
+    doc = _field_json(result)
+    path = write_updated_cameras(
+        source,
+        list(result.cameras),
+        args.out,
+        extra={"field": finite_json({**doc, "quads": [str(q) for q in args.quads]})},
+    )
+    lines = [
+        f"calibration: {path} ({result.iterations} update(s), {result.tiles} tiles, "
+        f"{result.infinity_tiles} at infinity)",
+        f"mismatch {doc['mismatch_before_px']:.4f} px before, "
+        f"{doc['mismatch_after_px']:.4f} px after (pair scatter {result.scatter_px:.3f} px)",
+    ]
+    for n, cam in enumerate(doc["cameras"][1:], start=1):
+        lines.append(
+            f"  cam{n}: {cam['mismatch_before_px']:.4f} -> {cam['mismatch_after_px']:.4f} px; "
+            f"tilt {cam['tilt_mrad']:+.4f}, azimuth {cam['azimuth_mrad']:+.4f}, roll "
+            f"{cam['roll_mrad']:+.4f} mrad, zoom {cam['zoom_ppm']:+.0f} ppm"
+        )
+    emit(args, finite_json({"calibration": str(path), **doc}), "\n".join(lines))
     return 0

@@ -110,3 +110,27 @@ def read_cameras(path: str | Path) -> list[tuple[CameraModel, np.ndarray, np.nda
         )
         for c in doc["cameras"]
     ]
+
+
+def write_updated_cameras(
+    source: str | Path,
+    cameras: list[tuple[CameraModel, np.ndarray, np.ndarray]],
+    out_dir: str | Path,
+    *,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write calibration.json ``source`` into ``out_dir`` with new cameras; return its path.
+
+    Each camera's model, ``R`` and ``t_mm`` are replaced by ``cameras``' and ``extra``'s
+    fields added; the rest of the document is kept. camN.yml are written anew.
+    """
+    doc = json.loads(Path(source).read_text())
+    if len(doc["cameras"]) != len(cameras):
+        raise ValueError(f"{source}: {len(doc['cameras'])} cameras, {len(cameras)} given")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for n, (entry, (lens, rotation, t_mm)) in enumerate(zip(doc["cameras"], cameras, strict=True)):
+        entry.update({**lens.to_json(), "R": rotation.tolist(), "t_mm": t_mm.tolist()})
+        _write_yml(out / f"cam{n}.yml", lens, rotation if n else None, t_mm if n else None)
+    text = json.dumps(finite_json({**doc, **(extra or {})}), indent=1, allow_nan=False)
+    return write_atomic(out / CALIBRATION_FILE, (text + "\n").encode())
