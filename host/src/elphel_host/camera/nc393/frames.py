@@ -23,7 +23,12 @@ from elphel_host.camera.frames import CapturedBurst, CapturedFrame
 from elphel_host.camera.jp4 import decode_frame
 from elphel_host.camera.jp4 import frame_metadata as exif_metadata
 from elphel_host.camera.nc393 import imgsrv
-from elphel_host.errors import CameraClientError, DeviceLimitError, InputFormatError
+from elphel_host.errors import (
+    CameraClientError,
+    DeviceLimitError,
+    DeviceTimeout,
+    InputFormatError,
+)
 from elphel_host.limits import Deadline, HostLimits, read_bounded
 
 _FIRST = ("frame", "timestamp_ns", "port", "sensor", "bayer")
@@ -144,6 +149,8 @@ def newest_stamp(
                     raise CameraClientError(f"{url}: {e}") from e
                 if block is not None:
                     return header_stamp(block, url=url)
+    except httpx.TimeoutException as e:
+        raise DeviceTimeout(f"the camera at {url} did not answer in time: {e}") from e
     except httpx.HTTPError as e:
         raise CameraClientError(f"cannot reach the camera at {url}: {e}") from e
     raise CameraClientError(f"{url}: the frame ended before its Exif block")
