@@ -7,6 +7,8 @@ when that fails too, the error names the option and a period to give.
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from elphel_host.errors import DeviceTimeout, FrameGoneError, QuadCaptureError
@@ -23,9 +25,10 @@ def error(request):
     return request.param
 
 
-def fake_take_set(fails: int, periods: list[int], error: Exception):
+def fake_take_set(fails: int, periods: list[int], error: Exception, waits: list[float]):
     def take_set(camera, before, layout, trigger, deadline, step):
         periods.append(trigger[1])
+        waits.append(deadline - time.monotonic())
         if len(periods) <= fails:
             raise error
         return {"set": trigger[1]}
@@ -33,9 +36,10 @@ def fake_take_set(fails: int, periods: list[int], error: Exception):
     return take_set
 
 
-def take(monkeypatch, fails: int, fixed: float | None, error: Exception = LOST):
+def take(monkeypatch, fails: int, fixed: float | None, error: Exception = LOST, waits=None):
     periods: list[int] = []
-    monkeypatch.setattr(capture, "_take_set", fake_take_set(fails, periods, error))
+    waits = [] if waits is None else waits
+    monkeypatch.setattr(capture, "_take_set", fake_take_set(fails, periods, error, waits))
     period = round(500 * TICKS_PER_MS)
     got = capture._take_set_patiently(
         None, {}, QuadLayout(), (0, period), 60.0, lambda *a: None, fixed=fixed
@@ -44,7 +48,10 @@ def take(monkeypatch, fails: int, fixed: float | None, error: Exception = LOST):
 
 
 def test_default_period_is_slowed_once(monkeypatch, error) -> None:
-    (taken, period), periods = take(monkeypatch, fails=1, fixed=None, error=error)
+    waits: list[float] = []
+    (taken, period), periods = take(monkeypatch, fails=1, fixed=None, error=error, waits=waits)
+    # the retake waits as many periods as the first attempt: four times as long
+    assert 59 < waits[0] <= 60 and 239 < waits[1] <= 240
     assert periods == [50_000_000, 200_000_000] and period == 200_000_000
     assert taken == {"set": 200_000_000}
 

@@ -183,7 +183,8 @@ def _take_set_patiently(
     When the frames were overwritten in the camera's buffer before they were all
     fetched, or the camera did not answer in time (a busy host, a slow link), and the
     period was not given (``fixed``), the set is taken once more at `SLOWER` times the
-    period; otherwise the error names the option.
+    period, with `SLOWER` times the timeout (as many periods); otherwise the error names
+    the option.
     """
     master, period = trigger
     for last in (fixed is not None, True):
@@ -198,6 +199,7 @@ def _take_set_patiently(
                     f"(--trigger-period-ms {SLOWER * period / TICKS_PER_MS:g})"
                 ) from e
             period *= SLOWER
+            timeout_s *= SLOWER
             continue
         return taken, period
     raise QuadCaptureError("no attempt left")  # not reached: the last attempt returns or raises
@@ -292,7 +294,7 @@ def _wait_for(
             )
             raise QuadCaptureTimeout(
                 f"frames did not come in time: {stuck}; is the common trigger running "
-                f"(period {period / TICKS_PER_MS:g} ms), and is the timeout a few periods long?"
+                f"(period {period / TICKS_PER_MS:g} ms), and is --timeout a few periods long?"
             )
         time.sleep(poll_s)
 
