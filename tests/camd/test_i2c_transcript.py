@@ -1,6 +1,7 @@
 """Transcript tests: the exact I2C transfers of register access."""
 
 import errno
+import logging
 
 import pytest
 from smbus2 import i2c_msg
@@ -30,19 +31,27 @@ def test_write_is_one_message_big_endian():
     bus.done()
 
 
-def test_nak_is_retried_then_succeeds():
-    bus = ScriptedBus([errno.EREMOTEIO, [("w", 0x48, b"\x20\x00\x40")]])
-    io = RegisterIO(bus, 0x48, reg_bytes=1, retries=2)
-    io.write(0x20, 0x0040)
-    assert io.nak_count == 1
+def test_nak_is_retried_then_succeeds_and_is_logged_once(caplog):
+    bus = ScriptedBus([errno.EREMOTEIO, errno.EREMOTEIO, [("w", 0x48, b"\x20\x00\x40")]])
+    io = RegisterIO(bus, 0x48, reg_bytes=1, bus_name="port 0", retries=2)
+    with caplog.at_level(logging.DEBUG, "elphel_camd"):
+        io.write(0x20, 0x0040)
+    assert io.nak_count == 2
     bus.done()
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert warnings == [
+        "port 0: device 0x48 register 0x20: went through at attempt 3 of 3, after: "
+        "[Errno 121] scripted failure"
+    ]
 
 
-def test_persistent_nak_names_bus_address_and_register():
+def test_persistent_nak_names_bus_address_and_register(caplog):
     bus = ScriptedBus([errno.EREMOTEIO] * 3)
     io = RegisterIO(bus, 0x48, reg_bytes=1, bus_name="port 2", retries=2)
-    with pytest.raises(I2CError) as info:
+    with pytest.raises(I2CError) as info, caplog.at_level(logging.DEBUG, "elphel_camd"):
         io.read_word(0x2B)
+    # Raised, not logged: whoever catches it reports it (once).
+    assert [r for r in caplog.records if r.levelno >= logging.WARNING] == []
     err = info.value
     assert (err.bus, err.address, err.register) == ("port 2", 0x48, 0x2B)
     assert "port 2" in str(err) and "0x48" in str(err) and "0x2b" in str(err)
@@ -67,11 +76,15 @@ def test_detect_mt9p006_by_chip_version():
     bus.done()
 
 
-def test_detect_reports_nothing_when_no_device_answers():
+def test_detect_reports_nothing_when_no_device_answers(caplog):
     # Each known sensor is probed twice (one retry): MT9P006, MT9F002, Lepton 3.5, IMX219.
     bus = ScriptedBus([errno.EREMOTEIO] * 8)
-    assert detect(bus, bus_name="port 1") is None
+    with caplog.at_level(logging.DEBUG, "elphel_camd"):
+        assert detect(bus, bus_name="port 1") is None
     bus.done()
+    # A sensor that is not there is what probing finds out, not a failure: debug lines only.
+    assert [r.getMessage() for r in caplog.records if r.levelno > logging.DEBUG] == []
+    assert len(caplog.records) == 8
 
 
 def test_detect_rejects_other_chip_id():

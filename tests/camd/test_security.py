@@ -461,3 +461,15 @@ def test_i2c_fault_mid_patch_changes_nothing_and_names_port_address_register():
             assert r.status_code == 200 and r.json()["params"]["FLIPH"] == 1
     finally:
         camera.close()
+
+
+def test_an_i2c_failure_a_request_meets_is_answered_503_and_logged_once(camera, caplog):
+    with TestClient(create_app(camera, token=TOKEN)) as c:
+        with caplog.at_level(logging.DEBUG, "elphel_camd"):
+            camera.board.bus(0).sim_nak(2)  # both attempts of the one transfer
+            r = c.get("/api/v1/ports/0/registers/0x00", headers=AUTH)
+        assert r.status_code == 503, r.text
+        assert r.json()["error"] == "i2c"
+    warnings = [rec.getMessage() for rec in caplog.records if rec.levelno >= logging.WARNING]
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith("GET /api/v1/ports/0/registers/0x00: port 0: device 0x48")

@@ -135,3 +135,57 @@ def test_a_body_over_the_limit_is_413_whatever_the_reads(parser, service):
         sock.close()
         assert answer.startswith(b"HTTP/1.1 413"), answer[:200]
         assert b'"limit":"max_body_bytes"' in answer.replace(b" ", b"")
+
+
+def _head_lines(answer: bytes) -> list[tuple[str, str]]:
+    """The header lines of a raw HTTP answer, names in lower case."""
+    head = answer.split(b"\r\n\r\n", 1)[0].decode("latin-1").split("\r\n")[1:]
+    return [(n.strip().lower(), v.strip()) for n, v in (line.split(":", 1) for line in head)]
+
+
+def _assert_safe_headers_once(answer: bytes) -> None:
+    lines = _head_lines(answer)
+    for name, value in (("x-content-type-options", "nosniff"), ("referrer-policy", "no-referrer")):
+        assert [v for n, v in lines if n == name] == [value], (name, answer[:400])
+
+
+def _raw(url: str, request: bytes) -> bytes:
+    sock = socket.create_connection(("127.0.0.1", port_of(url)))
+    with contextlib.suppress(ConnectionError):
+        sock.sendall(request)
+    answer = read_all(sock)
+    sock.close()
+    return answer
+
+
+@pytest.mark.parametrize(
+    "request_bytes",
+    [
+        b"NOT HTTP AT ALL\r\n\r\n",
+        b"GET /api/v1/info HTTP/1.1\r\nHost camera\r\n\r\n",  # a header line without a colon
+        b"GET /api/v1/info HTTP/1.1\r\nHost: camera\r\nX-Pad: " + b"a" * 5000,  # never ends
+    ],
+    ids=["request-line", "header-line", "head-too-large"],
+)
+def test_the_servers_own_400_carries_the_safe_headers(parser, service, request_bytes):
+    with serve(service, max_head_bytes=4096) as srv:
+        answer = _raw(srv.url, request_bytes)
+    assert answer.startswith(b"HTTP/1.1 400"), answer[:200]
+    _assert_safe_headers_once(answer)
+
+
+def test_the_servers_503_over_the_connection_limit_carries_the_safe_headers(parser, service):
+    # One connection at most: the one that asks is already at the limit.
+    with serve(service, max_connections=1) as srv:
+        answer = _raw(srv.url, b"GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    assert answer.startswith(b"HTTP/1.1 503"), answer[:200]
+    _assert_safe_headers_once(answer)
+
+
+@pytest.mark.parametrize("path", ["/api/v1/health", "/", "/nowhere"])
+def test_the_apps_answers_carry_each_safe_header_once(parser, service, path):
+    request = f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n".encode()
+    with serve(service) as srv:
+        answer = _raw(srv.url, request)
+    assert answer.split(b" ", 2)[1] in (b"200", b"404"), answer[:200]
+    _assert_safe_headers_once(answer)

@@ -83,3 +83,12 @@ def test_sigterm_stops_it_cleanly(nc393):
     assert proc.wait(timeout=20) == 0
     with pytest.raises(httpx.ConnectError):
         httpx.get(f"{web}/parsedit.php?immediate&FRAME", timeout=2)
+
+
+def test_a_start_says_nothing_of_the_sensors_that_are_not_there():
+    """The mixed scenario leaves addresses empty on every port but 0: probing finds them
+    empty, which is no failure and no line on stderr."""
+    proc, _ = start_rig("--firmware", "elphel", "--scenario", "mixed", "--seed", "2")
+    stderr = stop_rig(proc)
+    assert proc.returncode == 0, stderr
+    assert "no device at" not in stderr and "attempt" not in stderr, stderr

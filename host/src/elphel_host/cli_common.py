@@ -8,13 +8,13 @@ camera (``--port`` is only ever a TCP port).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
 from typing import Any
 
 from elphel_host.shown import shown
+from elphel_host.strict_json import report_dumps
 
 CAMERA_URL_ENV = "ELPHEL_CAMERA_URL"
 CAMERA_TOKEN_ENV = "ELPHEL_CAMERA_TOKEN"
@@ -24,7 +24,7 @@ STAGE_URL_ENV = "ELPHEL_STAGE_URL"
 def emit(args: argparse.Namespace, result: dict[str, Any], human: str) -> None:
     """Print a command's result: one JSON object with --json, else the human text."""
     if getattr(args, "json", False):
-        print(json.dumps(result, sort_keys=True))
+        print(report_dumps(result, sort_keys=True))
     else:
         print(human)
 

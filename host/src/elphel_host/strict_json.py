@@ -3,13 +3,21 @@
 Python's `json` accepts and writes ``NaN`` and ``Infinity``, so a camera's
 ``frame: Infinity`` would end up in a manifest that other tools refuse. `loads` refuses
 non-standard numbers, nesting deeper than the parser's recursion limit and texts over a
-size limit; `dumps` refuses non-finite values at the door.
+size limit. Two ways to write, one for each kind of document:
+
+- `dumps`, for files the host reads back (manifests, quad.json, plans, stage models):
+  a non-finite value is refused at the door;
+- `report_dumps`, for reports (``compare.json``, ``depth.json``, what ``--json``
+  prints): a value that is rightly non-finite (the PSNR of an image identical to its
+  reference is infinite) is written as ``null`` and named, with its value, under
+  ``"non_finite"`` (`NON_FINITE_FIELD`).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import numbers
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +72,53 @@ def dumps(value: Any, *, what: str, **options: Any) -> str:
         raise DeviceAnswerError(
             f"{what}: holds a non-finite number (NaN or infinity); allowed: finite numbers"
         ) from e
+
+
+# The field of a report that names the values written as null because JSON has no number
+# for them: {"methods.robust.psnr_db": "Infinity", ...}.
+NON_FINITE_FIELD = "non_finite"
+
+
+def _non_finite_name(value: float) -> str:
+    if math.isnan(value):
+        return "NaN"
+    return "Infinity" if value > 0 else "-Infinity"
+
+
+def _nulled(value: Any, path: str, found: dict[str, str]) -> Any:
+    if isinstance(value, numbers.Real) and not math.isfinite(value):
+        found[path] = _non_finite_name(float(value))
+        return None
+    if isinstance(value, dict):
+        return {k: _nulled(v, f"{path}.{k}" if path else str(k), found) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_nulled(v, f"{path}.{i}" if path else str(i), found) for i, v in enumerate(value)]
+    return value
+
+
+def nulled(report: dict[str, Any]) -> dict[str, Any]:
+    """``report`` with each NaN or infinity as None, named under `NON_FINITE_FIELD`.
+
+    The names are paths of keys and list indices joined by dots (``methods.robust.psnr_db``,
+    ``points.3``); their values say which number stood there (``"Infinity"``,
+    ``"-Infinity"``, ``"NaN"``). A report with finite numbers only comes back equal, without
+    that field.
+
+    Raises
+    ------
+    ValueError
+        The report already has a `NON_FINITE_FIELD` of its own.
+    """
+    if NON_FINITE_FIELD in report:
+        raise ValueError(f"a report may not hold its own {NON_FINITE_FIELD!r} field")
+    found: dict[str, str] = {}
+    clean = _nulled(report, "", found)
+    return {**clean, NON_FINITE_FIELD: found} if found else clean
+
+
+def report_dumps(report: dict[str, Any], **options: Any) -> str:
+    """Strict JSON of a report: non-finite values as null, named (`nulled`)."""
+    return json.dumps(nulled(report), allow_nan=False, **options)
 
 
 def load_file(path: Path) -> Any:

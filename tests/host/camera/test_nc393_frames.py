@@ -207,3 +207,20 @@ def test_trigger_fires_imgsrv_trig_only_in_snapshot_mode():
         with pytest.raises(CameraParameterError, match="TRIG=0: one trigger needs snapshot"):
             cam.trigger(1)
     t.done()
+
+
+def test_a_camera_that_does_not_answer_in_time_is_a_timeout_naming_a_readable_path():
+    from elphel_host.camera.nc393.http import http_get, readable_path
+    from elphel_host.errors import DeviceTimeout
+    from elphel_host.limits import HostLimits
+
+    def late(request: httpx.Request) -> httpx.Response:
+        raise httpx.ReadTimeout("timed out", request=request)
+
+    path = "/last" + "/prev" * 89 + "/save/bimg"
+    imgsrv = httpx.Client(base_url=IMG, transport=httpx.MockTransport(late))
+    with pytest.raises(DeviceTimeout) as info:
+        http_get(imgsrv, path, limits=HostLimits.from_env(), frame=True)
+    assert str(info.value).startswith(f"the camera at {IMG}/last/prev*89/save/bimg did not answer")
+    assert readable_path("/torp/next/save/bimg") == "/torp/next/save/bimg"
+    assert readable_path("/a/b/b/c/c/c") == "/a/b*2/c*3"

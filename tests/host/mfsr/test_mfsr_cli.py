@@ -145,3 +145,24 @@ def test_several_bursts_in_parallel(tmp_path, burst2, capsys):
     assert (out / "a.tif").is_file() and (out / "b.tif").is_file()
     # The local cluster's single-threaded BLAS settings do not stay in this process.
     assert dict(os.environ) == environ
+
+
+def test_compare_json_is_strict_when_a_method_equals_the_reference(tmp_path, burst2):
+    """bicubic against its own output: an infinite PSNR, written as null and named."""
+    from elphel_host.burst.io import read_burst
+    from elphel_host.mfsr.fuse import fuse_burst
+
+    b = _burst(tmp_path, burst2)
+    ref = tmp_path / "ref.tif"
+    tifffile.imwrite(ref, fuse_burst(read_burst(b), scale=2, method="bicubic").image)
+    out = tmp_path / "cmp"
+    args = ["mfsr", "compare", str(b), "--scale", "2", "--reference", str(ref), "--float"]
+    assert main([*args, "--out", str(out)]) == 0
+
+    def refuse(name):
+        raise AssertionError(f"{name} in compare.json")
+
+    doc = json.loads((out / "compare.json").read_text(), parse_constant=refuse)
+    assert doc["methods"]["bicubic"]["psnr_db"] is None
+    assert doc["non_finite"] == {"methods.bicubic.psnr_db": "Infinity"}
+    assert doc["methods"]["robust"]["psnr_db"] > 0

@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from elphel_host import strict_json
 from elphel_host.errors import InputFormatError
 from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.scale import MAX_SCALE, check_scale
@@ -146,7 +147,7 @@ def read_plan(path: str | Path) -> BurstPlan:
 
 def write_plan(path: str | Path, plan: BurstPlan) -> Path:
     """Write a plan file atomically."""
-    text = json.dumps(plan.to_json(), indent=1, sort_keys=True) + "\n"
+    text = strict_json.dumps(plan.to_json(), what=str(path), indent=1, sort_keys=True) + "\n"
     return write_atomic(path, text.encode())
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
-import json
 import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from elphel_host import strict_json
 from elphel_host.camera.backends import connect
 from elphel_host.camera.client import (
     CameraClient,
@@ -375,12 +375,12 @@ def _keep_partial(args: argparse.Namespace, error: PartialBurstError) -> int:
 def _tiff_bytes(image: Any, metadata: dict[str, Any]) -> bytes:
     """A one-page 16-bit TIFF with JSON metadata, as the daemon writes them."""
     import io
-    import json
 
     import tifffile
 
     buffer = io.BytesIO()
-    tifffile.imwrite(buffer, image, description=json.dumps(metadata), metadata=None)
+    description = strict_json.dumps(metadata, what="the frame's metadata")
+    tifffile.imwrite(buffer, image, description=description, metadata=None)
     return buffer.getvalue()
 
 
@@ -392,7 +392,8 @@ def _event_line(event: CameraEvent) -> str:
         what = data.get("changes") or {"register": data.get("register")}
         body = " ".join(f"{k}={v}" for k, v in what.items())
         return f"params port {data['port']} @{data['frame']}: {body}"
-    return shown(f"{event.type:6s} {json.dumps(data, sort_keys=True)}", limit_chars=1000)
+    text = strict_json.dumps(data, what="the event", sort_keys=True)
+    return shown(f"{event.type:6s} {text}", limit_chars=1000)
 
 
 @_said_plainly

@@ -7,7 +7,6 @@ When a failed request is sent again is :mod:`elphel_host.camera.retry`'s policy.
 
 from __future__ import annotations
 
-import json
 import socket
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -563,7 +562,7 @@ def _pages_tiff(pages: list[Any], metadata: list[dict[str, Any]]) -> bytes:
     buffer = io.BytesIO()
     with tifffile.TiffWriter(buffer) as tif:
         for image, meta in zip(pages, metadata, strict=True):
-            tif.write(image, description=json.dumps(meta), metadata=None)
+            tif.write(image, description=strict_json.dumps(meta, what="metadata"), metadata=None)
     return buffer.getvalue()
 
 

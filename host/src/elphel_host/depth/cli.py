@@ -7,7 +7,6 @@ the products and renders the result.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ from elphel_host.depth.products import (
 from elphel_host.fileio import write_atomic
 from elphel_host.mfsr.fuse import METHODS, peak_memory_mb
 from elphel_host.progress import ProgressLine
+from elphel_host.strict_json import report_dumps
 from elphel_host.tp.dsi import write_dsi
 
 
@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         "cameras": run_.info,
         "peak_memory_mb": round(peak_memory_mb(), 1),
     }
-    write_atomic(out / "depth.json", (json.dumps(result, indent=2) + "\n").encode())
+    write_atomic(out / "depth.json", (report_dumps(result, indent=2) + "\n").encode())
     human = (
         f"{out}: {result['points']} points of {result['tiles']} tiles "
         f"({result['weak_tiles']} below strength {config.min_strength:g}, "

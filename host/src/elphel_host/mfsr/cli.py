@@ -14,7 +14,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -34,6 +33,7 @@ from elphel_host.mfsr.robust_config import RobustConfig
 from elphel_host.mfsr.scale import MAX_SCALE, MIN_SCALE
 from elphel_host.preview import labelled_row, save_png
 from elphel_host.progress import ProgressLine
+from elphel_host.strict_json import report_dumps
 
 if TYPE_CHECKING:  # the quad's PSFs are imported when asked for (SciPy's optimiser)
     from elphel_host.burst.io import Burst
@@ -330,8 +330,8 @@ def run_compare(args: argparse.Namespace) -> int:
         "crops_png": str(png),
         "crops_order": ["bicubic", "baseline", "robust"],
     }
-    # An identical image's PSNR is infinite, which strict JSON cannot hold.
-    text = json.dumps(summary, indent=1, sort_keys=True)
+    # An image identical to the reference has an infinite PSNR: null, named in "non_finite".
+    text = report_dumps(summary, indent=1, sort_keys=True)
     write_atomic(out / "compare.json", (text + "\n").encode())
     lines = [
         f"{m}: {e.get('psnr_db', '-')} dB, SSIM {e.get('ssim', '-')}, {e['seconds']} s"

@@ -15,6 +15,7 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
+from elphel_host import strict_json
 from elphel_host.camera.jp4 import decode_jp4
 from elphel_host.errors import Jp4FormatError
 from elphel_host.fileio import replacing
@@ -37,14 +38,16 @@ def read_recording(path: Path) -> tuple[NDArray[np.uint16], dict[str, Any]]:
 def tiff_bytes(image: NDArray[np.uint16], metadata: dict[str, Any]) -> bytes:
     """A one-page 16-bit TIFF with the JSON metadata in ImageDescription, as captures have."""
     buffer = io.BytesIO()
-    tifffile.imwrite(buffer, image, description=json.dumps(metadata), metadata=None)
+    description = strict_json.dumps(metadata, what="the frame's metadata")
+    tifffile.imwrite(buffer, image, description=description, metadata=None)
     return buffer.getvalue()
 
 
 def write_frame_tiff(path: Path, image: NDArray[np.uint16], metadata: dict[str, Any]) -> Path:
     """Write ``path`` atomically: a 16-bit TIFF with the JSON metadata."""
+    description = strict_json.dumps(metadata, what=f"{path}'s metadata")
     with replacing(path, keep_suffix=True) as tmp:
-        tifffile.imwrite(tmp, image, description=json.dumps(metadata), metadata=None)
+        tifffile.imwrite(tmp, image, description=description, metadata=None)
     return path
 
 

@@ -32,7 +32,12 @@ from typing import Any
 
 from elphel_host.camera.client import CameraHTTPError, CapturedFrame
 from elphel_host.camera.protocol import CameraInterface
-from elphel_host.errors import FrameGoneError, QuadCaptureError, QuadCaptureTimeout
+from elphel_host.errors import (
+    DeviceTimeout,
+    FrameGoneError,
+    QuadCaptureError,
+    QuadCaptureTimeout,
+)
 from elphel_host.fileio import replacing_directory
 from elphel_host.tp.calibrated import copy_calibration, read_calibration
 from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
@@ -206,15 +211,17 @@ def _take_set_patiently(
     """`_take_set`; the set and the period used.
 
     When the frames were overwritten in the camera's buffer before they were all
-    fetched (a busy host, a slow link) and the period was not given (``fixed``), the set
-    is taken once more at `SLOWER` times the period; otherwise the error names the option.
+    fetched, or the camera did not answer in time (a busy host, a slow link), and the
+    period was not given (``fixed``), the set is taken once more at `SLOWER` times the
+    period, with `SLOWER` times the timeout (as many periods); otherwise the error names
+    the option.
     """
     master, period = trigger
     for last in (fixed is not None, True):
         started = time.monotonic()
         try:
             taken = _take_set(camera, before, layout, (master, period), started + timeout_s, step)
-        except FrameGoneError as e:
+        except (FrameGoneError, DeviceTimeout) as e:
             if last:
                 raise QuadCaptureError(
                     f"{e}: fetching the set took {time.monotonic() - started:.1f} s at a "
@@ -222,6 +229,7 @@ def _take_set_patiently(
                     f"(--trigger-period-ms {SLOWER * period / TICKS_PER_MS:g})"
                 ) from e
             period *= SLOWER
+            timeout_s *= SLOWER
             continue
         return taken, period
     raise QuadCaptureError("no attempt left")  # not reached: the last attempt returns or raises
@@ -316,7 +324,7 @@ def _wait_for(
             )
             raise QuadCaptureTimeout(
                 f"frames did not come in time: {stuck}; is the common trigger running "
-                f"(period {period / TICKS_PER_MS:g} ms), and is the timeout a few periods long?"
+                f"(period {period / TICKS_PER_MS:g} ms), and is --timeout a few periods long?"
             )
         time.sleep(poll_s)
 

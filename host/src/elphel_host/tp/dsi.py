@@ -36,7 +36,9 @@ def properties_xml(props: dict[str, Any]) -> str:
     """Elphel-style ImageJ info: ``<?xml ...?><properties><KEY>value</KEY>...</properties>``."""
     root = ET.Element("properties")
     for key, value in props.items():
-        ET.SubElement(root, key).text = value if isinstance(value, str) else json.dumps(value)
+        ET.SubElement(root, key).text = (
+            value if isinstance(value, str) else json.dumps(value, allow_nan=False)
+        )
     return '<?xml version="1.0" encoding="UTF-8"?>' + ET.tostring(root, encoding="unicode")
 
 

@@ -11,7 +11,10 @@ Here:
 - at most ``max_connections`` connections and requests are served at once (503 beyond);
 - a request's line and headers may take at most ``max_head_bytes`` (400 and closed beyond);
 - on SIGINT/SIGTERM the event streams are ended first (``on_shutdown``), and whatever is
-  still running a second later is cancelled.
+  still running a second later is cancelled;
+- every answer carries the headers every answer of the app carries
+  (`elphel_camd.api.middleware.ANSWER_HEADERS`), those the server makes itself (400, 503,
+  500) too.
 
 HTTP is parsed by httptools (C) when it is installed, else by h11 (pure Python); all of
 the above holds with either.
@@ -29,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from elphel_camd.api.middleware import ANSWER_HEADERS, SERVER_HEADERS_EXTENSION
 from elphel_camd.api.routes.events import CUT_EXTENSION, SEND_BUFFER_EXTENSION
 
 log = logging.getLogger(__name__)
@@ -85,6 +89,10 @@ class _RequestDeadline(_Protocol):
             extensions: Any = cycle.scope.setdefault("extensions", {})
             extensions[CUT_EXTENSION] = self._cut
             extensions[SEND_BUFFER_EXTENSION] = self._limit_send_buffer
+            # What this answer will carry anyway: the app's middleware need not add it.
+            extensions[SERVER_HEADERS_EXTENSION] = frozenset(
+                name.decode("latin-1") for name, _ in cycle.default_headers
+            )
         waiting = cycle is None or cycle.response_complete or cycle.more_body
         if waiting and not self.transport.is_closing():
             self._arm()
@@ -115,6 +123,19 @@ class TimedH11Protocol(_RequestDeadline, H11Protocol):
     """uvicorn's pure-Python HTTP/1.1 protocol (h11) with the request deadline."""
 
     parser_name = "h11"
+
+    def send_400_response(self, msg: str) -> None:
+        """Answer 400 and close, with the headers of every answer (uvicorn's h11 400 has none)."""
+        body = msg.encode("ascii")
+        lines = [b"HTTP/1.1 400 Bad Request"]
+        lines += [name + b": " + value for name, value in self.server_state.default_headers]
+        lines += [
+            b"content-type: text/plain; charset=utf-8",
+            b"content-length: %d" % len(body),
+            b"connection: close",
+        ]
+        self.transport.write(b"\r\n".join(lines) + b"\r\n\r\n" + body)
+        self.transport.close()
 
 
 def _httptools_protocol() -> type[Any] | None:
@@ -263,6 +284,7 @@ def server_config(
         timeout_graceful_shutdown=int(max(1, SHUTDOWN_TIMEOUT_S)),
         limit_concurrency=max_connections,
         h11_max_incomplete_event_size=max_head_bytes,
+        headers=list(ANSWER_HEADERS),
         **options,
     )
 

@@ -9,7 +9,6 @@ so burst and quad directories store identical files whichever camera took them.
 from __future__ import annotations
 
 import io
-import json
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -18,12 +17,18 @@ import numpy as np
 import tifffile
 
 from elphel_camd.frame_metadata import bayer_after_flips
+from elphel_host import strict_json
 from elphel_host.camera.exif import read_exif
 from elphel_host.camera.frames import CapturedBurst, CapturedFrame
 from elphel_host.camera.jp4 import decode_frame
 from elphel_host.camera.jp4 import frame_metadata as exif_metadata
 from elphel_host.camera.nc393 import imgsrv
-from elphel_host.errors import CameraClientError, DeviceLimitError, InputFormatError
+from elphel_host.errors import (
+    CameraClientError,
+    DeviceLimitError,
+    DeviceTimeout,
+    InputFormatError,
+)
 from elphel_host.limits import Deadline, HostLimits, read_bounded
 
 _FIRST = ("frame", "timestamp_ns", "port", "sensor", "bayer")
@@ -144,6 +149,8 @@ def newest_stamp(
                     raise CameraClientError(f"{url}: {e}") from e
                 if block is not None:
                     return header_stamp(block, url=url)
+    except httpx.TimeoutException as e:
+        raise DeviceTimeout(f"the camera at {url} did not answer in time: {e}") from e
     except httpx.HTTPError as e:
         raise CameraClientError(f"cannot reach the camera at {url}: {e}") from e
     raise CameraClientError(f"{url}: the frame ended before its Exif block")
@@ -152,7 +159,8 @@ def newest_stamp(
 def tiff_bytes(image: np.ndarray, metadata: Mapping[str, Any]) -> bytes:
     """One 16-bit TIFF page with the metadata as JSON in its ImageDescription."""
     buffer = io.BytesIO()
-    tifffile.imwrite(buffer, image, description=json.dumps(dict(metadata)), metadata=None)
+    description = strict_json.dumps(dict(metadata), what="the frame's metadata")
+    tifffile.imwrite(buffer, image, description=description, metadata=None)
     return buffer.getvalue()
 
 
@@ -200,7 +208,8 @@ def tiff_pages(frames: Sequence[CapturedFrame]) -> CapturedBurst:
     buffer = io.BytesIO()
     with tifffile.TiffWriter(buffer) as tif:
         for f in frames:
-            tif.write(f.image, description=json.dumps(f.metadata), metadata=None)
+            meta = strict_json.dumps(f.metadata, what=f"frame {f.frame}'s metadata")
+            tif.write(f.image, description=meta, metadata=None)
     images = np.stack([f.image for f in frames])
     return CapturedBurst(
         tiff=buffer.getvalue(), images=images, metadata=[f.metadata for f in frames]

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import httpx
 
-from elphel_host.errors import CameraClientError
+from elphel_host.errors import CameraClientError, DeviceTimeout
 from elphel_host.limits import Deadline, HostLimits, check_declared, read_bounded
 
 
@@ -22,14 +22,32 @@ class Answer:
         return self.content.decode("utf-8", errors="replace")
 
 
+def readable_path(path: str) -> str:
+    """``path`` with each run of one repeated imgsrv command written once with its count.
+
+    ``/last/prev/prev/prev/save/bimg`` reads ``/last/prev*3/save/bimg``: a walk far back in
+    imgsrv's buffer would otherwise fill a message with its ``prev`` commands.
+    """
+    parts = path.split("/")
+    out: list[str] = []
+    i = 0
+    while i < len(parts):
+        run = 1
+        while i + run < len(parts) and parts[i + run] == parts[i]:
+            run += 1
+        out.append(parts[i] if run == 1 else f"{parts[i]}*{run}")
+        i += run
+    return "/".join(out)
+
+
 def http_get(client: httpx.Client, path: str, *, limits: HostLimits, frame: bool = False) -> Answer:
     """GET ``path`` within ``limits``: an XML/text answer (``frame``: an image) and the deadline.
 
     An unreachable camera or an HTTP error is a `CameraClientError` naming the URL and,
     for an error status, the answer's first line; an answer over its limit is a
-    `DeviceLimitError`, one past the deadline a `DeviceTimeout`.
+    `DeviceLimitError`, one past the deadline or the client's timeout a `DeviceTimeout`.
     """
-    where = str(client.base_url).rstrip("/") + path
+    where = str(client.base_url).rstrip("/") + readable_path(path)
     limit, name = (
         (limits.frame_bytes + limits.json_bytes, "frame_pixels")
         if frame
@@ -60,5 +78,7 @@ def http_get(client: httpx.Client, path: str, *, limits: HostLimits, frame: bool
                 limit_name=name,
             )
             return Answer(response.headers, content)
+    except httpx.TimeoutException as e:
+        raise DeviceTimeout(f"the camera at {where} did not answer in time: {e}") from e
     except httpx.HTTPError as e:
         raise CameraClientError(f"cannot reach the camera at {where}: {e}") from e

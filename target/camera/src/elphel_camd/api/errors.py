@@ -12,11 +12,13 @@ state directory that cannot be written 503 (reads keep serving), a frame that do
 come 504. Non-finite numbers in a rejected body are named as strings (``"NaN"``,
 ``"Infinity"``): JSON has no such numbers. Text that UTF-8 cannot carry (a lone UTF-16
 surrogate such as U+D800 in a JSON body) is named with a backslash escape
-(`problem`), so every error answer can be encoded.
+(`problem`), so every error answer can be encoded. A failing I2C transfer is also logged,
+once, with the request that met it: it is a fault of the board, not of the request.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from collections.abc import Callable
@@ -31,6 +33,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from elphel_camd import errors as camd
 from elphel_camd.api.models import Problem, schema_allowed
 from elphel_camd.params import PARAMS
+
+log = logging.getLogger(__name__)
 
 # Exception type -> HTTP status and the body's "error" code; the first match wins.
 ERROR_STATUS: tuple[tuple[type[Exception], int, str], ...] = (
@@ -254,6 +258,8 @@ def add_error_handlers(app: FastAPI) -> None:
         def handler(
             request: Request, exc: Exception, status: int = status, code: str = code
         ) -> JSONResponse:
+            if isinstance(exc, camd.I2CError):
+                log.warning("%s %s: %s", request.method, request.url.path, exc)
             return problem(status, error_body(exc, code))
 
         app.add_exception_handler(exc_type, handler)

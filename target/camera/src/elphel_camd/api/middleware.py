@@ -9,6 +9,12 @@ name and is refused. `SecurityHeaders` gives every answer ``X-Content-Type-Optio
 nosniff`` and ``Referrer-Policy: no-referrer``, and every HTML answer (the control page
 at ``/`` and ``/web/index.html``, ``/docs``) a Content-Security-Policy that allows only
 this daemon and no framing (`HTML_CSP`, unless the answer brings a stricter one of its own).
+
+The daemon's own server (`elphel_camd.serving`) writes `ANSWER_HEADERS` itself, on every
+answer including those it makes without the app (400 for a malformed request, 503 over
+the connection limit); it names the headers it writes in the request's scope
+(`SERVER_HEADERS_EXTENSION`) and `SecurityHeaders` leaves those to it, so each header is
+sent once whichever server runs the app.
 """
 
 from __future__ import annotations
@@ -27,6 +33,12 @@ HTML_CSP = (
     "style-src 'self'; script-src 'self'; object-src 'none'; base-uri 'none'; "
     "form-action 'self'; frame-ancestors 'none'"
 )
+
+# On every answer, whatever its kind or who makes it.
+ANSWER_HEADERS = (("X-Content-Type-Options", "nosniff"), ("Referrer-Policy", "no-referrer"))
+
+# A scope extension: the lower-case names of the headers the server writes on every answer.
+SERVER_HEADERS_EXTENSION = "elphel.server_headers"
 
 
 async def _problem(send: Send, status: int, body: dict[str, object]) -> None:
@@ -177,11 +189,14 @@ class SecurityHeaders:
             await self.app(scope, receive, send)
             return
 
+        by_server = scope.get("extensions", {}).get(SERVER_HEADERS_EXTENSION, frozenset())
+
         async def send_safe(message: Message) -> None:
             if message["type"] == "http.response.start":
                 headers = MutableHeaders(scope=message)
-                headers.setdefault("X-Content-Type-Options", "nosniff")
-                headers.setdefault("Referrer-Policy", "no-referrer")
+                for name, value in ANSWER_HEADERS:
+                    if name.lower() not in by_server:
+                        headers.setdefault(name, value)
                 if headers.get("content-type", "").lower().startswith("text/html"):
                     headers.setdefault("Content-Security-Policy", self.html_csp)
                     headers.setdefault("X-Frame-Options", "DENY")

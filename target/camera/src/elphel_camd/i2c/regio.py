@@ -2,7 +2,7 @@
 
 Reads are a combined transfer (write the register address, repeated start, read), as the
 Aptina sensors and the Lepton CCI expect. NAKs are retried a few times and then surface as
-`I2CError` naming the bus, device and register.
+`I2CError` naming the bus, device and register; a retry that went through is logged once.
 """
 
 from __future__ import annotations
@@ -61,29 +61,46 @@ class RegisterIO:
         return register.to_bytes(self.reg_bytes, "big")
 
     def _transfer(self, register: int, *msgs: i2c_msg) -> None:
+        """Do one transfer, trying a NAKed one again up to ``retries`` times.
+
+        A transfer that failed and then went through is logged once (a warning: nothing
+        else will ever tell of it). One that fails every attempt raises `I2CError` and
+        logs nothing: whoever catches it reports it, or knows it is expected (a probe
+        for a sensor that is not there).
+        """
+        failures: list[OSError] = []
         for attempt in range(self.retries + 1):
             try:
                 self.bus.i2c_rdwr(*msgs)
-                return
             except OSError as e:
                 self.nak_count += 1
-                log.warning(
-                    "%s: device 0x%02x register 0x%x: %s (attempt %d of %d)",
-                    self.bus_name,
-                    self.address,
-                    register,
+                failures.append(e)
+                log.debug(
+                    "%s: %s (attempt %d of %d)",
+                    self._where(register),
                     e,
                     attempt + 1,
                     self.retries + 1,
                 )
-                last = e
+                continue
+            if failures:
+                log.warning(
+                    "%s: went through at attempt %d of %d, after: %s",
+                    self._where(register),
+                    attempt + 1,
+                    self.retries + 1,
+                    failures[-1],
+                )
+            return
         raise I2CError(
-            f"{self.bus_name}: device 0x{self.address:02x} register 0x{register:x}: "
-            f"transfer failed {self.retries + 1} times: {last}",
+            f"{self._where(register)}: transfer failed {self.retries + 1} times: {failures[-1]}",
             bus=self.bus_name,
             address=self.address,
             register=register,
-        ) from last
+        ) from failures[-1]
+
+    def _where(self, register: int) -> str:
+        return f"{self.bus_name}: device 0x{self.address:02x} register 0x{register:x}"
 
     def read(self, register: int, count: int = 1) -> list[int]:
         """Read ``count`` consecutive 16-bit words starting at ``register``."""
