@@ -24,12 +24,15 @@ lint: $(STAMP)
 # Four pytest-xdist workers on two cores: most of the suite's wall time is tests waiting on
 # real time (daemons starting, frame clocks, stage moves), and four workers halve it.
 # loadgroup keeps the tests of one xdist_group on one worker (the kernel tier boots once).
+# --max-worker-restart=0: a worker that dies (killed for memory, a crash) fails the run at
+# once. pytest-xdist 3.8's loadgroup scheduler hangs for ever after replacing a dead worker
+# (pytest-dev/pytest-xdist#1323, #1378): it hands the new worker work that never ends.
 # Two runs: the daemon's tests first, then the rest in fresh workers. A worker keeps what
 # the simulated boards of its tests allocated (several GB after the daemon's tests), and
 # four such workers beside the rest's rigs ran the 24 GB machine out of memory.
 test: $(STAMP) lint
-	$(BIN)/pytest -n 4 --dist loadgroup tests/camd
-	$(BIN)/pytest -n 4 --dist loadgroup --ignore=tests/camd
+	$(BIN)/pytest -n 4 --dist loadgroup --max-worker-restart=0 tests/camd
+	$(BIN)/pytest -n 4 --dist loadgroup --max-worker-restart=0 --ignore=tests/camd
 
 bench: $(STAMP)
 	@for b in bench/*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done
