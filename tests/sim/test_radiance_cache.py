@@ -39,9 +39,10 @@ def strips(world, cache, *, pose=None, window=WINDOW, times=(0.0,)):
     )
 
 
-def test_board_frame_from_reused_radiance_is_bit_identical():
+def test_board_frame_from_reused_radiance_is_bit_identical(request):
     board = SimCameraBoard(build("default", seed=1), seed=1)
     camera = CameraService(board)
+    request.addfinalizer(camera.close)
     camera.set_params(0, SMALL)
     board.sim_advance(frames=4)
     RADIANCE_CACHE.clear()
