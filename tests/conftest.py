@@ -78,15 +78,18 @@ def _is_open(ref: weakref.ref[SimCameraBoard]) -> bool:
 def _threads_still_running(before: set[threading.Thread]) -> list[threading.Thread]:
     """Threads started since ``before`` that are still alive after `THREAD_GRACE_S`.
 
-    A worker thread of an event loop that was running before (a module-scoped client's
-    portal) belongs to that loop and ends with it.
+    A worker thread of an event loop that was running before belongs to that loop and
+    ends with it: AnyIO's (a module-scoped client's portal) and the default executor's
+    ``asyncio_N`` threads (Playwright's loop, open for the browser tests' package).
     """
     deadline = time.monotonic() + THREAD_GRACE_S
-    loop_before = any(t.name.startswith("asyncio-portal") and t.is_alive() for t in before)
+    portal_before = any(t.name.startswith("asyncio-portal") and t.is_alive() for t in before)
     left = [
         t
         for t in threading.enumerate()
-        if t not in before and not (loop_before and t.name == "AnyIO worker thread")
+        if t not in before
+        and not (portal_before and t.name == "AnyIO worker thread")
+        and not t.name.startswith("asyncio_")
     ]
     for thread in left:
         thread.join(timeout=max(0.0, deadline - time.monotonic()))
