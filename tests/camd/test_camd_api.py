@@ -250,23 +250,28 @@ def test_registers_read_write_and_validation(client, camera):
 
 def test_i2c_fault_is_503_on_its_port_while_the_other_port_serves():
     board = two_port_board()
-    with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
-        assert c.get("/api/v1/health").json()["status"] == "ok"
-        board.bus(0).sim_stuck()
-        h = c.get("/api/v1/health")
-        assert h.status_code == 503
-        body = h.json()
-        assert body["status"] == "degraded" and body["error"] == "i2c"
-        assert [p["ok"] for p in body["ports"]] == [False, True]
-        r = c.get("/api/v1/ports/0/registers/0x35")
-        assert r.status_code == 503 and r.json()["error"] == "i2c"
-        assert c.get("/api/v1/ports/1/registers/0x35").status_code == 200
-        assert (
-            c.patch("/api/v1/ports/1/params", json={"EXPOS": 2000}, headers=AUTH).status_code == 200
-        )
-        assert c.get("/api/v1/ports/1/params").status_code == 200
-        board.bus(0).sim_stuck(False)
-        assert c.get("/api/v1/health").status_code == 200
+    service = CameraService(board)
+    try:
+        with TestClient(create_app(service, token=TOKEN, public_reads=True)) as c:
+            assert c.get("/api/v1/health").json()["status"] == "ok"
+            board.bus(0).sim_stuck()
+            h = c.get("/api/v1/health")
+            assert h.status_code == 503
+            body = h.json()
+            assert body["status"] == "degraded" and body["error"] == "i2c"
+            assert [p["ok"] for p in body["ports"]] == [False, True]
+            r = c.get("/api/v1/ports/0/registers/0x35")
+            assert r.status_code == 503 and r.json()["error"] == "i2c"
+            assert c.get("/api/v1/ports/1/registers/0x35").status_code == 200
+            assert (
+                c.patch("/api/v1/ports/1/params", json={"EXPOS": 2000}, headers=AUTH).status_code
+                == 200
+            )
+            assert c.get("/api/v1/ports/1/params").status_code == 200
+            board.bus(0).sim_stuck(False)
+            assert c.get("/api/v1/health").status_code == 200
+    finally:
+        service.close()
 
 
 def test_concurrent_patches_never_interleave(client, camera):

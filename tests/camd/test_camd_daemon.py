@@ -118,10 +118,12 @@ def test_journal_keeps_the_last_intact_line_and_compacts(tmp_path):
     # A power loss may leave a partial line or zeros at the end: skipped, not fatal.
     for tail in (b'{"version":1,"port":0,"sensor":"MT9P006","params":{"EXPOS":7}}\t0', b"\0" * 40):
         journal.write_bytes(intact + tail)
-        assert ParamStore(tmp_path).load(0, "MT9P006") == {"EXPOS": 6}
+        with ParamStore(tmp_path) as fresh:
+            assert fresh.load(0, "MT9P006") == {"EXPOS": 6}
     # A line whose CRC does not match is not trusted either.
     journal.write_bytes(intact.replace(b'"EXPOS":6', b'"EXPOS":9'))
-    assert ParamStore(tmp_path).load(0, "MT9P006") == {"EXPOS": 5}
+    with ParamStore(tmp_path) as fresh:
+        assert fresh.load(0, "MT9P006") == {"EXPOS": 5}
 
     for sync_each in (False, True):
         store = ParamStore(tmp_path / str(sync_each), sync_each=sync_each)
@@ -132,10 +134,12 @@ def test_journal_keeps_the_last_intact_line_and_compacts(tmp_path):
         journal = store.journal_path(1)
         assert journal.stat().st_size <= 2000 + 200  # emptied as it grew
         assert json.loads(store.path(1).read_text())["params"]["EXPOS"] >= 150
-        assert ParamStore(store.directory).load(1, "MT9F002") == {"EXPOS": 199}
+        with ParamStore(store.directory) as fresh:
+            assert fresh.load(1, "MT9F002") == {"EXPOS": 199}
         # The snapshot alone (journal lost or emptied) is a valid state too.
         journal.write_bytes(b"")
-        assert ParamStore(store.directory).load(1, "MT9F002") is not None
+        with ParamStore(store.directory) as fresh:
+            assert fresh.load(1, "MT9F002") is not None
 
 
 def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
@@ -164,7 +168,8 @@ def test_a_save_during_compaction_is_kept(tmp_path, monkeypatch):
     assert json.loads(store.path(0).read_text())["params"] == {"EXPOS": i - 1}
     assert b'"EXPOS":99' in store.journal_path(0).read_bytes()
     store.close()
-    assert ParamStore(tmp_path).load(0, "MT9P006") == {"EXPOS": 99}
+    with ParamStore(tmp_path) as fresh:
+        assert fresh.load(0, "MT9P006") == {"EXPOS": 99}
 
 
 # -- the daemon as a process -----------------------------------------------------------------

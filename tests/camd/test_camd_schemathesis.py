@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import pytest
 import schemathesis
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
@@ -27,16 +28,33 @@ from elphel_camd.api import create_app
 from elphel_camd.api.deps import FailedAuth
 from elphel_camd.service import CameraService
 from elphel_sim.board import SimCameraBoard
-from elphel_sim.scenarios import build
+from elphel_sim.scenarios import Scenario, build
+from elphel_sim.world import Rig, World
 
 TOKEN = "fuzz-token"
 SMALL = {"WOI_WIDTH": 64, "WOI_HEIGHT": 48, "WOI_LEFT": 16, "WOI_TOP": 16}
 EXAMPLES = 12
 
 
+_SCENARIOS: dict[str, Scenario] = {}
+
+
+def fresh_board(name: str) -> SimCameraBoard:
+    """A new board and rig on the scenario's scene, which every board of the module shares.
+
+    The scene is still; its textures (and their filtered copies) are built once.
+    """
+    if name not in _SCENARIOS:
+        _SCENARIOS[name] = build(name, seed=2)
+    first = _SCENARIOS[name]
+    rig = first.world.rig
+    world = World(first.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
+    return SimCameraBoard(Scenario(world, list(first.ports)), seed=2, noise=False)
+
+
 def fresh_app(scenario: str):
     # A fresh camera per operation: small windows keep the simulated renders quick.
-    camera = CameraService(SimCameraBoard(build(scenario, seed=2), seed=2, noise=False))
+    camera = CameraService(fresh_board(scenario))
     for port, driver in camera.sensors.items():
         if driver is not None and "WOI_WIDTH" in driver.writable and driver.model != "LEPTON35":
             camera.set_params(port, SMALL)
@@ -49,6 +67,22 @@ def fresh_app(scenario: str):
 
 
 ALL_CHECKS = list(CHECKS.get_all())
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _schemathesis_event_loop():
+    """Start the event-loop thread schemathesis keeps for the process, before the tests.
+
+    Its in-process ASGI client runs every app on that one thread, started at the first
+    call and kept to the end: started here, it is not a thread a test left running.
+    """
+    app = FastAPI()
+    app.get("/ping")(_ping)
+    schemathesis.openapi.from_asgi("/openapi.json", app)
+
+
+def _ping() -> int:
+    return 1
 
 
 @pytest.mark.parametrize("with_token", [True, False], ids=["token", "no-token"])

@@ -5,7 +5,9 @@ operation ids, statuses) and the service reached through a dependency rather tha
 closure.
 """
 
+import gc
 import re
+import weakref
 
 import numpy as np
 import pytest
@@ -100,6 +102,21 @@ def test_two_apps_keep_their_own_service_and_token():
     finally:
         first.close()
         second.close()
+
+
+def test_a_closed_and_dropped_app_is_freed_with_its_service_and_board():
+    # FastAPI keeps every endpoint it has seen in a process-wide cache: an endpoint that
+    # closed over its app would keep the app, the service and the board for good.
+    service = CameraService(SimCameraBoard(build("default", seed=1), seed=1, noise=False))
+    app = create_app(service, token="t")
+    with TestClient(app) as client:
+        assert client.get("/docs").status_code == 200
+        assert client.get("/api/v1/info", headers={"Authorization": "Bearer t"}).status_code == 200
+    service.close()
+    gone = [weakref.ref(app), weakref.ref(service), weakref.ref(service.board)]
+    del app, service, client
+    gc.collect()
+    assert [ref() for ref in gone] == [None, None, None]
 
 
 def test_an_empty_token_is_refused(service):

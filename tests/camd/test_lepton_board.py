@@ -1,5 +1,6 @@
 """The lepton board in the daemon: VoSPI frames with telemetry, the CCI, a stopped device."""
 
+import contextlib
 import io
 import json
 import re
@@ -43,8 +44,15 @@ def recording(tmp_path_factory):
     return path, stream
 
 
+@contextlib.contextmanager
 def client_of(board):
-    return TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True))
+    """A client of a daemon on ``board``; the daemon's service is closed at the end."""
+    service = CameraService(board)
+    try:
+        with TestClient(create_app(service, token=TOKEN, public_reads=True)) as client:
+            yield client
+    finally:
+        service.close()
 
 
 def capture(client, **params):

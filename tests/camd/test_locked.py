@@ -137,4 +137,5 @@ def test_a_save_does_not_wait_for_a_compaction_flushing_to_the_disk(tmp_path, mo
     monkeypatch.setattr(store_module.os, "fsync", real_fsync)
     store.close()
     assert saves and max(saves) < 0.2, saves
-    assert ParamStore(tmp_path).load(0, "MT9P006") == {"EXPOS": 1 + len(saves)}
+    with ParamStore(tmp_path) as fresh:
+        assert fresh.load(0, "MT9P006") == {"EXPOS": 1 + len(saves)}

@@ -46,7 +46,8 @@ def rig():
     target = cam.set_params(0, params)
     while cam.capture(0)[0].frame < target:
         pass
-    return board, cam, intrinsics
+    yield board, cam, intrinsics
+    cam.close()
 
 
 def test_composites_have_configured_shape_and_no_missing_strip(rig):
@@ -98,8 +99,11 @@ def test_object_appears_where_its_crossing_time_says(rig):
 def test_photofinish_limits():
     scenario = Scenario(world(), [PortSpec("MT9P006", "cam0", mt9p006_intrinsics(4.5))])
     cam = CameraService(SimCameraBoard(scenario))
-    with pytest.raises(ParameterRangeError, match="multiple of PF_HEIGHT"):
-        cam.set_params(0, {"PF_HEIGHT": 4, "WOI_HEIGHT": 1002})
-    with pytest.raises(ParameterRangeError, match="16384"):
-        cam.set_params(0, {"PF_HEIGHT": 2, "WOI_HEIGHT": 16386})
-    assert cam.set_params(0, {"PF_HEIGHT": 2, "WOI_HEIGHT": 16384, "WOI_TOP": 900}) > 0
+    try:
+        with pytest.raises(ParameterRangeError, match="multiple of PF_HEIGHT"):
+            cam.set_params(0, {"PF_HEIGHT": 4, "WOI_HEIGHT": 1002})
+        with pytest.raises(ParameterRangeError, match="16384"):
+            cam.set_params(0, {"PF_HEIGHT": 2, "WOI_HEIGHT": 16386})
+        assert cam.set_params(0, {"PF_HEIGHT": 2, "WOI_HEIGHT": 16384, "WOI_TOP": 900}) > 0
+    finally:
+        cam.close()

@@ -293,7 +293,8 @@ def test_journal_stays_near_its_bound_under_steady_writes(tmp_path):
     assert n > 1000  # steady writes: never a pause for the flusher to wait for
     assert biggest <= 2 * store.compact_bytes, biggest
     assert store.load(0, "MT9P006")["EXPOS"] == n
-    assert ParamStore(tmp_path).load(0, "MT9P006")["EXPOS"] == n
+    with ParamStore(tmp_path) as fresh:
+        assert fresh.load(0, "MT9P006")["EXPOS"] == n
 
 
 def test_concurrent_patches_answer_the_frame_of_their_own_values(camera):

@@ -17,11 +17,21 @@ from elphel_sim.scenarios import build
 SMALL = {"WOI_LEFT": 1000, "WOI_TOP": 800, "WOI_WIDTH": 128, "WOI_HEIGHT": 96, "EXPOS": 4000}
 
 
-def camera(noise=True, ports=1):
-    scenario = build("default", seed=3)
-    scenario.ports = scenario.ports * ports
-    board = SimCameraBoard(scenario, seed=3, noise=noise)
-    return board, CameraService(board)
+@pytest.fixture
+def camera():
+    """Builds (board, service) pairs on the default scenario; each is closed after the test."""
+    services = []
+
+    def build_camera(noise=True, ports=1):
+        scenario = build("default", seed=3)
+        scenario.ports = scenario.ports * ports
+        board = SimCameraBoard(scenario, seed=3, noise=noise)
+        services.append(CameraService(board))
+        return board, services[-1]
+
+    yield build_camera
+    for service in services:
+        service.close()
 
 
 def settle(cam, port=0, **params):
@@ -33,7 +43,7 @@ def settle(cam, port=0, **params):
             return frame, meta
 
 
-def test_doubling_expos_doubles_the_signal():
+def test_doubling_expos_doubles_the_signal(camera):
     _, cam = camera()
     one, m1 = settle(cam, EXPOS=2000)
     two, m2 = settle(cam, EXPOS=4000)
@@ -43,7 +53,7 @@ def test_doubling_expos_doubles_the_signal():
     assert ratio == pytest.approx(m2["EXPOS"] / m1["EXPOS"], rel=0.01)
 
 
-def test_woi_sets_shape_and_origin():
+def test_woi_sets_shape_and_origin(camera):
     board, cam = camera(noise=False)
     frame, _ = settle(cam, WOI_LEFT=1000, WOI_TOP=800, WOI_WIDTH=128, WOI_HEIGHT=96)
     assert frame.image.shape == (96, 128)
@@ -56,7 +66,7 @@ def test_woi_sets_shape_and_origin():
 
 
 @pytest.mark.parametrize(("flip", "axis"), [("FLIPH", 1), ("FLIPV", 0)])
-def test_flips_mirror_image_and_bayer(flip, axis):
+def test_flips_mirror_image_and_bayer(camera, flip, axis):
     _, cam = camera(noise=False)
     plain, m0 = settle(cam)
     flipped, m1 = settle(cam, **{flip: 1})
@@ -69,7 +79,7 @@ def test_flips_mirror_image_and_bayer(flip, axis):
     ("gain", "colour"),
     [("GAINR", (0, 1)), ("GAING", (0, 0)), ("GAINGB", (1, 1)), ("GAINB", (1, 0))],
 )
-def test_each_colour_gain_scales_only_its_colour(gain, colour):
+def test_each_colour_gain_scales_only_its_colour(camera, gain, colour):
     _, cam = camera(noise=False)
     base, _ = settle(cam, EXPOS=1500)
     gained, meta = settle(cam, EXPOS=1500, **{gain: 0x20000})
@@ -83,14 +93,14 @@ def test_each_colour_gain_scales_only_its_colour(gain, colour):
             assert after / before == pytest.approx(expected, rel=0.01), (dr, dc)
 
 
-def test_gain_residual_is_reported():
+def test_gain_residual_is_reported(camera):
     _, cam = camera()
     cam.set_params(0, {"GAINR": 0x1_2345})  # 1.1378x: the analog step is 1/8
     meta = cam.params(0, frame=cam.sequencer(0).this_frame + 3)
     assert meta["GAINR"] == 0x1_2000  # 1.125x, what the code gives
 
 
-def test_exposure_round_trips_within_one_row():
+def test_exposure_round_trips_within_one_row(camera):
     _, cam = camera()
     for expos in (37, 1234, 33333, 250_000):
         target = cam.set_params(0, {"EXPOS": expos})
@@ -116,7 +126,9 @@ def test_exposure_round_trips_within_one_row():
         ("FP1000S", 1000, "read-only"),
     ],
 )
-def test_invalid_values_name_parameter_value_and_range_and_change_nothing(name, value, allowed):
+def test_invalid_values_name_parameter_value_and_range_and_change_nothing(
+    camera, name, value, allowed
+):
     _, cam = camera()
     before = cam.params(0, frame=cam.sequencer(0).this_frame + 5)
     with pytest.raises(ParameterRangeError) as info:
@@ -126,7 +138,7 @@ def test_invalid_values_name_parameter_value_and_range_and_change_nothing(name, 
     assert cam.params(0, frame=cam.sequencer(0).this_frame + 5) == before
 
 
-def test_sequencer_puts_every_change_in_exactly_its_frame():
+def test_sequencer_puts_every_change_in_exactly_its_frame(camera):
     """Exposure changes for each upcoming frame, 200+ frames: each image shows its own."""
     board, cam = camera(noise=False)
     cam.set_params(0, SMALL)
@@ -156,7 +168,7 @@ def test_sequencer_puts_every_change_in_exactly_its_frame():
     assert checked >= 200
 
 
-def test_frames_render_the_scheduled_exposure():
+def test_frames_render_the_scheduled_exposure(camera):
     board, cam = camera(noise=False)
     cam.set_params(0, SMALL)
     board.sim_advance(frames=4)
@@ -172,7 +184,7 @@ def test_frames_render_the_scheduled_exposure():
     assert values.max() / values.min() < 1.01
 
 
-def test_too_late_and_too_early_are_distinct_and_change_nothing():
+def test_too_late_and_too_early_are_distinct_and_change_nothing(camera):
     board, cam = camera()
     board.sim_advance(frames=3)
     seq = cam.sequencer(0)
@@ -193,7 +205,7 @@ def test_too_late_and_too_early_are_distinct_and_change_nothing():
     }
 
 
-def test_all_or_nothing_when_one_value_is_bad():
+def test_all_or_nothing_when_one_value_is_bad(camera):
     _, cam = camera()
     before = cam.params(0, frame=20)
     with pytest.raises(ParameterRangeError):
@@ -201,7 +213,7 @@ def test_all_or_nothing_when_one_value_is_bad():
     assert cam.params(0, frame=20) == before
 
 
-def test_trigger_sync_across_four_ports():
+def test_trigger_sync_across_four_ports(camera):
     board, cam = camera(ports=4)
     for port in range(4):
         cam.set_params(port, {**SMALL, "TRIG": 4, "TRIG_DELAY": 1000 * port})
@@ -223,7 +235,7 @@ def test_trigger_sync_across_four_ports():
         assert cam.params(p)["FP1000S"] == 25_000
 
 
-def test_trigger_decimation_per_port():
+def test_trigger_decimation_per_port(camera):
     board, cam = camera(ports=2)
     for port in range(2):
         cam.set_params(port, {**SMALL, "TRIG": 4})
@@ -235,7 +247,7 @@ def test_trigger_decimation_per_port():
     assert np.allclose(d0, 20_000_000) and np.allclose(d1, 40_000_000)
 
 
-def test_fps_limit_stretches_the_frame():
+def test_fps_limit_stretches_the_frame(camera):
     board, cam = camera()
     cam.set_params(0, {**SMALL, "FP1000SLIM": 50_000, "FPSFLAGS": 1})
     board.sim_advance(frames=8)
@@ -247,7 +259,7 @@ def test_fps_limit_stretches_the_frame():
         cam.set_params(0, {"FP1000SLIM": 5000})
 
 
-def test_nak_is_retried_and_persistent_fault_is_typed_and_shadow_stays_true():
+def test_nak_is_retried_and_persistent_fault_is_typed_and_shadow_stays_true(camera):
     board, cam = camera()
     driver = cam.sensor(0)
     board.bus(0).sim_nak(1)
@@ -266,7 +278,7 @@ def test_nak_is_retried_and_persistent_fault_is_typed_and_shadow_stays_true():
         assert board.chips[0].peek(name) == driver.shadow[name], name
 
 
-def test_daemon_survives_stuck_bus_during_frames():
+def test_daemon_survives_stuck_bus_during_frames(camera):
     board, cam = camera()
     cam.set_params(0, {"GAINB": 0x20000})
     board.bus(0).sim_stuck()
@@ -282,11 +294,14 @@ def test_unsupported_on_bare_i2c_board():
         capabilities = frozenset({"frames", "capture"})
 
     cam = CameraService(NoFpga(build("default", seed=0)))
-    with pytest.raises(UnsupportedError, match="trigger"):
-        cam.set_params(0, {"TRIG_PERIOD": 100_000})
+    try:
+        with pytest.raises(UnsupportedError, match="trigger"):
+            cam.set_params(0, {"TRIG_PERIOD": 100_000})
+    finally:
+        cam.close()
 
 
-def test_frame_truth_records_the_carriage_position_of_each_frame():
+def test_frame_truth_records_the_carriage_position_of_each_frame(camera):
     board, cam = camera()
     cam.set_params(0, SMALL)
     board.world.rig.carriage_mm = 12.5
@@ -299,7 +314,7 @@ def test_frame_truth_records_the_carriage_position_of_each_frame():
     assert truth["carriage_mm"] == 13.0 and truth["camera_position_mm"][0] == 13.0
 
 
-def test_vexpos_sets_rows_and_the_frame_shows_it():
+def test_vexpos_sets_rows_and_the_frame_shows_it(camera):
     board, cam = camera(noise=False)
     frame_a, m1 = settle(cam, EXPOS=2000)
     target = cam.set_params(0, {"VEXPOS": 2 * m1["VEXPOS"]})
@@ -313,7 +328,7 @@ def test_vexpos_sets_rows_and_the_frame_shows_it():
     assert record.registers["shutter_width_lower"] == 2 * m1["VEXPOS"]
 
 
-def test_keep_fps_flag_refuses_exposure_longer_than_the_frame():
+def test_keep_fps_flag_refuses_exposure_longer_than_the_frame(camera):
     board, cam = camera()
     cam.set_params(0, {**SMALL, "FP1000SLIM": 50_000, "FPSFLAGS": 3})
     board.sim_advance(frames=6)

@@ -32,12 +32,22 @@ SMALL = {"WOI_LEFT": 1000, "WOI_TOP": 800, "WOI_WIDTH": 128, "WOI_HEIGHT": 96, "
 _MIXED = build("mixed", seed=3)
 
 
-def camera(noise=True):
-    # A fresh rig and clock each time, sharing the scene (and its filtered textures).
-    rig = _MIXED.world.rig
-    world = World(_MIXED.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
-    board = SimCameraBoard(Scenario(world, list(_MIXED.ports)), seed=3, noise=noise)
-    return board, CameraService(board)
+@pytest.fixture
+def camera():
+    """Builds (board, service) pairs on the mixed board; each is closed after the test."""
+    services = []
+
+    def build_camera(noise=True):
+        # A fresh rig and clock each time, sharing the scene (and its filtered textures).
+        rig = _MIXED.world.rig
+        world = World(_MIXED.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
+        board = SimCameraBoard(Scenario(world, list(_MIXED.ports)), seed=3, noise=noise)
+        services.append(CameraService(board))
+        return board, services[-1]
+
+    yield build_camera
+    for service in services:
+        service.close()
 
 
 def settle(cam, port=F, **params):
@@ -49,7 +59,7 @@ def settle(cam, port=F, **params):
 # -- MT9F002 ------------------------------------------------------------------------------
 
 
-def test_mixed_board_detects_each_model():
+def test_mixed_board_detects_each_model(camera):
     _, cam = camera()
     assert isinstance(cam.sensor(F), MT9F002)
     assert isinstance(cam.sensor(L), Lepton35)
@@ -58,7 +68,7 @@ def test_mixed_board_detects_each_model():
         cam.sensor(3)
 
 
-def test_mt9f002_woi_sets_shape_and_origin():
+def test_mt9f002_woi_sets_shape_and_origin(camera):
     board, cam = camera(noise=False)
     frame, meta = settle(cam)
     assert frame.image.shape == (96, 128)
@@ -74,7 +84,7 @@ def test_mt9f002_woi_sets_shape_and_origin():
     assert (chip.peek("x_output_size"), chip.peek("y_output_size")) == (128, 96)
 
 
-def test_mt9f002_doubling_expos_doubles_the_signal():
+def test_mt9f002_doubling_expos_doubles_the_signal(camera):
     _, cam = camera()
     one, m1 = settle(cam, EXPOS=1500)
     two, m2 = settle(cam, EXPOS=3000)
@@ -84,7 +94,7 @@ def test_mt9f002_doubling_expos_doubles_the_signal():
     assert ratio == pytest.approx(m2["EXPOS"] / m1["EXPOS"], rel=0.01)
 
 
-def test_mt9f002_exposure_round_trips_within_one_row_with_the_wide_row_quirk():
+def test_mt9f002_exposure_round_trips_within_one_row_with_the_wide_row_quirk(camera):
     _, cam = camera()
     for width, row_clocks in ((128, 0x930), (912, 2 * 0x4C8), (4096, 2 * (2048 + 0x5E))):
         row_us = row_clocks / 220
@@ -96,7 +106,7 @@ def test_mt9f002_exposure_round_trips_within_one_row_with_the_wide_row_quirk():
 
 
 @pytest.mark.parametrize(("flip", "axis"), [("FLIPH", 1), ("FLIPV", 0)])
-def test_mt9f002_flips_mirror_image_and_bayer(flip, axis):
+def test_mt9f002_flips_mirror_image_and_bayer(camera, flip, axis):
     board, cam = camera(noise=False)
     plain, m0 = settle(cam)
     flipped, m1 = settle(cam, **{flip: 1})
@@ -113,7 +123,7 @@ def test_mt9f002_flips_mirror_image_and_bayer(flip, axis):
     ("gain", "colour"),
     [("GAINR", (0, 1)), ("GAING", (0, 0)), ("GAINGB", (1, 1)), ("GAINB", (1, 0))],
 )
-def test_mt9f002_each_colour_gain_scales_only_its_colour(gain, colour):
+def test_mt9f002_each_colour_gain_scales_only_its_colour(camera, gain, colour):
     _, cam = camera(noise=False)
     base, _ = settle(cam, EXPOS=1000)  # all gains 1.5x
     gained, meta = settle(cam, EXPOS=1000, **{gain: 0x30000})
@@ -127,7 +137,7 @@ def test_mt9f002_each_colour_gain_scales_only_its_colour(gain, colour):
             assert after / before == pytest.approx(expected, rel=0.01), (dr, dc)
 
 
-def test_mt9f002_gain_code_and_residual():
+def test_mt9f002_gain_code_and_residual(camera):
     board, cam = camera()
     target = cam.set_params(F, {"GAINR": 0x2_2345})  # 2.1378x: analog2 steps by 1/32
     assert cam.params(F, frame=target)["GAINR"] == 0x2_2000  # 2.125x, what the code gives
@@ -137,7 +147,7 @@ def test_mt9f002_gain_code_and_residual():
         cam.set_params(F, {"GAINB": 0x10000})  # below the 1.5x analog minimum
 
 
-def test_mt9f002_sequencer_puts_every_exposure_change_in_exactly_its_frame():
+def test_mt9f002_sequencer_puts_every_exposure_change_in_exactly_its_frame(camera):
     board, cam = camera(noise=False)
     cam.set_params(F, SMALL)
     board.sim_advance(frames=4, port=F)
@@ -164,7 +174,7 @@ def test_mt9f002_sequencer_puts_every_exposure_change_in_exactly_its_frame():
     assert checked >= 200
 
 
-def test_mt9f002_frames_render_their_scheduled_exposure():
+def test_mt9f002_frames_render_their_scheduled_exposure(camera):
     board, cam = camera(noise=False)
     cam.set_params(F, SMALL)
     board.sim_advance(frames=4, port=F)
@@ -179,7 +189,7 @@ def test_mt9f002_frames_render_their_scheduled_exposure():
     assert max(per_us) / min(per_us) < 1.01
 
 
-def test_mt9f002_exposure_latency_is_two_frames_in_both_modes():
+def test_mt9f002_exposure_latency_is_two_frames_in_both_modes(camera):
     board, cam = camera()
     board.sim_advance(frames=3, port=F)
     now = cam.sequencer(F).this_frame
@@ -189,7 +199,7 @@ def test_mt9f002_exposure_latency_is_two_frames_in_both_modes():
     assert cam.sensor(F).latency("exposure", {"TRIG": 4}) == 2
 
 
-def test_mt9f002_long_exposure_lengthens_the_frame_and_fps_limit_stretches_it():
+def test_mt9f002_long_exposure_lengthens_the_frame_and_fps_limit_stretches_it(camera):
     board, cam = camera()
     cam.set_params(F, {**SMALL, "EXPOS": 50_000})
     board.sim_advance(frames=8, port=F)
@@ -204,7 +214,7 @@ def test_mt9f002_long_exposure_lengthens_the_frame_and_fps_limit_stretches_it():
     assert cam.params(F)["FP1000S"] == pytest.approx(20_000, rel=1e-3)
 
 
-def test_mt9f002_trigger_mode_sets_slave_mode_and_follows_the_trigger():
+def test_mt9f002_trigger_mode_sets_slave_mode_and_follows_the_trigger(camera):
     board, cam = camera()
     cam.set_params(F, {**SMALL, "EXPOS": 1000, "TRIG": 4})
     cam.set_params(0, {"WOI_WIDTH": 128, "WOI_HEIGHT": 96, "TRIG": 4, "EXPOS": 1000})
@@ -221,7 +231,7 @@ def test_mt9f002_trigger_mode_sets_slave_mode_and_follows_the_trigger():
     assert board.chips[F].peek("slave_mode") == 0x2000
 
 
-def test_mt9f002_init_writes_elphel_list_first():
+def test_mt9f002_init_writes_elphel_list_first(camera):
     board, _ = camera()
     chip = board.chips[F]
     init = [(f002.TABLE[name].address, value) for name, value in f002.INIT_WRITES]
@@ -229,7 +239,7 @@ def test_mt9f002_init_writes_elphel_list_first():
     assert chip.peek("pll_multiplier") == 0xB4 and chip.peek("reset_register") == 0x011C
 
 
-def test_mt9f002_photo_finish_stacks_strips():
+def test_mt9f002_photo_finish_stacks_strips(camera):
     board, cam = camera(noise=False)
     target = cam.set_params(F, {**SMALL, "PF_HEIGHT": 2, "WOI_HEIGHT": 16})
     frame, meta = cam.capture(F, frame=target)
@@ -248,7 +258,7 @@ def test_mt9f002_photo_finish_stacks_strips():
         ("VEXPOS", 0x10000, "1..65534"),
     ],
 )
-def test_mt9f002_invalid_values_name_parameter_value_and_range(name, value, allowed):
+def test_mt9f002_invalid_values_name_parameter_value_and_range(camera, name, value, allowed):
     _, cam = camera()
     before = cam.params(F, frame=cam.sequencer(F).this_frame + 5)
     with pytest.raises(ParameterRangeError) as info:
@@ -261,7 +271,7 @@ def test_mt9f002_invalid_values_name_parameter_value_and_range(name, value, allo
 # -- Lepton 3.5 ---------------------------------------------------------------------------
 
 
-def test_lepton_ping_fpa_temperature_and_identity():
+def test_lepton_ping_fpa_temperature_and_identity(camera):
     board, cam = camera()
     lepton = cam.sensor(L)
     lepton.ping()
@@ -272,7 +282,7 @@ def test_lepton_ping_fpa_temperature_and_identity():
     assert info["sensor_code"] == 0x44
 
 
-def test_lepton_init_sets_vsync_and_telemetry_per_elphel():
+def test_lepton_init_sets_vsync_and_telemetry_per_elphel(camera):
     board, cam = camera()
     lepton = cam.sensor(L)
     assert lepton.gpio_mode() == 5
@@ -284,7 +294,7 @@ def test_lepton_init_sets_vsync_and_telemetry_per_elphel():
     assert lepton.gpio_mode() == 5
 
 
-def test_lepton_ffc_and_radiometry_settings():
+def test_lepton_ffc_and_radiometry_settings(camera):
     board, cam = camera()
     lepton = cam.sensor(L)
     lepton.run_ffc()
@@ -297,7 +307,7 @@ def test_lepton_ffc_and_radiometry_settings():
         lepton.set_tlinear_resolution_k(0.5)
 
 
-def test_lepton_capture_is_160x120_mono_uint16_tlinear():
+def test_lepton_capture_is_160x120_mono_uint16_tlinear(camera):
     _, cam = camera()
     frame, meta = cam.capture(L)
     assert frame.image.shape == (120, 160) and frame.image.dtype == np.uint16
@@ -311,14 +321,14 @@ def test_lepton_capture_is_160x120_mono_uint16_tlinear():
     assert coarse.image.mean() == pytest.approx(frame.image.mean() / 10, rel=0.01)
 
 
-def test_lepton_frame_rate_is_8_7_fps():
+def test_lepton_frame_rate_is_8_7_fps(camera):
     board, _ = camera()
     board.sim_advance(frames=4, port=L)
     starts = [r.start_s for r in board.fpga[L].ring][-3:]
     assert np.allclose(np.diff(starts), 1 / 8.7)
 
 
-def test_lepton_telemetry_rows_follow_woi_height():
+def test_lepton_telemetry_rows_follow_woi_height(camera):
     board, cam = camera(noise=False)
     target = cam.set_params(L, {"WOI_HEIGHT": 122})
     frame, _ = cam.capture(L, frame=target)
@@ -340,7 +350,7 @@ def test_lepton_telemetry_rows_follow_woi_height():
         ("TRIG", 4, "no trigger input"),
     ],
 )
-def test_lepton_fixed_parameters_are_range_errors(name, value, match):
+def test_lepton_fixed_parameters_are_range_errors(camera, name, value, match):
     _, cam = camera()
     with pytest.raises(ParameterRangeError, match=match) as info:
         cam.set_params(L, {name: value})
@@ -357,7 +367,7 @@ def test_lepton_fixed_parameters_are_range_errors(name, value, match):
         ("FP1000SLIM", "fixed at 8.7 fps"),
     ],
 )
-def test_lepton_unsupported_parameters_say_why(name, match):
+def test_lepton_unsupported_parameters_say_why(camera, name, match):
     _, cam = camera()
     with pytest.raises(UnsupportedError, match=f"LEPTON35 does not support setting {name}"):
         cam.set_params(L, {name: 2})
@@ -365,14 +375,14 @@ def test_lepton_unsupported_parameters_say_why(name, match):
         cam.set_params(L, {name: 2})
 
 
-def test_common_trigger_period_reaches_the_lepton_port_unchanged():
+def test_common_trigger_period_reaches_the_lepton_port_unchanged(camera):
     _, cam = camera()
     cam.set_params(0, {"TRIG_PERIOD": 2_000_000})
     target = cam.sequencer(L).this_frame + 2
     assert cam.params(L, frame=target)["TRIG_PERIOD"] == 2_000_000
 
 
-def test_lepton_error_code_names_the_command():
+def test_lepton_error_code_names_the_command(camera):
     _, cam = camera()
     lepton = cam.sensor(L)
     bad = cci.Command("BOGUS", cci.Module.SYS, 0xF0, 1, frozenset({cci.CommandType.GET}))
@@ -382,7 +392,7 @@ def test_lepton_error_code_names_the_command():
     assert "0x02f0" in str(info.value) and "undefined function" in str(info.value)
 
 
-def test_rest_info_lists_all_three_models():
+def test_rest_info_lists_all_three_models(camera):
     _, cam = camera()
     client = TestClient(create_app(cam, token="t", public_reads=True))
     answer = client.get("/api/v1/info")
@@ -396,7 +406,7 @@ def test_rest_info_lists_all_three_models():
     assert "fixed at 160x120" in refused.json()["detail"]
 
 
-def test_rest_raw_registers_of_the_lepton_are_its_cci_interface():
+def test_rest_raw_registers_of_the_lepton_are_its_cci_interface(camera):
     _, cam = camera()
     client = TestClient(create_app(cam, token="t", public_reads=True))
     table = client.get(f"/api/v1/ports/{L}/registers")
@@ -417,7 +427,7 @@ def test_rest_raw_registers_of_the_lepton_are_its_cci_interface():
     assert mode.json()["fields"] == cam.sensor(F).fields_of("read_mode", value)
 
 
-def test_health_reads_every_sensor_identity_the_lepton_by_its_cci_status():
+def test_health_reads_every_sensor_identity_the_lepton_by_its_cci_status(camera):
     _, cam = camera()
     report = cam.health()
     assert report["status"] == "ok"

@@ -83,11 +83,21 @@ def test_binning_keeps_the_bayer_order_at_half_the_size():
     assert (binned[0::2, 0::2] == 100).all() and (binned[1::2, 1::2] == 10).all()
 
 
+@pytest.fixture
 def camera():
-    rig = _PAIR.world.rig
-    world = World(_PAIR.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
-    board = SimCameraBoard(Scenario(world, list(_PAIR.ports)), seed=5, noise=False)
-    return board, CameraService(board)
+    """Builds (board, service) pairs on the pi-pair rig; each is closed after the test."""
+    services = []
+
+    def build_camera():
+        rig = _PAIR.world.rig
+        world = World(_PAIR.world.scene, Rig(axis=rig.axis, mounts=dict(rig.mounts)))
+        board = SimCameraBoard(Scenario(world, list(_PAIR.ports)), seed=5, noise=False)
+        services.append(CameraService(board))
+        return board, services[-1]
+
+    yield build_camera
+    for service in services:
+        service.close()
 
 
 def settle(cam, port=0, **params):
@@ -95,7 +105,7 @@ def settle(cam, port=0, **params):
     return cam.capture(port, frame=target)
 
 
-def test_pi_pair_has_two_imx219_a_baseline_apart():
+def test_pi_pair_has_two_imx219_a_baseline_apart(camera):
     board, cam = camera()
     assert all(isinstance(cam.sensor(p), IMX219) for p in (0, 1))
     mounts = board.world.rig.mounts
@@ -103,7 +113,7 @@ def test_pi_pair_has_two_imx219_a_baseline_apart():
     assert all(m.on_stage for m in mounts.values())
 
 
-def test_window_flips_gain_and_exposure_through_the_daemon():
+def test_window_flips_gain_and_exposure_through_the_daemon(camera):
     _, cam = camera()
     got, meta = settle(cam)
     base = got.image.astype(float)
@@ -120,7 +130,7 @@ def test_window_flips_gain_and_exposure_through_the_daemon():
     assert longer.image.mean() / base.mean() == pytest.approx(2.0, rel=0.01)
 
 
-def test_rest_schema_offers_what_the_imx219_can_set():
+def test_rest_schema_offers_what_the_imx219_can_set(camera):
     _, cam = camera()
     client = TestClient(create_app(cam, token="t", public_reads=True))
     schema = client.get("/api/v1/ports/1/params/schema").json()
@@ -142,7 +152,7 @@ def test_rest_schema_offers_what_the_imx219_can_set():
     assert "one gain for all colours" in answer["allowed"]
 
 
-def test_a_port_view_is_port_0_of_its_own_board():
+def test_a_port_view_is_port_0_of_its_own_board(camera):
     board, _ = camera()
     view = PortView(board, 1)
     cam = CameraService(view)
@@ -155,7 +165,7 @@ def test_a_port_view_is_port_0_of_its_own_board():
         PortView(board, 2)
 
 
-def test_pi_pair_daemons_are_elphel_camd_only():
+def test_pi_pair_daemons_are_elphel_camd_only(camera):
     board, _ = camera()
     board.daemon_per_port = True
     with pytest.raises(ValueError, match="allowed: camd"):

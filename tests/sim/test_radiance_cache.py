@@ -2,10 +2,12 @@
 
 The image formed from the reused radiance is the same uint16 array, bit for bit, as one
 formed with the cache cleared; a moving plane, a moved carriage, another window or an
-edited scene are misses; the cache holds to its byte bound.
+edited scene are misses; the cache holds to its byte bound and keeps no scene alive.
 """
 
+import gc
 import threading
+import weakref
 from dataclasses import replace
 
 import numpy as np
@@ -37,9 +39,10 @@ def strips(world, cache, *, pose=None, window=WINDOW, times=(0.0,)):
     )
 
 
-def test_board_frame_from_reused_radiance_is_bit_identical():
+def test_board_frame_from_reused_radiance_is_bit_identical(request):
     board = SimCameraBoard(build("default", seed=1), seed=1)
     camera = CameraService(board)
+    request.addfinalizer(camera.close)
     camera.set_params(0, SMALL)
     board.sim_advance(frames=4)
     RADIANCE_CACHE.clear()
@@ -142,6 +145,22 @@ def test_byte_bound_holds_least_recently_used_out_first():
     strips(world, tiny)
     strips(world, tiny)
     assert (len(tiny), tiny.hits) == (1, 1)
+
+
+def test_cache_keeps_no_scene_alive_and_drops_the_entries_of_gone_planes():
+    cache = RadianceCache(max_bytes=1 << 30)
+    world = still_world()
+    strips(world, cache)
+    texture = weakref.ref(world.scene.planes[0].texture)
+    del world
+    gc.collect()
+    assert texture() is None  # the scene's texture (and its filtered copies) went
+    assert len(cache) == 1  # its radiance goes at the next put
+    other = still_world()
+    strips(other, cache)
+    assert (len(cache), cache.nbytes) == (1, 1 * 48 * 64 * 3 * 8)
+    strips(other, cache)
+    assert (cache.hits, cache.misses) == (1, 2)
 
 
 def test_reused_radiance_is_read_only():

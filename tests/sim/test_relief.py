@@ -104,7 +104,7 @@ def test_quad_rig_scenario_moves_the_quad_with_the_carriage() -> None:
     assert np.tan(t) == pytest.approx(0.25)
 
 
-def test_inspection_endpoint_serves_the_truth() -> None:
+def test_inspection_endpoint_serves_the_truth(request: pytest.FixtureRequest) -> None:
     from fastapi.testclient import TestClient
 
     from elphel_host.cloud.ply import read_ply
@@ -112,6 +112,7 @@ def test_inspection_endpoint_serves_the_truth() -> None:
     from elphel_sim.launcher import create_sim_app
 
     board = SimCameraBoard(build("quad-rig", seed=0), seed=0)
+    request.addfinalizer(board.close)
     client = TestClient(create_sim_app(board))
     r = client.get("/quad/reference.ply", params={"step_px": 32})
     assert r.status_code == 200

@@ -21,13 +21,17 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 @pytest.fixture
 def board():
-    return SimCameraBoard(build("default", seed=1), seed=1)
+    sim = SimCameraBoard(build("default", seed=1), seed=1)
+    yield sim
+    sim.close()
 
 
 @pytest.fixture
 def client(board):
-    with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
+    service = CameraService(board)
+    with TestClient(create_app(service, token=TOKEN, public_reads=True)) as c:
         yield c
+    service.close()
 
 
 def test_info_reports_the_sensor_read_over_simulated_i2c(client, board):
@@ -155,8 +159,11 @@ def test_missing_sensor_reported_as_empty_port():
     scenario = build("default", seed=0)
     scenario.ports.append(PortSpec(None, "cam0", scenario.ports[0].intrinsics))
     camera = CameraService(SimCameraBoard(scenario))
-    info = camera.info()
-    assert info["ports"][1]["sensor"] is None
-    with TestClient(create_app(camera, token=TOKEN)) as c:
-        r = c.post("/api/v1/ports/1/capture", headers=AUTH)
-        assert r.status_code == 404 and "no sensor" in r.json()["detail"]
+    try:
+        info = camera.info()
+        assert info["ports"][1]["sensor"] is None
+        with TestClient(create_app(camera, token=TOKEN)) as c:
+            r = c.post("/api/v1/ports/1/capture", headers=AUTH)
+            assert r.status_code == 404 and "no sensor" in r.json()["detail"]
+    finally:
+        camera.close()

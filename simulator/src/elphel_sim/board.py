@@ -175,6 +175,8 @@ class SimCameraBoard:
         if fpga is None:
             raise CaptureUnavailableError(f"port {port}: no sensor on this simulated port")
         with self._cond:
+            if self._closed:
+                raise CaptureUnavailableError(f"port {port}: the board is closed")
             first = fpga.frame + 1 if frame is None else frame
             ring = {r.frame: r for r in fpga.ring}
             if first <= fpga.frame and first not in ring:
@@ -203,13 +205,30 @@ class SimCameraBoard:
                     pins.pop(n, None)
 
     def close(self) -> None:
-        """Stop the clock; captures still waiting for a frame fail at once."""
+        """Stop the clock and let go of the frames and the frame-sync subscribers.
+
+        Captures still waiting for a frame fail at once, later ones too. The subscribers
+        (the daemon's service, which holds this board) and the frame images go, so a
+        closed board and its service are freed as soon as their last user lets go.
+        """
         with self._cond:
             self._closed = True
             self._cond.notify_all()
         self.stop_clock()
         if self._former is not None:
             self._former.close()
+        with self._cond:
+            self._subscribers.clear()
+            for fpga in self.fpga.values():
+                fpga.ring.clear()
+            self._pins.clear()
+            self._pin_counts.clear()
+            self._formed.clear()
+
+    @property
+    def closed(self) -> bool:
+        """Whether `close` was called."""
+        return self._closed
 
     # -- time ------------------------------------------------------------------------------
 

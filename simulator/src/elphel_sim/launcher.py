@@ -398,9 +398,13 @@ def up(
     board = SimCameraBoard(
         build(scenario, seed=seed, lens_blur=lens_blur), seed=seed, forming="process"
     )
-    cameras, served, urls, tokens = serve_daemons(
-        board, firmware=firmware, port=camera_port, public_reads=public_reads
-    )
+    try:
+        cameras, served, urls, tokens = serve_daemons(
+            board, firmware=firmware, port=camera_port, public_reads=public_reads
+        )
+    except OSError:  # the camera port is taken
+        board.close()
+        raise
     board.start_clock()
     try:
         stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()

@@ -89,6 +89,7 @@ def bursts() -> list[tuple[list[NDArray[np.uint16]], dict[str, Any], np.ndarray]
         truth = board.sim_frame_truth(port, first.frame)
         ref = reference(board, port, float(truth["carriage_mm"]), meta)
         out.append(([f.image for f, _ in frames], meta, ref))
+    board.close()
     return out
 
 

@@ -56,6 +56,7 @@ def sim_burst() -> tuple[list[np.ndarray], dict[str, Any], np.ndarray]:
             first_meta, first_frame = meta, frame.frame
     truth = board.sim_frame_truth(0, first_frame)
     ref = reference_image(SEED, float(truth["carriage_mm"]), first_meta, scale=SCALE)
+    camera.close()
     return frames, first_meta, ref.astype(np.float32)
 
 

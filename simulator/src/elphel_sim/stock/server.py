@@ -33,20 +33,25 @@ NOT_IMMEDIATE = (
 def parsedit_app(firmware: StockFirmware) -> FastAPI:
     """The camera's web server: ``GET /parsedit.php?immediate&...``."""
     app = FastAPI(title="simulated NC393 web server", docs_url=None, redoc_url=None)
-
-    @app.get("/parsedit.php")
-    async def parsedit(request: Request) -> Response:
-        try:
-            query = parse_query(request.url.query, known=KNOWN)
-        except UnknownParameterError as e:
-            body = unknown_name_xml(e.name)
-            return Response(body, media_type="text/xml", headers=XML_HEADERS)
-        if not query.immediate:
-            return Response(NOT_IMMEDIATE, media_type="text/html", headers=XML_HEADERS)
-        before = await run_in_threadpool(firmware.parsedit, query)
-        return Response(parameters_xml(before), media_type="text/xml", headers=XML_HEADERS)
-
+    # The endpoints are shared and find the firmware through the request: FastAPI keeps
+    # the endpoints it has seen in a process-wide cache, and one that closed over the
+    # firmware would keep it (its board and frames) alive for good.
+    app.state.firmware = firmware
+    app.add_api_route("/parsedit.php", parsedit, methods=["GET"])
     return app
+
+
+async def parsedit(request: Request) -> Response:
+    """``GET /parsedit.php``: read and write parameters, immediate mode only."""
+    try:
+        query = parse_query(request.url.query, known=KNOWN)
+    except UnknownParameterError as e:
+        body = unknown_name_xml(e.name)
+        return Response(body, media_type="text/xml", headers=XML_HEADERS)
+    if not query.immediate:
+        return Response(NOT_IMMEDIATE, media_type="text/html", headers=XML_HEADERS)
+    before = await run_in_threadpool(request.app.state.firmware.parsedit, query)
+    return Response(parameters_xml(before), media_type="text/xml", headers=XML_HEADERS)
 
 
 def imgsrv_app(firmware: StockFirmware, port: int) -> FastAPI:
@@ -56,19 +61,22 @@ def imgsrv_app(firmware: StockFirmware, port: int) -> FastAPI:
     server = Imgsrv(firmware, port)
     app = FastAPI(title=f"simulated NC393 imgsrv, port {port}", docs_url=None, redoc_url=None)
     app.router.redirect_slashes = False
-
-    @app.get("/{path:path}")
-    async def commands(path: str, request: Request) -> Response:
-        full = path + (f"?{request.url.query}" if request.url.query else "")
-        reply = await run_in_threadpool(server.handle, full)
-        return Response(
-            reply.body,
-            status_code=reply.status,
-            media_type=reply.content_type,
-            headers=reply.headers,
-        )
-
+    app.state.imgsrv = server  # found through the request, as in `parsedit_app`
+    app.add_api_route("/{path:path}", commands, methods=["GET"])
     return app
+
+
+async def commands(path: str, request: Request) -> Response:
+    """``GET /<commands>``: one imgsrv command sequence."""
+    server: Imgsrv = request.app.state.imgsrv
+    full = path + (f"?{request.url.query}" if request.url.query else "")
+    reply = await run_in_threadpool(server.handle, full)
+    return Response(
+        reply.body,
+        status_code=reply.status,
+        media_type=reply.content_type,
+        headers=reply.headers,
+    )
 
 
 def consecutive_sockets(

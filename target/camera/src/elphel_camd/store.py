@@ -142,7 +142,7 @@ class ParamStore:
     (also atomically), so the journal stays near `compact_bytes` under steady writes too:
     a save that finds it past twice that compacts before it returns.
     A save that cannot be written (disk full, read-only directory) raises
-    `StateWriteError` and leaves the files as they were.
+    `StateWriteError` and leaves the files as they were. A ``with`` block closes the store.
 
     Parameters
     ----------
@@ -283,6 +283,12 @@ class ParamStore:
             # (each flush stalls other writes to the file system for milliseconds).
             with self._wake:
                 self._wake.wait_for(lambda: self._closed, timeout=self.flush_interval_s)
+
+    def __enter__(self) -> ParamStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def close(self) -> None:
         """Flush what is pending, stop the background thread and close the journals."""

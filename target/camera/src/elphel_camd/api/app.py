@@ -19,7 +19,7 @@ import html
 from collections.abc import Sequence
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse
@@ -149,10 +149,18 @@ def serve_contract(app: FastAPI, *, public_reads: bool) -> None:
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+    app.add_api_route("/docs", docs, methods=["GET"], include_in_schema=False)
 
-    @app.get("/docs", include_in_schema=False)
-    def docs() -> HTMLResponse:
-        return HTMLResponse(docs_page(openapi()), headers={"Content-Security-Policy": DOCS_CSP})
+
+def docs(request: Request) -> HTMLResponse:
+    """``GET /docs``: the page that lists the app's contract.
+
+    One function for every app, reaching its app through the request: FastAPI keeps the
+    endpoints it has seen in a process-wide cache, and an endpoint that closed over its
+    app would keep the app, its camera service and the board alive for good.
+    """
+    schema = request.app.openapi()
+    return HTMLResponse(docs_page(schema), headers={"Content-Security-Policy": DOCS_CSP})
 
 
 def contract(schema: dict[str, Any], *, public_reads: bool) -> dict[str, Any]:
