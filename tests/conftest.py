@@ -42,7 +42,7 @@ def _count_boards_built() -> Iterator[None]:
 
 @pytest.fixture(autouse=True)
 def _closes_what_it_opens(_count_boards_built: None) -> Iterator[None]:
-    """Fail a test that leaves a simulated board open or a thread it started running.
+    """Fail a test that leaves a simulated board open, or a thread running beside a board.
 
     An open board keeps its frames (hundreds of MB) and its daemon service alive, and a
     worker that runs hundreds of such tests runs the machine out of memory. Autouse
@@ -62,7 +62,7 @@ def _closes_what_it_opens(_count_boards_built: None) -> Iterator[None]:
         # full collection, which comes rarely in a process holding as many objects as a
         # test worker: collect them now, with their textures and filtered copies.
         gc.collect()
-    if still_open or threads:
+    if still_open or (built and threads):
         pytest.fail(
             f"the test left {still_open} simulated board(s) open and these threads it "
             f"started running: {sorted(t.name for t in threads)}; close the service, board "
@@ -80,7 +80,8 @@ def _threads_still_running(before: set[threading.Thread]) -> list[threading.Thre
 
     A worker thread of an event loop that was running before belongs to that loop and
     ends with it: AnyIO's (a module-scoped client's portal) and the default executor's
-    ``asyncio_N`` threads (Playwright's loop, open for the browser tests' package).
+    ``asyncio_N`` threads (Playwright's loop, open for the browser tests' package); dask's
+    offload thread is one for the process.
     """
     deadline = time.monotonic() + THREAD_GRACE_S
     portal_before = any(t.name.startswith("asyncio-portal") and t.is_alive() for t in before)
@@ -89,7 +90,7 @@ def _threads_still_running(before: set[threading.Thread]) -> list[threading.Thre
         for t in threading.enumerate()
         if t not in before
         and not (portal_before and t.name == "AnyIO worker thread")
-        and not t.name.startswith("asyncio_")
+        and not t.name.startswith(("asyncio_", "Dask-Offload"))
     ]
     for thread in left:
         thread.join(timeout=max(0.0, deadline - time.monotonic()))

@@ -11,6 +11,7 @@ exit code, output and time.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -44,6 +45,7 @@ class FakeDevice:
         self.sock = socket.create_server(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
         self.closing = threading.Event()
+        self.connections: list[socket.socket] = []
         threading.Thread(target=self._serve, daemon=True).start()
 
     @property
@@ -56,6 +58,7 @@ class FakeDevice:
                 conn, _ = self.sock.accept()
             except OSError:
                 return
+            self.connections.append(conn)
             threading.Thread(target=self._one, args=(conn,), daemon=True).start()
 
     def _one(self, conn: socket.socket) -> None:
@@ -72,7 +75,12 @@ class FakeDevice:
 
     def close(self) -> None:
         self.closing.set()
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)  # wakes the accept() of _serve
         self.sock.close()
+        for conn in self.connections:  # an endless answer ends at its next write
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
 
 
 def _read_request(conn: socket.socket) -> tuple[str, str, bytes]:
