@@ -67,25 +67,29 @@ def test_a_v4l2_port_and_a_lepton_port_serve_side_by_side(recording):
     ]
     board = MixedBoard(ports, open_video=open_video)
     assert board.boards[0].timeout_periods == 7
-    with TestClient(create_app(CameraService(board), token=TOKEN, public_reads=True)) as c:
-        info = c.get("/api/v1/info").json()
-        assert info["board"] == "mixed" and info["capabilities"] == ["capture"]
-        assert [p["port"] for p in info["ports"]] == [0, 1]
-        assert info["ports"][1]["sensor"]["model"] == "LEPTON35"
-        image, _ = capture(c, 0)
-        np.testing.assert_array_equal(image, camera_image())
-        thermal, thermal_meta = capture(c, 1)
-        assert digest(thermal) == stream.truth[thermal_meta["frame"]].digest
-        assert thermal_meta["telemetry"]["frame_counter"] == thermal_meta["frame"]
-        health = c.get("/api/v1/health").json()
-        streams = [p["stream"] for p in health["ports"]]
-        assert [s["source"] for s in streams] == ["video", "vospi"]
-        assert [s["state"] for s in streams] == ["streaming", "streaming"]
-        r = c.patch(
-            "/api/v1/ports/0/params", headers=AUTH, params={"ahead": 2}, json={"EXPOS": 2000}
-        )
-        assert r.status_code == 409 and "no frame syncs" in r.text
-        assert c.post("/api/v1/ports/2/capture", headers=AUTH).status_code == 404
+    service = CameraService(board)
+    try:
+        with TestClient(create_app(service, token=TOKEN, public_reads=True)) as c:
+            info = c.get("/api/v1/info").json()
+            assert info["board"] == "mixed" and info["capabilities"] == ["capture"]
+            assert [p["port"] for p in info["ports"]] == [0, 1]
+            assert info["ports"][1]["sensor"]["model"] == "LEPTON35"
+            image, _ = capture(c, 0)
+            np.testing.assert_array_equal(image, camera_image())
+            thermal, thermal_meta = capture(c, 1)
+            assert digest(thermal) == stream.truth[thermal_meta["frame"]].digest
+            assert thermal_meta["telemetry"]["frame_counter"] == thermal_meta["frame"]
+            health = c.get("/api/v1/health").json()
+            streams = [p["stream"] for p in health["ports"]]
+            assert [s["source"] for s in streams] == ["video", "vospi"]
+            assert [s["state"] for s in streams] == ["streaming", "streaming"]
+            r = c.patch(
+                "/api/v1/ports/0/params", headers=AUTH, params={"ahead": 2}, json={"EXPOS": 2000}
+            )
+            assert r.status_code == 409 and "no frame syncs" in r.text
+            assert c.post("/api/v1/ports/2/capture", headers=AUTH).status_code == 404
+    finally:
+        service.close()  # closes the board: its ports' threads end
 
 
 @pytest.mark.parametrize(
