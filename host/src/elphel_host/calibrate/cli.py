@@ -62,7 +62,7 @@ from elphel_host.tp.io import read_quad_dir
 
 
 def register(subparsers: Any) -> None:
-    """Add the ``calibrate`` subcommand with its ``solve`` action."""
+    """Add the ``calibrate`` subcommand: capture, solve, psf and field, in a user's order."""
     p = subparsers.add_parser(
         "calibrate",
         help="calibrate cameras and quads from views of a printed checkerboard",
@@ -71,8 +71,12 @@ def register(subparsers: Any) -> None:
     )
     sub = p.add_subparsers(dest="calibrate_action", required=True, metavar="ACTION")
     _register_capture(sub)
+    _register_solve(sub)
     _register_psf(sub)
     _register_field(sub)
+
+
+def _register_solve(sub: Any) -> None:
     s = sub.add_parser(
         "solve",
         help="detect the board in every view and solve intrinsics, rig, board poses and bend",
