@@ -135,8 +135,11 @@ def test_unknown_fields_and_bad_requests_are_refused(rig: Rig) -> None:
 
 def test_other_scenarios_have_no_board() -> None:
     board = SimCameraBoard(build("quad", seed=0), seed=0)
-    with TestClient(create_sim_app(board)) as sim:
-        assert sim.get("/board").status_code == 404
+    try:
+        with TestClient(create_sim_app(board)) as sim:
+            assert sim.get("/board").status_code == 404
+    finally:
+        board.close()
 
 
 def test_the_full_size_rig_describes_the_default_window() -> None:

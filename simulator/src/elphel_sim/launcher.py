@@ -409,12 +409,7 @@ def up(
     try:
         stage = SimStage(board.world, seed=seed, tcp_port=stage_port).start()
     except OSError:
-        for camera in cameras:
-            camera.close()
-        if board.daemon_per_port:
-            board.close()
-        for s in served:
-            s.sock.close()
+        close_daemons(cameras, board, served)
         raise
     sim_served = Served(create_sim_app(board, stage), bind_loopback(0))
     vospi = [vospi_board(board, port, seed=seed) for port in lepton_ports(board)]
@@ -449,11 +444,19 @@ def up(
         )
     finally:
         stage.close()
-        for camera in (*leptons, *cameras):  # the VoSPI readers before the board they read
-            camera.close()  # a single daemon closes its board too
-        if board.daemon_per_port:
-            board.close()
-        for s in (*served, sim_served, *lepton_served):
-            s.sock.close()
+        # the VoSPI readers before the board they read
+        close_daemons((*leptons, *cameras), board, (*served, sim_served, *lepton_served))
     print("elphel-sim: stopped", file=sys.stderr)
     return 0
+
+
+def close_daemons(
+    cameras: Sequence[CameraService], board: SimCameraBoard, served: Sequence[Served]
+) -> None:
+    """Close the daemons' services (a single daemon closes its board too), then their sockets."""
+    for camera in cameras:
+        camera.close()
+    if board.daemon_per_port:
+        board.close()
+    for s in served:
+        s.sock.close()

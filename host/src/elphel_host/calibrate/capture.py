@@ -29,6 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_host import strict_json
 from elphel_host.calibrate.detect import detect
 from elphel_host.calibrate.guide import (
     CaptureLimits,
@@ -154,7 +155,10 @@ class CaptureSession:
     def save(self) -> Path:
         """Write capture.json and coverage.png; the PNG's path."""
         self.state_dir.mkdir(parents=True, exist_ok=True)
-        write_atomic(self.state_dir / STATE_FILE, (json.dumps(self.to_json()) + "\n").encode())
+        write_atomic(
+            self.state_dir / STATE_FILE,
+            (strict_json.dumps(self.to_json(), what="the capture state") + "\n").encode(),
+        )
         return write_coverage(self, self.state_dir / COVERAGE_PNG)
 
     def to_json(self) -> dict[str, Any]:

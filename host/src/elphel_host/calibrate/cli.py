@@ -10,13 +10,13 @@ results.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
+from elphel_host import strict_json
 from elphel_host.calibrate.capture import (
     COVERAGE_PNG,
     STATE_FILE,
@@ -301,7 +301,9 @@ def run_psf(args: argparse.Namespace) -> int:
     for cam, field in enumerate(fields):
         lines.append(f"  cam{cam}: lens sigma per cell (px), {field.used} edges")
         lines += ["    " + " ".join(f"{s:5.2f}" for s in row) for row in field.sigma_px]
-    lines.append(f'quad.json: "kernels": {json.dumps(doc["kernels"])}')
+    lines.append(
+        f'quad.json: "kernels": {strict_json.dumps(doc["kernels"], what="the kernels entry")}'
+    )
     emit(args, {"psf_dir": str(args.out), **doc}, "\n".join(lines))
     return 0
 

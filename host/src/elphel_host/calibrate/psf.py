@@ -18,7 +18,6 @@ the same PSF.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.special import erf
 
+from elphel_host import strict_json
 from elphel_host.calibrate.detect import detect, grey_image
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.calibrate.views import view_images, view_sources
@@ -279,5 +279,7 @@ def write_psfs(
             for f in fields
         ],
     }
-    write_atomic(out / "psf.json", (json.dumps(doc, indent=1) + "\n").encode())
+    write_atomic(
+        out / "psf.json", (strict_json.dumps(doc, what="psf.json", indent=1) + "\n").encode()
+    )
     return doc

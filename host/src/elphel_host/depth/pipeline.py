@@ -27,7 +27,6 @@ baseline.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -37,6 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_host import strict_json
 from elphel_host.burst.io import QuadBurst, read_quad_burst
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import (
@@ -420,7 +420,12 @@ def write_fused_quad(path: str | Path, run: DepthRun) -> Path:
     name = None
     if isinstance(cal, CalibratedGeometry):
         root.mkdir(parents=True, exist_ok=True)
-        doc = json.dumps(calibration_document(cal), indent=1) + "\n"
+        doc = (
+            strict_json.dumps(
+                calibration_document(cal), what="the fused quad's calibration", indent=1
+            )
+            + "\n"
+        )
         write_atomic(root / CALIBRATION_FILE, doc.encode())
         name = CALIBRATION_FILE
     manifest = QuadManifest(
