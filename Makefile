@@ -36,7 +36,7 @@ test: $(STAMP) lint
 	$(BIN)/pytest -n 4 --dist loadgroup --max-worker-restart=0 --ignore=tests/camd
 
 bench: $(STAMP)
-	@for b in bench/*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done
+	@for b in bench/[!_]*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) out .mypy_cache .ruff_cache .pytest_cache
