@@ -46,7 +46,8 @@ class V4L2Port:
         An I2C bus URL when the project's own driver programs the sensor (no kernel
         driver owns it); without one the node's controls carry the parameters.
     model
-        The kernel driver's name for its gain laws (default: the node's card name).
+        The kernel driver's name for its gain laws (default: the sensor subdevice's name
+        with a media controller, else the node's card name).
     """
 
     video: str
@@ -162,7 +163,7 @@ class V4L2Board:
         else:
             self._sensors[port] = V4L2Sensor(
                 lambda: stream.source,
-                model=spec.model or source.card,
+                model=spec.model or source.model,
                 period_s=lambda: stream.period_ns / 1e9,
             )
         stream.start()

@@ -67,6 +67,11 @@ GAIN_LAWS: dict[str, dict[int, GainLaw]] = {
     "mt9p006": {CID_GAIN: GainLaw("linear", 8)},
 }
 GAIN_CONTROLS = (CID_ANALOGUE_GAIN, CID_DIGITAL_GAIN, CID_GAIN)
+# Controls that carry a parameter: a node with none of them leaves the controls to its
+# sensor subdevice (a media-controller camera).
+PARAMETER_CONTROLS = frozenset(
+    {CID_EXPOSURE, CID_EXPOSURE_ABSOLUTE, *GAIN_CONTROLS, CID_HFLIP, CID_VFLIP}
+)
 
 
 class ControlMap:

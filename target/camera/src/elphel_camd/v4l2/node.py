@@ -2,7 +2,9 @@
 
 The only module that imports linuxpy (GPL-3.0-or-later, the optional ``v4l2`` extra of
 elphel-camd): the rest of the image path sees a `elphel_camd.v4l2.source.FrameSource`.
-Single-planar capture only (linuxpy has no multi-planar streaming).
+Single-planar capture only (linuxpy has no multi-planar streaming). With a media
+controller the sensor subdevice's format is set to the node's before streaming, and the
+controls come from that subdevice when the node has none (`elphel_camd.v4l2.media`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from elphel_camd.errors import (
     PortDisconnectedError,
     VideoNodeError,
 )
-from elphel_camd.v4l2.formats import RAW_BY_CODE, choose_format, fourcc_text
+from elphel_camd.v4l2.controls import PARAMETER_CONTROLS
+from elphel_camd.v4l2.formats import RAW_BY_CODE, RAW_FORMATS, choose_format, fourcc_text
+from elphel_camd.v4l2.media import SensorSubdev, open_sensor
 from elphel_camd.v4l2.source import Buffer, ControlInfo, StreamFormat
 
 try:
@@ -61,12 +65,29 @@ class VideoNode:
         self._maps: list[mmap.mmap] = []
         self._queries: dict[int, Any] = {}
         self.card = ""
+        self.sensor: SensorSubdev | None = None
         try:
             self._check_capture()
             self.stream_format = self._set_format(fourcc, size)
+            self.sensor = open_sensor(path)
+            self._control_fd = self._choose_control_fd()
         except BaseException:
-            os.close(self._fd)
+            self._close_fds()
             raise
+        self.model = self.sensor.name if self.sensor is not None else self.card
+
+    def _choose_control_fd(self) -> int:
+        """The node's controls, or the sensor subdevice's when the node has none of ours."""
+        if self.sensor is None:
+            return self._fd
+        own = {q.id for q in v4l2.iter_read_controls(self._fd)}
+        return self._fd if own & PARAMETER_CONTROLS else self.sensor.fd
+
+    def _close_fds(self) -> None:
+        if self.sensor is not None:
+            self.sensor.close()
+            self.sensor = None
+        os.close(self._fd)
 
     @staticmethod
     def _open(path: str) -> int:
@@ -145,6 +166,8 @@ class VideoNode:
     # -- streaming -------------------------------------------------------------------------
 
     def start(self, buffers: int) -> None:
+        if self.sensor is not None:
+            self._follow_sensor(self.sensor.match(self.stream_format))
         try:
             v4l2.request_buffers(self._fd, CAPTURE, MMAP, buffers)
         except OSError as e:
@@ -167,9 +190,33 @@ class VideoNode:
                 raise VideoNodeError(self._pipeline_hint(e)) from e
             raise self._busy_or(e, "starting the stream") from e
 
+    def _follow_sensor(self, order: str | None) -> None:
+        """Give the node the Bayer order the sensor sends (its flips decide it)."""
+        fmt = self.stream_format
+        if order == fmt.format.bayer:
+            return
+        fourcc = next(
+            f.fourcc
+            for f in RAW_FORMATS.values()
+            if (f.bits, f.packing, f.bayer) == (fmt.format.bits, fmt.format.packing, order)
+        )
+        try:
+            v4l2.set_format(self._fd, CAPTURE, fmt.width, fmt.height, fourcc)
+        except OSError as e:
+            raise self._busy_or(e, f"setting the sensor's Bayer order {fourcc!r}") from e
+        self.refresh_format()
+
     def _pipeline_hint(self, error: OSError) -> str:
         """Why STREAMON fails on a media-controller camera, and the two ways out."""
         fmt = self.stream_format
+        if self.sensor is not None:
+            return (
+                f"{self.path}: starting the stream failed ({error.strerror}) although the "
+                f"sensor {self.sensor.name!r} on {self.sensor.path} was set to the node's "
+                f"format ({fmt.width}x{fmt.height} {fmt.format.fourcc!r}): another entity "
+                f"of {self.sensor.media} ({self.sensor.driver}) may need it too; "
+                f"{self.sensor.hint(fmt)}"
+            )
         return (
             f"{self.path}: starting the stream failed ({error.strerror}). With a media "
             "controller the sensor subdevice's format must match the node's "
@@ -222,27 +269,27 @@ class VideoNode:
 
     def close(self) -> None:
         self.stop()
-        os.close(self._fd)
+        self._close_fds()
 
     # -- controls --------------------------------------------------------------------------
 
     def controls(self) -> Mapping[int, ControlInfo]:
         if not self._queries:
-            for q in v4l2.iter_read_controls(self._fd):
+            for q in v4l2.iter_read_controls(self._control_fd):
                 if q.type in _NUMERIC and not q.flags & raw.ControlFlag.DISABLED:
                     self._queries[q.id] = q
         return {i: _info(q) for i, q in self._queries.items()}
 
     def get_controls(self, ids: list[int]) -> dict[int, int]:
         self.controls()
-        values = v4l2.get_controls_values(self._fd, [self._queries[i] for i in ids])
+        values = v4l2.get_controls_values(self._control_fd, [self._queries[i] for i in ids])
         return {i: int(v) for i, v in zip(ids, values, strict=True)}
 
     def set_controls(self, values: Mapping[int, int]) -> None:
         self.controls()
         pairs = [(self._queries[i], int(v)) for i, v in values.items()]
         try:
-            v4l2.set_controls_values(self._fd, pairs)
+            v4l2.set_controls_values(self._control_fd, pairs)
         except OSError as e:
             if e.errno in GONE:
                 raise PortDisconnectedError(f"{self.path}: device gone ({e.strerror})") from e

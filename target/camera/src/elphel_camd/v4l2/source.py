@@ -65,6 +65,9 @@ class FrameSource(Protocol):
 
     path: str
     card: str  # the driver's name for the device (QUERYCAP's card)
+    # The sensor's kernel driver as the media controller names it ("imx219 10-0010"),
+    # else the card: its first word picks the gain laws.
+    model: str
     stream_format: StreamFormat
 
     def start(self, buffers: int) -> None:

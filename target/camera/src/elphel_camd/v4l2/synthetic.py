@@ -88,6 +88,7 @@ class SyntheticSource:
     """
 
     card = "imx219 (synthetic)"  # its controls are those of the IMX219 driver
+    model = card
 
     def __init__(
         self,
