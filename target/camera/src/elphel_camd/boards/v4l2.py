@@ -191,7 +191,7 @@ class V4L2Board:
     def _on_frame(self, port: int, frame: int, timestamp_ns: int) -> None:
         sensor = self._sensors.get(port)
         if sensor is not None:
-            sensor.record(frame)
+            sensor.record(frame, timestamp_ns)
         for callback in self._subscribers:
             try:
                 callback(port, frame, timestamp_ns)
@@ -251,6 +251,9 @@ class V4L2Board:
                 self._check_connected(stream)
                 raise TimeoutError(self._silence(stream, patience))
         got = stream.ring.get(wanted)
+        sensor = self._sensors.get(port)
+        if sensor is not None:  # its metadata may be asked for before the stream noted it
+            sensor.note_frame(got.frame, got.timestamp_ns)
         return Frame(image=got.image, frame=got.frame, timestamp_ns=got.timestamp_ns)
 
     def _patience_s(self, stream: PortStream, deadline: float) -> float:

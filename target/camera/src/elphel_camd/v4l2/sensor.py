@@ -1,15 +1,22 @@
 """A sensor a kernel driver owns, driven through its node's V4L2 controls.
 
 `V4L2Sensor` is the port's `elphel_camd.sensors.base.SensorDriver`: the sequencer asks it
-to program a state and it sets the controls that changed; each frame's parameters are
-the control values read back from the driver when the frame arrived, not the values
-asked for. Its Bayer order is the node's format after the flips, taken back through them
-(the metadata applies the flips again).
+to program a state one frame ahead and it sets the controls that changed. Each frame's
+parameters are the values the driver holds, read back after every set (a driver may
+round or clamp what it was asked), and in effect for the frames that start after that
+set: a frame's driver timestamp (CLOCK_MONOTONIC for most capture drivers) is compared
+with the times of the sets, so a set issued late (the stream thread behind the driver)
+is not credited to frames already taken. A change another program makes is seen when
+the next frame arrives and counted from the frames after it. Its Bayer order is the
+node's format after the flips, taken back through them (the metadata applies the flips
+again).
 """
 
 from __future__ import annotations
 
+import bisect
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
@@ -31,7 +38,7 @@ from elphel_camd.v4l2.controls import (
 from elphel_camd.v4l2.formats import flipped_bayer
 from elphel_camd.v4l2.source import FrameSource
 
-READBACK_FRAMES = 4096  # frames whose read-back controls are kept for their metadata
+READBACK_FRAMES = 4096  # frames (and control sets) kept for the frames' metadata
 _STATE_NAMES = [n for n, spec in PARAMS.items() if not spec.read_only]
 
 
@@ -69,8 +76,11 @@ class V4L2Sensor(SensorDriver):
         self.writable = self.map.offered  # type: ignore[misc]
         self.bits = node.stream_format.format.bits  # type: ignore[misc]
         self._written: dict[int, int] = {}
-        self._readback: OrderedDict[int, dict[str, int]] = OrderedDict()
+        # (monotonic ns after the set, control values read back then), oldest first
+        self._sets: list[tuple[int, dict[int, int]]] = []
+        self._frame_times: OrderedDict[int, int] = OrderedDict()  # frame -> timestamp_ns
         self._lock = threading.Lock()
+        self._log_values(0, self._read_back())
         self._update_bayer(self._now_params())
 
     @classmethod
@@ -113,9 +123,11 @@ class V4L2Sensor(SensorDriver):
             return {}
         return self._source().get_controls([CID_HBLANK, CID_PIXEL_RATE])
 
+    def _read_back(self) -> dict[int, int]:
+        return self._source().get_controls(self.map.read_ids())
+
     def _now_params(self) -> dict[str, int]:
-        values = self._source().get_controls(self.map.read_ids())
-        return self.map.to_params(values, width=self._width())
+        return self.map.to_params(self._read_back(), width=self._width())
 
     def _update_bayer(self, params: Mapping[str, int]) -> None:
         order = self._source().refresh_format().format.bayer
@@ -191,22 +203,53 @@ class V4L2Sensor(SensorDriver):
         node = self._source()
         node.set_controls(changed)
         self._written.update(changed)
+        self._log_values(time.monotonic_ns(), self._read_back())
         if function == WINDOW:
             self._update_bayer(state)
         return wanted
 
-    def record(self, frame: int) -> None:
-        """Read the controls back for a frame that just arrived (its metadata's values)."""
+    def _log_values(self, when_ns: int, values: dict[int, int]) -> None:
+        """Values the driver holds from ``when_ns`` on (a set, or a change seen)."""
+        with self._lock:
+            if self._sets and self._sets[-1][1] == values:
+                return
+            self._sets.append((when_ns, values))
+            del self._sets[:-READBACK_FRAMES]
+
+    def note_frame(self, frame: int, timestamp_ns: int) -> None:
+        """Remember when a frame was taken (its driver timestamp), for its metadata."""
+        with self._lock:
+            self._frame_times[frame] = timestamp_ns
+            while len(self._frame_times) > READBACK_FRAMES:
+                self._frame_times.popitem(last=False)
+
+    def record(self, frame: int, timestamp_ns: int) -> None:
+        """A frame arrived: note its time and read the controls back.
+
+        A change another program made shows here; it counts from the frames that start
+        after now.
+        """
+        self.note_frame(frame, timestamp_ns)
         try:
-            params = self._now_params()
+            values = self._read_back()
         except (PortDisconnectedError, OSError):
             return
+        self._log_values(time.monotonic_ns(), values)
+
+    def values_at(self, frame: int) -> dict[int, int] | None:
+        """The control values in effect for a frame that arrived (None: unknown)."""
         with self._lock:
-            self._readback[frame] = params
-            while len(self._readback) > READBACK_FRAMES:
-                self._readback.popitem(last=False)
+            taken = self._frame_times.get(frame)
+            times = [t for t, _ in self._sets]
+            k = bisect.bisect_right(times, taken) if taken is not None else 0
+            return dict(self._sets[k - 1][1]) if k else None
 
     def actual_gains(self, state: Mapping[str, int]) -> dict[str, int]:
-        """The values read back from the driver for the state's frame (EXPOS, gains, flips)."""
-        with self._lock:
-            return dict(self._readback.get(state.get("FRAME", -1), {}))
+        """The parameters the driver applied to the state's frame (EXPOS, gains, flips).
+
+        Empty for a frame that has not arrived: its parameters are those asked for.
+        """
+        values = self.values_at(state.get("FRAME", -1))
+        if values is None:
+            return {}
+        return self.map.to_params(values, width=self._width())

@@ -2,14 +2,20 @@
 
 `SyntheticSource` is a `elphel_camd.v4l2.source.FrameSource` with no device behind it: a
 fixed image packed in the node's format, delivered at a frame rate with the driver's
-sequence numbers and monotonic timestamps, and IMX219-like controls. Faults are injected
-through ``sim_*`` methods: dropped frames, a vanished device, a streaming error, silence.
+sequence numbers and monotonic timestamps, and IMX219-like controls. A control set
+applies to the frames due after it, as a driver's does, and `applied` keeps, by
+sequence number, the control values each frame was taken with (the truth a frame's
+metadata is checked against); a driver that rounds values to its hardware's steps is
+made with ``quantum``. Faults are injected through ``sim_*`` methods: dropped frames, a
+vanished device, a streaming error, silence.
 """
 
 from __future__ import annotations
 
+import bisect
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Mapping
 
 import numpy as np
@@ -44,6 +50,9 @@ IMX219_CONTROLS = (
     ControlInfo(CID_HBLANK, "Horizontal Blanking", 168, 168, 1, 168, read_only=True),
     ControlInfo(CID_PIXEL_RATE, "Pixel Rate", 182_400_000, 182_400_000, 1, 182_400_000, True),
 )
+
+
+APPLIED_FRAMES = 4096  # frames (and control sets) whose values are kept
 
 
 def pack(image: NDArray[np.uint16], fmt: RawFormat, *, stride: int) -> NDArray[np.uint8]:
@@ -85,6 +94,9 @@ class SyntheticSource:
         Bytes of padding after each line.
     controls
         Its controls (IMX219-like by default).
+    quantum
+        Control id -> the step the driver rounds that control's values to (the value
+        read back is the rounded one, as from a driver that adjusts to its hardware).
     """
 
     card = "imx219 (synthetic)"  # its controls are those of the IMX219 driver
@@ -99,6 +111,7 @@ class SyntheticSource:
         path: str = "synthetic:0",
         pad: int = 0,
         controls: tuple[ControlInfo, ...] = IMX219_CONTROLS,
+        quantum: Mapping[int, int] | None = None,
     ) -> None:
         fmt = raw_format(fourcc)
         height, width = image.shape
@@ -109,6 +122,10 @@ class SyntheticSource:
         self.period_s = 1.0 / fps
         self._controls = {c.id: c for c in controls}
         self._values = {c.id: c.default for c in controls}
+        self._quantum = dict(quantum or {})
+        # (monotonic s, control values from then on): what each due frame is taken with
+        self._history: list[tuple[float, dict[int, int]]] = [(0.0, dict(self._values))]
+        self.applied: OrderedDict[int, dict[int, int]] = OrderedDict()  # sequence -> values
         self._streaming = False
         self._sequence = 0
         self._next_s = 0.0
@@ -166,16 +183,26 @@ class SyntheticSource:
     def _fill(self, now: float) -> None:
         """Every frame due by now goes into a queued buffer, or is lost if none is free."""
         while self._streaming and not self.sim_silent and now >= self._next_s:
-            timestamp_ns = round(self._next_s * 1e9)  # when the frame was due, as drivers stamp
+            due_s = self._next_s
+            timestamp_ns = round(due_s * 1e9)  # when the frame was due, as drivers stamp
             self._next_s += self.period_s
             if self._drop_next:
                 self._sequence += self._drop_next
                 self._drop_next = 0
+            self._note_applied(self._sequence, due_s)
             free = [i for i in range(self._buffers) if i not in self._busy_buffers]
             if free:
                 self._busy_buffers.add(free[0])
                 self._filled.append(Buffer(free[0], self.data, self._sequence, timestamp_ns))
             self._sequence += 1  # without a free buffer the frame is lost: a gap
+
+    def _note_applied(self, sequence: int, due_s: float) -> None:
+        """Keep the control values frame ``sequence``, due at ``due_s``, was taken with."""
+        with self._lock:
+            k = bisect.bisect_right([t for t, _ in self._history], due_s)
+            self.applied[sequence] = self._history[k - 1][1]
+            while len(self.applied) > APPLIED_FRAMES:
+                self.applied.popitem(last=False)
 
     def requeue(self, buffer: Buffer) -> None:
         if self.sim_gone:
@@ -224,7 +251,11 @@ class SyntheticSource:
                     raise ControlRefusedError(
                         info.name, value, f"{info.minimum}..{info.maximum} (the driver's limits)"
                     )
-            self._values.update(values)
+            for cid, value in values.items():
+                step = self._quantum.get(cid, 1)
+                self._values[cid] = round(value / step) * step
+            self._history.append((time.monotonic(), dict(self._values)))
+            del self._history[:-APPLIED_FRAMES]
 
 
 def _same_kind(fmt: RawFormat) -> list[RawFormat]:
