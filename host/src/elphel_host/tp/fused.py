@@ -29,7 +29,7 @@ I64 = NDArray[np.int64]
 
 
 _GATHER_SIGNATURE = nb.void(
-    nb.float32[:, :, ::1],  # cells (planes, rows, cols)
+    nb.float32[:, :, ::1],  # cells (rows, cols, planes)
     nb.int64[::1],  # first cell row of each footprint
     nb.int64[::1],  # first cell column
     nb.int64[::1],  # start parity along y (0 or 1; 0 for mono)
@@ -61,7 +61,7 @@ def gather_windowed(
     dest: I64,
     out: F32,
 ) -> None:
-    """Windowed samples of tiles: ``out[dest[t], (p, v, u)] = cells[p, r+v, c+u] wy[v] wx[u]``.
+    """Windowed samples of tiles: ``out[dest[t], (p, v, u)] = cells[r+v, c+u, p] wy[v] wx[u]``.
 
     Only the ``inner x inner`` samples of each plane that lie inside the tile are written
     (``v`` from ``first_y[parity, p]``, ``u`` from ``first_x[parity, p]``), so that with
@@ -70,7 +70,7 @@ def gather_windowed(
     Parameters
     ----------
     cells
-        ``(planes, rows, cols)`` float32 cells of one camera
+        ``(rows, cols, planes)`` float32 cells of one camera
         (:func:`elphel_host.tp.clt.batch.image_cells`).
     rows, cols
         ``(T,)`` first cell of each tile's ``span x span`` footprint.
@@ -89,7 +89,7 @@ def gather_windowed(
     out
         ``(T, planes * inner * inner)`` float32, written plane by plane, row by row.
     """
-    planes = cells.shape[0]
+    planes = cells.shape[2]
     inner = int(np.sqrt(out.shape[1] // planes))
     fy = np.empty(inner, dtype=np.float32)
     fx = np.empty(inner, dtype=np.float32)
@@ -104,7 +104,7 @@ def gather_windowed(
                 fx[j] = cx * cols_w[px, p, 0, u0 + j] + sx * cols_w[px, p, 1, u0 + j]
             r0, c0 = rows[t] + v0, cols[t] + u0
             for v in range(inner):
-                src = cells[p, r0 + v, c0 : c0 + inner]
+                src = cells[r0 + v, c0 : c0 + inner, p]
                 start = (p * inner + v) * inner
                 dst = tile[start : start + inner]
                 w = fy[v]

@@ -9,9 +9,9 @@ definition):
   4x4 lowest, below their lattice's alias band; green: ``kh + kv <= green_band``; mono:
   all 64). The box of red/blue frequencies comes first in the frequency list, so red and
   blue are a prefix of green.
-* The mosaic is regrouped once per image into its Bayer planes (:func:`image_cells`:
-  one plane per colour lattice, indexed by cell), so a tile's samples of one plane along a row are
-  contiguous. The footprint is cell-aligned: 9x9 cells per tile (a tile starting
+* The mosaic is regrouped once per image by Bayer cell (:func:`image_cells`: per cell
+  its four pixels side by side, in colour order), so a tile's samples are a few
+  contiguous runs. The footprint is cell-aligned: 9x9 cells per tile (a tile starting
   on an odd pixel starts one pixel into its first cell), of which each plane has 8x8
   samples inside the tile; which 8x8 depends on the tile's start parity, so tiles are
   grouped by parity and each group and colour has its own matrix. The basis is a pure
@@ -237,11 +237,11 @@ def _colour_blocks(
 
 
 def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
-    """One camera's image, padded by ``tr.pad`` pixels, by plane: ``(planes, rows/c, cols/c)``.
+    """One camera's image, padded by ``tr.pad`` pixels, by cell: ``(rows/c, cols/c, planes)``.
 
-    Plane p at cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
-    (c = 1 mono, 2 Bayer; planes in colour order), so the samples of one plane along a
-    tile's row are contiguous (:func:`elphel_host.tp.fused.gather_windowed` reads them).
+    Plane p of cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
+    (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
+    are a few contiguous runs (:func:`elphel_host.tp.fused.gather_windowed` reads them).
     Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
     in cells, that is the border cell repeated.
     """
@@ -251,14 +251,14 @@ def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
         raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
     h, w = img.shape[0] // c, img.shape[1] // c
     grid = img.reshape(h, c, w, c)
-    out = np.empty((tr.plane_rows.size, h + 2 * pc, w + 2 * pc), dtype=np.float32)
+    out = np.empty((h + 2 * pc, w + 2 * pc, tr.plane_rows.size), dtype=np.float32)
+    inner = out[pc : pc + h, pc : pc + w]
     for p, (r, q) in enumerate(zip(tr.plane_rows, tr.plane_cols, strict=True)):
-        plane = out[p]
-        plane[pc : pc + h, pc : pc + w] = grid[:, r, :, q]
-        plane[pc : pc + h, :pc] = plane[pc : pc + h, pc : pc + 1]
-        plane[pc : pc + h, pc + w :] = plane[pc : pc + h, pc + w - 1 : pc + w]
-        plane[:pc] = plane[pc]
-        plane[pc + h :] = plane[pc + h - 1]
+        inner[:, :, p] = grid[:, r, :, q]
+    out[:pc] = out[pc]
+    out[pc + h :] = out[pc + h - 1]
+    out[:, :pc] = out[:, pc : pc + 1]
+    out[:, pc + w :] = out[:, pc + w - 1 : pc + w]
     return out
 
 
@@ -402,8 +402,8 @@ def _windowed_samples(
     # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
     par_x = np.ascontiguousarray(at.left_x & (c - 1), dtype=np.int64)
     par_y = np.ascontiguousarray(at.top_y & (c - 1), dtype=np.int64)
-    cols = np.clip((at.left_x + tr.pad - par_x) // c, 0, cells.shape[2] - span).astype(np.int64)
-    rows = np.clip((at.top_y + tr.pad - par_y) // c, 0, cells.shape[1] - span).astype(np.int64)
+    cols = np.clip((at.left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span).astype(np.int64)
+    rows = np.clip((at.top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span).astype(np.int64)
     order = np.argsort(par_y * c + par_x, kind="stable")
     dest = np.empty(order.size, dtype=np.int64)
     dest[order] = np.arange(order.size)
