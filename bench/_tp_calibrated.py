@@ -112,8 +112,9 @@ def geometry_cost(
     of the full size (the images are the ideal quad's, so only the time means something,
     and the passes' targets differ from the ideal run's: this is the target's figure),
     and pinhole cameras on the ideal square (the same tiles, targets and work as the
-    ideal run: the difference is the geometry's own cost). Also the geometry's own work
-    timed alone: placing every camera's tiles once per pass and the per-tile gain.
+    ideal run: the difference is the geometry's own cost); wall and CPU seconds (best of
+    ``--repeat`` each; CPU seconds move less on a loaded machine). Also the geometry's own
+    work timed alone: placing every camera's tiles once per pass and the per-tile gain.
     """
     w, h = quad.images.shape[2], quad.images.shape[1]
     with tempfile.TemporaryDirectory() as tmp:
@@ -123,9 +124,12 @@ def geometry_cost(
     pinhole = QuadGeometry(calibration=ideal_calibration(w, h, cal.focal_px))
     square = QuadImages(quad.images, bayer=quad.bayer, geometry=pinhole)
     times: dict[str, list[float]] = {"ideal": [], "calibrated": [], "pinhole": []}
+    cpu: dict[str, list[float]] = {name: [] for name in times}
     for _ in range(args.repeat):
         for name, q in (("ideal", quad), ("calibrated", calibrated), ("pinhole", square)):
+            c0 = time.process_time()
             times[name].append(timed_tp(q, config)[0])
+            cpu[name].append(time.process_time() - c0)
     cy, cx = (c.ravel() for c in tile_centres(*quad.tiles))
     passes = len(config.scan) + config.refine_passes
     t0 = time.perf_counter()
@@ -135,7 +139,11 @@ def geometry_cost(
             geometry.place_camera(cam, cx, cy, np.zeros(cx.size))
     own_s = time.perf_counter() - t0
     best = {k: min(v) for k, v in times.items()}
+    best_cpu = {k: min(v) for k, v in cpu.items()}
     return {
+        "cpu_s": {k: round(v, 3) for k, v in best_cpu.items()},
+        "calibrated_cpu_over_ideal_cpu": round(best_cpu["calibrated"] / best_cpu["ideal"], 3),
+        "pinhole_calibration_cpu_over_ideal_cpu": round(best_cpu["pinhole"] / best_cpu["ideal"], 3),
         "tp_s": round(best["ideal"], 3),
         "tp_calibrated_s": round(best["calibrated"], 3),
         "calibrated_time_over_ideal_time": round(best["calibrated"] / best["ideal"], 3),
