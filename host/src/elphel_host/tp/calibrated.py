@@ -22,6 +22,10 @@ the sub-pixel shift (a phase rotation), as for the ideal geometry
 (:meth:`elphel_host.tp.geometry.QuadGeometry.place_camera`). Disparities, depths and
 point clouds are then those of the virtual camera: ``Z = f B / D``.
 
+The tile processor places its tiles through :meth:`CalibratedGeometry.place`, one
+compiled loop per chunk of tiles and camera (:func:`elphel_host.tp.fused.lens_windows`)
+that computes what :meth:`CalibratedGeometry.pixels` computes, bit for bit.
+
 A camera's image moves by about ``J`` pixels per pixel of disparity, J the local scale of
 its lens (below 1 towards the corners of a barrel-distorted image); the correlation
 measures raw pixels, so :meth:`CalibratedGeometry.disparity_gain` gives per tile the
