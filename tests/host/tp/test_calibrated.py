@@ -24,7 +24,14 @@ from elphel_host.errors import InputFormatError
 from elphel_host.tp import capture, io
 from elphel_host.tp.calibrated import CalibratedGeometry, copy_calibration, read_calibration
 from elphel_host.tp.dsi import read_dsi
-from elphel_host.tp.geometry import IDEAL_POSITIONS, QuadGeometry, place_tiles, tile_centres
+from elphel_host.tp.geometry import (
+    IDEAL_POSITIONS,
+    PAIRS,
+    QuadGeometry,
+    place_tiles,
+    tile_centres,
+    window_at,
+)
 from elphel_host.tp.images import QuadImages
 from elphel_host.tp.layout import QuadLayout
 from elphel_host.tp.processor import disparity_map
@@ -83,6 +90,35 @@ def test_each_camera_sees_the_point_at_its_true_projection(tmp_path: Path) -> No
         want = rc.project(in_cam0) + 0.5  # OpenCV's pixel centres to continuous pixels
         got = cal.pixels(cam, x, y, f * cal.baseline_mm / depth_mm)
         assert np.allclose(np.stack(got, -1), want, atol=1e-6)
+
+
+def test_compiled_placement_is_the_numpy_geometry_bit_for_bit(tmp_path: Path) -> None:
+    # the tile processor places tiles through fused.lens_windows; pixels() is the NumPy
+    # definition: the same operations in the same order give the same float64 values
+    cal = read_calibration(write_true_calibration(tmp_path, make_rig(W, H, seed=5)))
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(-20, W + 20, 3000), rng.uniform(-20, H + 20, 3000)
+    disparity = rng.uniform(-2.0, 40.0, 3000)
+    for cam in range(4):
+        px, py = cal.pixels(cam, x, y, disparity)
+        got = cal.place(cam, x, y, disparity)
+        for first, shift, want in ((got.left_x, got.shift_x, px), (got.top_y, got.shift_y, py)):
+            want_first, want_shift = window_at(want)
+            assert np.array_equal(first, want_first) and np.array_equal(shift, want_shift)
+    # and the gain from the compiled pixels equals the one from the NumPy pixels
+    gain = QuadGeometry(calibration=cal).disparity_gain(x.reshape(50, 60), y.reshape(50, 60))
+    vectors = QuadGeometry().pair_vectors()
+    one = np.ones_like(x)
+    moved = [
+        np.stack(cal.pixels(c, x, y, one), -1) - np.stack(cal.pixels(c, x, y, 0 * one), -1)
+        for c in range(4)
+    ]
+    want = np.mean(
+        [(moved[b] - moved[a]) @ v / (v @ v) for (a, b), v in zip(PAIRS, vectors, strict=True)],
+        axis=0,
+    )
+    assert gain.shape == (50, 60)
+    np.testing.assert_allclose(gain.ravel(), want, rtol=0, atol=1e-12)
 
 
 def test_the_gain_is_the_lens_scale_where_tiles_are(tmp_path: Path) -> None:

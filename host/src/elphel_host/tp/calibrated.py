@@ -22,6 +22,10 @@ the sub-pixel shift (a phase rotation), as for the ideal geometry
 (:meth:`elphel_host.tp.geometry.QuadGeometry.place_camera`). Disparities, depths and
 point clouds are then those of the virtual camera: ``Z = f B / D``.
 
+The tile processor places its tiles through :meth:`CalibratedGeometry.place`, one
+compiled loop per chunk of tiles and camera (:func:`elphel_host.tp.fused.lens_windows`)
+that computes what :meth:`CalibratedGeometry.pixels` computes, bit for bit.
+
 A camera's image moves by about ``J`` pixels per pixel of disparity, J the local scale of
 its lens (below 1 towards the corners of a barrel-distorted image); the correlation
 measures raw pixels, so :meth:`CalibratedGeometry.disparity_gain` gives per tile the
@@ -43,6 +47,7 @@ from numpy.typing import NDArray
 from elphel_host.calibrate.camera_model import CameraModel, distort
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.errors import InputFormatError
+from elphel_host.tp.geometry import TilePlacement
 
 F64 = NDArray[np.float64]
 
@@ -142,6 +147,49 @@ class CalibratedGeometry:
         xd, yd = distort(xc / zc, yc / zc, lens.coefficients)
         return lens.fx * xd + lens.cx + 0.5, lens.fy * yd + lens.cy + 0.5
 
+    def lens_parameters(self, camera: int) -> F64:
+        """``camera`` packed for the compiled :func:`elphel_host.tp.fused.lens_pixels`.
+
+        The values named by :data:`elphel_host.tp.fused.LENS_PARAMETERS`, in that order.
+        """
+        w, h = self.image_size
+        lens = self.lenses[camera]
+        return np.concatenate(
+            [
+                [w / 2, h / 2, self.focal_px, self.focal_px * self.baseline_mm],
+                self.offsets_mm[camera],
+                self.rotations[camera].ravel(),
+                lens.coefficients,
+                [lens.fx, lens.fy, lens.cx, lens.cy],
+            ]
+        ).astype(np.float64)
+
+    def place(
+        self,
+        camera: int,
+        cx: NDArray[np.floating],
+        cy: NDArray[np.floating],
+        disparity: NDArray[np.floating],
+    ) -> TilePlacement:
+        """Camera ``camera``'s 16-sample windows of the tiles centred at (cx, cy), at a disparity.
+
+        :func:`elphel_host.tp.geometry.window_at` of :meth:`pixels` (equal to it in
+        every bit), computed by one compiled loop.
+        """
+        from elphel_host.tp.fused import lens_windows  # numba: loaded on first use
+
+        x, y, d = _flat_points(cx, cy, disparity)
+        first = np.empty((2, x.size), dtype=np.int64)
+        shift = np.empty((2, x.size), dtype=np.float64)
+        lens_windows(x, y, d, self.lens_parameters(camera), first, shift)
+        shape = np.broadcast(cx, cy, disparity).shape
+        return TilePlacement(
+            left_x=first[0].reshape(shape),
+            shift_x=shift[0].reshape(shape),
+            top_y=first[1].reshape(shape),
+            shift_y=shift[1].reshape(shape),
+        )
+
     def disparity_gain(
         self,
         cx: NDArray[np.floating],
@@ -155,12 +203,16 @@ class CalibratedGeometry:
         geometry), the change of ``p_b - p_a`` per unit of D, projected on ``v`` and
         divided by ``|v|^2``; the mean over the pairs. 1 for an ideal quad.
         """
-        zero = np.zeros(np.shape(cx))
+        from elphel_host.tp.fused import lens_pixels  # numba: loaded on first use
+
+        x, y, zero = _flat_points(cx, cy, 0.0)
+        at0, at1 = np.empty((2, x.size)), np.empty((2, x.size))
         moved = []
         for cam in range(len(self.lenses)):
-            at0 = self.pixels(cam, cx, cy, zero)
-            at1 = self.pixels(cam, cx, cy, zero + 1.0)
-            moved.append(np.stack([at1[0] - at0[0], at1[1] - at0[1]], axis=-1))
+            model = self.lens_parameters(cam)
+            lens_pixels(x, y, zero, model, at0)
+            lens_pixels(x, y, zero + 1.0, model, at1)
+            moved.append((at1 - at0).T.reshape(*np.shape(cx), 2))
         gain = np.zeros(np.shape(cx))
         for (a, b), v in zip(pairs, np.asarray(vectors, dtype=np.float64), strict=True):
             gain += ((moved[b] - moved[a]) @ v) / float(v @ v)
@@ -171,6 +223,15 @@ class CalibratedGeometry:
         """The virtual camera's optics for depth (only ``f / pitch`` matters: 1 um if None)."""
         pitch = 1.0 if pixel_pitch_um is None else float(pixel_pitch_um)
         return DepthOptics(self.focal_px * pitch / 1000.0, pitch, self.baseline_mm)
+
+
+def _flat_points(
+    cx: NDArray[np.floating], cy: NDArray[np.floating], disparity: NDArray[np.floating] | float
+) -> tuple[F64, F64, F64]:
+    """Points broadcast together, as contiguous float64 ``(N,)`` arrays."""
+    x, y, d = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (cx, cy, disparity)))
+    flat = [np.ascontiguousarray(a.ravel()) for a in (x, y, d)]
+    return flat[0], flat[1], flat[2]
 
 
 def scaled_lens(lens: CameraModel, scale: int) -> CameraModel:

@@ -8,7 +8,11 @@ matrix products that NumPy and BLAS do well:
   a camera and multiplied by its shifted window (separable: a row factor times a column
   factor), straight into the rows the transform products read;
 * :func:`rotated_pair_products`: the pair products summed over colours (first camera
-  conjugated), the fat-zero normalisation and both cameras' phase rotations, per tile.
+  conjugated), the fat-zero normalisation and both cameras' phase rotations, per tile;
+* :func:`lens_pixels` and :func:`lens_windows`: where a calibrated camera sees each tile
+  (:meth:`elphel_host.tp.calibrated.CalibratedGeometry.pixels`, the same operations in
+  the same order, so the same float64 results), one loop instead of some forty NumPy
+  passes per chunk and camera.
 
 The kernels are compiled when this module is imported (explicit signatures, cached on
 disk by numba), release the GIL and run on the tile processor's worker threads.
@@ -244,3 +248,100 @@ def rotated_pair_products(
             a, b = pairs[p, 0], pairs[p, 1]
             _colour_sum(spectra[a, where[a, t]], spectra[b, where[b, t]], sizes, acc)
             _normalised(acc, rot[a], rot[b], fz2, scale, out[p, t])
+
+
+#: The calibrated camera of :func:`lens_pixels`, packed by
+#: :meth:`elphel_host.tp.calibrated.CalibratedGeometry.lens_parameters`.
+LENS_PARAMETERS = (
+    *("half_width", "half_height", "focal_px", "focal_px_times_baseline_mm"),
+    *("offset_x_mm", "offset_y_mm", "offset_z_mm"),
+    *(f"r{i}{j}" for i in range(3) for j in range(3)),
+    *("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    *("fx", "fy", "cx", "cy"),
+)
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False, error_model="numpy")
+def _lens_point(
+    cx: float, cy: float, disparity: float, m: NDArray[np.float64]
+) -> tuple[float, float]:
+    """Continuous pixel of one tile centre at one disparity (no fastmath: exact float64).
+
+    ``m``: the camera's :data:`LENS_PARAMETERS`.
+    """
+    x = (cx - m[0]) / m[2]
+    y = (cy - m[1]) / m[2]
+    s = disparity / m[3]
+    r0, r1, r2 = x - s * m[4], y - s * m[5], 1.0 - s * m[6]
+    xc = m[7] * r0 + m[8] * r1 + m[9] * r2
+    yc = m[10] * r0 + m[11] * r1 + m[12] * r2
+    zc = m[13] * r0 + m[14] * r1 + m[15] * r2
+    u, v = xc / zc, yc / zc
+    k1, k2, p1, p2, k3, k4, k5, k6 = m[16], m[17], m[18], m[19], m[20], m[21], m[22], m[23]
+    rr = u * u + v * v
+    radial = (1 + rr * (k1 + rr * (k2 + rr * k3))) / (1 + rr * (k4 + rr * (k5 + rr * k6)))
+    ud = u * radial + 2 * p1 * u * v + p2 * (rr + 2 * u * u)
+    vd = v * radial + p1 * (rr + 2 * v * v) + 2 * p2 * u * v
+    return m[24] * ud + m[26] + 0.5, m[25] * vd + m[27] + 0.5
+
+
+_LENS_SIGNATURE = nb.void(
+    nb.float64[::1],  # tile centres x (T,)
+    nb.float64[::1],  # tile centres y (T,)
+    nb.float64[::1],  # disparity (T,)
+    nb.float64[::1],  # the camera (LENS_PARAMETERS)
+    nb.float64[:, ::1],  # out (2, T): x, y
+)
+
+
+@nb.njit(_LENS_SIGNATURE, cache=True, nogil=True, boundscheck=False, error_model="numpy")
+def lens_pixels(
+    cx: NDArray[np.float64],
+    cy: NDArray[np.float64],
+    disparity: NDArray[np.float64],
+    model: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """Continuous pixel (x, y) of each virtual-camera point (cx, cy) at its disparity.
+
+    The calibrated geometry's undistort, shift by the disparity, rotation and distortion
+    (:meth:`elphel_host.tp.calibrated.CalibratedGeometry.pixels`); ``model`` holds one
+    camera's :data:`LENS_PARAMETERS`.
+    """
+    for t in range(cx.shape[0]):
+        out[0, t], out[1, t] = _lens_point(cx[t], cy[t], disparity[t], model)
+
+
+_WINDOWS_SIGNATURE = nb.void(
+    nb.float64[::1],  # tile centres x (T,)
+    nb.float64[::1],  # tile centres y (T,)
+    nb.float64[::1],  # disparity (T,)
+    nb.float64[::1],  # the camera (LENS_PARAMETERS)
+    nb.int64[:, ::1],  # out (2, T): first pixel of the window along x, along y
+    nb.float64[:, ::1],  # out (2, T): residual shift along x, along y
+)
+
+
+@nb.njit(_WINDOWS_SIGNATURE, cache=True, nogil=True, boundscheck=False, error_model="numpy")
+def lens_windows(
+    cx: NDArray[np.float64],
+    cy: NDArray[np.float64],
+    disparity: NDArray[np.float64],
+    model: NDArray[np.float64],
+    first: NDArray[np.int64],
+    shift: NDArray[np.float64],
+) -> None:
+    """:func:`lens_pixels`, then the 16-sample window there along each axis.
+
+    As :func:`elphel_host.tp.geometry.window_at`: ``first = floor(p - 8 + 0.5)`` and
+    ``shift = first - (p - 8)`` for the continuous pixel p. Two loops, each of which
+    the compiler vectorises.
+    """
+    for t in range(cx.shape[0]):
+        shift[0, t], shift[1, t] = _lens_point(cx[t], cy[t], disparity[t], model)
+    for a in range(2):
+        for t in range(cx.shape[0]):
+            p = shift[a, t] - 8.0
+            left = np.floor(p + 0.5)
+            first[a, t] = np.int64(left)
+            shift[a, t] = left - p

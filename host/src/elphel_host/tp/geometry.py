@@ -51,6 +51,16 @@ class TileMap(Protocol):
         """Per tile, the pixels the pairs' separations move per unit of disparity."""
         ...
 
+    def place(
+        self,
+        camera: int,
+        cx: NDArray[np.floating],
+        cy: NDArray[np.floating],
+        disparity: NDArray[np.floating],
+    ) -> TilePlacement:
+        """:func:`window_at` of :meth:`pixels` along each axis."""
+        ...
+
 
 @dataclass(frozen=True)
 class QuadGeometry:
@@ -91,10 +101,7 @@ class QuadGeometry:
         """Camera ``camera``'s tiles centred at (cx, cy) at a disparity (see :func:`place`)."""
         if self.calibration is None:
             return place_tiles(cx, cy, disparity, self.positions[camera])
-        x, y = self.calibration.pixels(camera, cx, cy, disparity)
-        left_x, shift_x = window_at(x)
-        top_y, shift_y = window_at(y)
-        return TilePlacement(left_x=left_x, shift_x=shift_x, top_y=top_y, shift_y=shift_y)
+        return self.calibration.place(camera, cx, cy, disparity)
 
     def camera_pixels(
         self,
