@@ -88,6 +88,69 @@ def test_bayer_frames_match_vivids_bars_pixel_for_pixel(fourcc: str) -> None:
         b.close()
 
 
+MONO = ("GREY", "Y10 ", "Y12 ", "Y16 ")
+
+
+def v4l2_ctl_frame(fourcc: str, directory: Path) -> np.ndarray:
+    """One frame of ``fourcc`` taken by v4l2-ctl (another reader), decoded here."""
+    raw_file = directory / "frame.raw"
+    width, height = (int(v) for v in SIZE.split("x"))
+    subprocess.run(
+        [
+            "v4l2-ctl",
+            "-d",
+            NODE,
+            f"--set-fmt-video=width={width},height={height},pixelformat={fourcc}",
+            "--stream-mmap",
+            "--stream-count=1",
+            f"--stream-to={raw_file}",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    data = raw_file.read_bytes()
+    stride = len(data) // height  # a line's bytes, padding included
+    dtype = np.uint8 if raw_format(fourcc).bits == 8 else np.dtype("<u2")
+    lines = np.frombuffer(data, dtype).reshape(height, -1)
+    assert lines.shape[1] * lines.itemsize == stride
+    return lines[:, :width].astype(np.uint16)
+
+
+def assert_luma_bars(image: np.ndarray) -> None:
+    """Eight uniform vertical bars, from white down to black in luma."""
+    bar_width = image.shape[1] // len(BARS)
+    levels = []
+    for k in range(len(BARS)):
+        bar = image[:, k * bar_width : (k + 1) * bar_width]
+        assert (bar == bar[0, 0]).all(), f"bar {k} is not uniform: {np.unique(bar)[:8]}"
+        levels.append(int(bar[0, 0]))
+    assert levels == sorted(levels, reverse=True) and len(set(levels)) == len(BARS), levels
+
+
+def test_mono_frames_through_the_daemon_have_no_bayer_label_and_match_vivid(
+    tmp_path: Path,
+) -> None:
+    probe = VideoNode(NODE, size=(640, 480))
+    offered = [f for f in MONO if f in probe.offered()]
+    probe.close()
+    assert offered, f"vivid offers none of {MONO}"
+    for fourcc in offered:
+        reference = v4l2_ctl_frame(fourcc, tmp_path)
+        assert_luma_bars(reference)
+        service = CameraService(board(fourcc))
+        try:
+            with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+                r = c.post("/api/v1/ports/0/capture", timeout=60)
+                assert r.status_code == 200, r.text
+                images, (meta,) = read_tiff_pages(r.content)
+                schema = c.get("/api/v1/ports/0/params/schema").json()
+        finally:
+            service.close()
+        assert meta["bayer"] is None and schema["bayer"] is None, (fourcc, meta["bayer"])
+        assert service.sensor(0).bits == raw_format(fourcc).bits
+        np.testing.assert_array_equal(images[0], reference, err_msg=fourcc)
+
+
 def test_a_flip_mirrors_the_bars_and_the_label_is_the_nodes_order() -> None:
     b = board("RG10")
     try:

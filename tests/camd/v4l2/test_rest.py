@@ -204,3 +204,20 @@ def test_the_hosts_camera_commands_work_on_the_v4l2_board(cam, tmp_path, capsys)
     _, pages = read_tiff_pages(out.read_bytes())
     assert len(pages) == 3 and all(p["bayer"] == "RGGB" for p in pages)
     assert pages[-1]["EXPOS"] == round(round(2000e-6 / LINE_S) * LINE_S * 1e6)
+
+
+def test_a_mono_node_gives_frames_without_a_bayer_label() -> None:
+    def mono(port: V4L2Port) -> SyntheticSource:
+        return SyntheticSource(_image(), fourcc="Y10 ", fps=50.0, path=port.video)
+
+    service = CameraService(V4L2Board(["/dev/video0"], open_source=mono))
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            image, meta, _ = _capture(c)
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            preview = c.get("/api/v1/ports/0/preview")
+    finally:
+        service.close()
+    np.testing.assert_array_equal(image, _image())
+    assert meta["bayer"] is None and schema["bayer"] is None
+    assert preview.status_code == 200 and preview.headers["content-type"] == "image/jpeg"
