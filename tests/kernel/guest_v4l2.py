@@ -176,6 +176,84 @@ def test_a_flip_mirrors_the_bars_and_the_label_is_the_nodes_order() -> None:
         b.close()
 
 
+def patch_window(c: httpx.Client, **woi: int) -> tuple[int, np.ndarray, np.ndarray, dict]:
+    """PATCH a window; the frame it names, that frame, the frame before and its metadata."""
+    assert c.post("/api/v1/ports/0/capture", timeout=60).status_code == 200
+    r = c.patch("/api/v1/ports/0/params", json=woi, timeout=60)
+    assert r.status_code == 200, r.text
+    first = r.json()["frame"]
+    got = c.post("/api/v1/ports/0/capture", params={"frame": first}, timeout=60)
+    before = c.post("/api/v1/ports/0/capture", params={"frame": first - 1}, timeout=60)
+    assert got.status_code == 200 and before.status_code == 200, (got.text, before.text)
+    (new,), (meta,) = read_tiff_pages(got.content)
+    (old,), _ = read_tiff_pages(before.content)
+    return first, new, old, meta
+
+
+def test_a_window_on_the_webcam_input_switches_mode_at_the_frame_the_patch_names() -> None:
+    b = board("RG10")
+    service = CameraService(b)
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            writable = {n for n, spec in schema["params"].items() if spec["writable"]}
+            assert {"WOI_WIDTH", "WOI_HEIGHT"} <= writable and "WOI_LEFT" not in writable
+            sizes = b.streams[0].source.shape_options().sizes
+            width, height = min(sizes, key=lambda size: size[0] * size[1])
+            _, new, old, meta = patch_window(c, WOI_WIDTH=width, WOI_HEIGHT=height)
+            refused = c.patch("/api/v1/ports/0/params", json={"WOI_WIDTH": width + 2})
+    finally:
+        service.close()
+    assert (640, 480) in sizes and (width, height) != (640, 480)
+    assert old.shape == (480, 640) and new.shape == (height, width)
+    assert (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (width, height)
+    np.testing.assert_array_equal(new, expected_bars(new.shape, "RGGB", 10))
+    assert refused.status_code == 422, refused.text
+    assert f"{width}x{height}, " in refused.json()["allowed"]
+
+
+@pytest.fixture
+def hdmi_input() -> Iterator[None]:
+    """vivid's second input, HDMI, which crops (ccs_cap_mode=1); back to the webcam after."""
+    subprocess.run(["v4l2-ctl", "-d", NODE, "-i", "1"], check=True)
+    subprocess.run(["v4l2-ctl", "-d", NODE, "--set-dv-bt-timings", "index=0"], check=False)
+    try:
+        yield
+    finally:
+        subprocess.run(["v4l2-ctl", "-d", NODE, "-i", "0"], check=True)
+
+
+def test_a_window_through_vivids_crop_starts_at_the_frame_the_patch_names(
+    hdmi_input: None,
+) -> None:
+    service = CameraService(V4L2Board(ports=[{"video": NODE, "format": "RG10"}]))
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            width, height = schema["window"]["width"], schema["window"]["height"]
+            left, top = width // 8 * 2, height // 8 * 2
+            woi = {
+                "WOI_LEFT": left,
+                "WOI_TOP": top,
+                "WOI_WIDTH": width // 2,
+                "WOI_HEIGHT": height // 2,
+            }
+            _, new, old, meta = patch_window(c, **woi)
+            refused = c.patch("/api/v1/ports/0/params", json={"WOI_LEFT": width})
+    finally:
+        service.close()
+    assert old.shape == (height, width) and new.shape == (height // 2, width // 2)
+    assert {k: meta[k] for k in woi} == woi and meta["bayer"] == "RGGB"
+    full = expected_bars((height, width), "RGGB", 10)
+    expected = full[top : top + height // 2, left : left + width // 2]
+    # Compare the columns two pixels or more from a bar's edge (as the mirrored bars).
+    bar_width = width // len(BARS)
+    columns = (np.arange(width // 2) + left) % bar_width
+    inside = (columns >= 2) & (columns < bar_width - 2)
+    np.testing.assert_array_equal(new[:, inside], expected[:, inside])
+    assert refused.status_code == 422 and "crop bounds" in refused.json()["allowed"]
+
+
 def test_frame_numbers_follow_the_sequence_with_monotonic_timestamps() -> None:
     b = board("RG10")
     try:

@@ -249,3 +249,30 @@ def test_a_frame_that_cannot_be_taken_restarts_the_stream_instead_of_ending_it(
     assert board.capture(0, timeout_s=5).frame > first
     errors = [p["detail"] for k, p in board.events if k == "error"]  # type: ignore[attr-defined]
     assert any("could not be taken" in d for d in errors)
+
+
+def test_a_shape_the_driver_refuses_keeps_the_old_one_streaming_and_is_asked_once() -> None:
+    nodes = Nodes(fourcc="RG10", fps=200.0, sizes=((WIDTH, HEIGHT), (8, 4)))
+    b = V4L2Board(["/dev/video0"], open_source=nodes, ring_frames=16)
+    asked: list[Any] = []
+
+    def refuse(shape: Any) -> Any:
+        asked.append(shape)
+        raise ControlRefusedError("size", shape.size, "not today (the driver)")
+
+    try:
+        b.capture(0)
+        nodes.made["/dev/video0"].set_shape = refuse  # type: ignore[method-assign]
+        sensor = b.sensors()[0]
+        state = sensor.normalize(
+            {**sensor.defaults(), "WOI_WIDTH": 8, "WOI_HEIGHT": 4},
+            frozenset({"WOI_WIDTH", "WOI_HEIGHT"}),
+        )
+        with pytest.raises(ControlRefusedError, match="a window the driver of /dev/video0 takes"):
+            sensor.program(WINDOW, state)
+        assert "WOI_WIDTH" not in sensor.program(WINDOW, state) and len(asked) == 1
+        got = b.capture(0)
+        assert got.image.shape == (HEIGHT, WIDTH)
+        assert b.port_status(0)["state"] == "streaming"
+    finally:
+        b.close()

@@ -164,6 +164,7 @@ class V4L2Board:
                 lambda: stream.source,
                 model=spec.model or source.card,
                 period_s=lambda: stream.period_ns / 1e9,
+                reshape=stream.reshape,
             )
         stream.start()
 
@@ -194,7 +195,7 @@ class V4L2Board:
         for callback in self._subscribers:
             try:
                 callback(port, frame, timestamp_ns)
-            except Exception:  # the stream must go on: log, and report as an event
+            except Exception as e:  # the stream must go on: log, and report as an event
                 log.exception("port %d: frame %d: a frame-sync subscriber failed", port, frame)
                 self._on_event(
                     "error",
@@ -202,7 +203,7 @@ class V4L2Board:
                         "port": port,
                         "frame": frame,
                         "error": "frame_sync",
-                        "detail": f"port {port}: handling frame {frame} failed (see the log)",
+                        "detail": f"port {port}: handling frame {frame} failed: {e}",
                     },
                 )
 

@@ -16,7 +16,8 @@ from typing import Any
 
 from elphel_camd.errors import PortDisconnectedError, VideoNodeError
 from elphel_camd.v4l2.ring import FrameRing
-from elphel_camd.v4l2.source import Buffer, FrameSource
+from elphel_camd.v4l2.shape import Shape
+from elphel_camd.v4l2.source import Buffer, FrameSource, StreamFormat
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +81,8 @@ class PortStream:
         self._last_frame = 0
         self._last_ts = 0
         self._stop = threading.Event()
+        # Held while a buffer is taken and while the shape changes: one at a time.
+        self._io = threading.RLock()
         self._thread = threading.Thread(target=self._run, name=f"v4l2-port{port}", daemon=True)
 
     @property
@@ -111,24 +114,45 @@ class PortStream:
         self.ring.wake()
         self._on_event("port", {"port": self.port, "state": state, "detail": detail})
 
+    def reshape(self, shape: Shape) -> StreamFormat:
+        """Stop the stream, give the node a new shape, start again; the format read back.
+
+        Called between two frames (from the frame callback, or from another thread, which
+        waits for the frame being taken): the next frame is the first of the new shape and
+        gets the next frame number. A shape the driver refuses leaves the old one
+        streaming and raises.
+        """
+        with self._io:
+            self.source.stop()
+            self._last_sequence = None
+            try:
+                return self.source.set_shape(shape)
+            finally:
+                self.source.start(self._buffers)
+
     def _run(self) -> None:
         while not self._stop.is_set():
-            try:
-                buf = self.source.dequeue(0.2)
-            except PortDisconnectedError as e:
-                self._set_state("disconnected", str(e))
-                self._reconnect()
-                continue
-            except OSError as e:
-                self._restart(f"{self.source.path}: streaming failed ({e}); restarting")
-                continue
-            if buf is None:
-                continue
-            try:
-                self._take(buf)
-            except Exception as e:  # a frame that cannot be taken must not end the stream
-                log.exception("port %d: frame of sequence %d not taken", self.port, buf.sequence)
-                self._restart(f"{self.source.path}: a frame could not be taken ({e}); restarting")
+            with self._io:
+                self._step()
+
+    def _step(self) -> None:
+        """Take one buffer (or notice that none came, or that the node failed)."""
+        try:
+            buf = self.source.dequeue(0.2)
+        except PortDisconnectedError as e:
+            self._set_state("disconnected", str(e))
+            self._reconnect()
+            return
+        except OSError as e:
+            self._restart(f"{self.source.path}: streaming failed ({e}); restarting")
+            return
+        if buf is None:
+            return
+        try:
+            self._take(buf)
+        except Exception as e:  # a frame that cannot be taken must not end the stream
+            log.exception("port %d: frame of sequence %d not taken", self.port, buf.sequence)
+            self._restart(f"{self.source.path}: a frame could not be taken ({e}); restarting")
 
     def _take(self, buf: Buffer) -> None:
         frame = self._number(buf.sequence)

@@ -2,8 +2,11 @@
 
 `SyntheticSource` is a `elphel_camd.v4l2.source.FrameSource` with no device behind it: a
 fixed image packed in the node's format, delivered at a frame rate with the driver's
-sequence numbers and monotonic timestamps, and IMX219-like controls. Faults are injected
-through ``sim_*`` methods: dropped frames, a vanished device, a streaming error, silence.
+sequence numbers and monotonic timestamps, and IMX219-like controls. It can crop (the
+frame is the crop of the image) or offer modes (a mode of size w x h delivers the image's
+top-left w x h pixels); either needs the stream stopped, as drivers do. Faults are
+injected through ``sim_*`` methods: dropped frames, a vanished device, a streaming error,
+silence.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from elphel_camd.v4l2.formats import (
     flipped_bayer,
     raw_format,
 )
+from elphel_camd.v4l2.shape import Rect, Shape, ShapeOptions
 from elphel_camd.v4l2.source import Buffer, ControlInfo, StreamFormat
 
 # Controls of the IMX219's kernel driver in its 3280x2464 mode (reference: frame-paths.md).
@@ -85,6 +89,10 @@ class SyntheticSource:
         Bytes of padding after each line.
     controls
         Its controls (IMX219-like by default).
+    crop
+        Whether the driver crops (its bounds are the whole image).
+    sizes
+        Its modes' frame sizes (the image's size alone by default).
     """
 
     card = "imx219 (synthetic)"  # its controls are those of the IMX219 driver
@@ -98,13 +106,18 @@ class SyntheticSource:
         path: str = "synthetic:0",
         pad: int = 0,
         controls: tuple[ControlInfo, ...] = IMX219_CONTROLS,
+        crop: bool = False,
+        sizes: tuple[tuple[int, int], ...] = (),
     ) -> None:
         fmt = raw_format(fourcc)
         height, width = image.shape
         self.path = path
         self._native = fmt.bayer
-        self.stream_format = StreamFormat(fmt, width, height, fmt.line_bytes(width) + pad)
-        self.data = pack(image, fmt, stride=self.stream_format.stride).reshape(-1)
+        self._image, self._pad = image, pad
+        full = Rect(0, 0, width, height)
+        self._options = ShapeOptions(crop_bounds=full if crop else None, sizes=sizes)
+        self._crop = full if crop else None
+        self._deliver(fmt, image)
         self.period_s = 1.0 / fps
         self._controls = {c.id: c for c in controls}
         self._values = {c.id: c.default for c in controls}
@@ -120,6 +133,11 @@ class SyntheticSource:
         self.sim_busy = False
         self._drop_next = 0
         self._fail_next = False
+
+    def _deliver(self, fmt: RawFormat, image: NDArray[np.uint16]) -> None:
+        height, width = image.shape
+        self.stream_format = StreamFormat(fmt, width, height, fmt.line_bytes(width) + self._pad)
+        self.data = pack(image, fmt, stride=self.stream_format.stride).reshape(-1)
 
     # -- faults ----------------------------------------------------------------------------
 
@@ -188,6 +206,32 @@ class SyntheticSource:
 
     def close(self) -> None:
         self.stop()
+
+    def shape_options(self) -> ShapeOptions:
+        return self._options
+
+    def shape(self) -> Shape:
+        return Shape(self._crop, (self.stream_format.width, self.stream_format.height))
+
+    def set_shape(self, shape: Shape) -> StreamFormat:
+        if self._streaming:
+            raise DeviceBusyError(f"{self.path}: the shape cannot change while streaming")
+        bounds, fmt = self._options.crop_bounds, self.stream_format.format
+        if bounds is not None and shape.crop is not None:
+            c = shape.crop
+            across = c.width > 0 and c.left >= 0 and c.left + c.width <= bounds.width
+            down = c.height > 0 and c.top >= 0 and c.top + c.height <= bounds.height
+            if not (across and down):
+                raise ControlRefusedError("crop", c, f"inside {bounds} (the driver's bounds)")
+            self._crop = c
+            image = self._image[c.top : c.top + c.height, c.left : c.left + c.width]
+        elif shape.size in self._options.sizes:
+            width, height = shape.size
+            image = self._image[:height, :width]
+        else:
+            raise ControlRefusedError("size", shape.size, f"one of {self._options.sizes}")
+        self._deliver(fmt, np.ascontiguousarray(image))
+        return self.refresh_format()
 
     def refresh_format(self) -> StreamFormat:
         fmt = self.stream_format.format

@@ -90,6 +90,8 @@ def window_of(driver: SensorDriver) -> dict[str, int] | None:
     """The sensor's full window and the step of its edges (None if the window is fixed)."""
     if isinstance(driver, (AptinaSensor, IMX219)):
         return {"width": driver.image_width, "height": driver.image_height, "step": 2}
+    if isinstance(driver, V4L2Sensor):
+        return driver.window()
     return None
 
 
