@@ -30,12 +30,13 @@ from elphel_camd.v4l2.controls import (
 )
 from elphel_camd.v4l2.formats import flipped_bayer
 from elphel_camd.v4l2.shape import (
-    WINDOW_PARAMS,
+    SHAPE_PARAMS,
     Shape,
     check_window,
     wanted_shape,
     window_limits,
     window_params,
+    with_binned_modes,
 )
 from elphel_camd.v4l2.source import FrameSource, StreamFormat
 
@@ -84,7 +85,7 @@ class V4L2Sensor(SensorDriver):
         self._reshape = reshape
         node = source()
         self.map = ControlMap(node.controls(), model=model)
-        self.shape_options = node.shape_options()
+        self.shape_options = with_binned_modes(node.shape_options(), model)
         window = self.shape_options.writable if reshape is not None else frozenset()
         self.writable = self.map.offered | window  # type: ignore[misc]
         self._asked: tuple[FrameSource, Shape] | None = None  # the last shape asked of a node
@@ -177,7 +178,7 @@ class V4L2Sensor(SensorDriver):
             s.update(dict.fromkeys(COLOUR_GAINS, s[name]))
         for name in changed & {"FLIPH", "FLIPV"}:
             check_range(name, s[name], 0, 1)
-        if changed & set(WINDOW_PARAMS):
+        if changed & set(SHAPE_PARAMS):
             check_window(s, self.shape_options)
         if changed & self.writable:
             self.map.to_controls(s, width=self._width(), timing=self._timing())
@@ -248,7 +249,7 @@ class V4L2Sensor(SensorDriver):
             ) from e
         self.bits = fmt.format.bits  # type: ignore[misc]
         self._update_bayer(state)
-        return [n for n in WINDOW_PARAMS if n in self.writable]
+        return [n for n in SHAPE_PARAMS if n in self.writable]
 
     def record(self, frame: int) -> None:
         """Read the controls back for a frame that just arrived (its metadata's values)."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -230,7 +231,14 @@ class SyntheticSource:
             image = self._image[:height, :width]
         else:
             raise ControlRefusedError("size", shape.size, f"one of {self._options.sizes}")
+        line_pixels = self.stream_format.width + self._values.get(CID_HBLANK, 0)
         self._deliver(fmt, np.ascontiguousarray(image))
+        if CID_HBLANK in self._values:  # the line keeps its length, as the IMX219's modes do
+            blank = line_pixels - self.stream_format.width
+            self._controls[CID_HBLANK] = replace(
+                self._controls[CID_HBLANK], minimum=blank, maximum=blank, default=blank
+            )
+            self._values[CID_HBLANK] = blank
         return self.refresh_format()
 
     def refresh_format(self) -> StreamFormat:
