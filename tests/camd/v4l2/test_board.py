@@ -276,3 +276,21 @@ def test_a_shape_the_driver_refuses_keeps_the_old_one_streaming_and_is_asked_onc
         assert b.port_status(0)["state"] == "streaming"
     finally:
         b.close()
+
+
+def test_the_next_frame_after_lost_ones_is_the_next_delivered(
+    board: V4L2Board, nodes: Nodes
+) -> None:
+    board.capture(0)
+    node = nodes.made["/dev/video0"]
+    node.sim_silent = True
+    time.sleep(0.1)
+    last = board.streams[0].last_frame
+    node.sim_drop(3)
+    got: list[Any] = []
+    waiter = threading.Thread(target=lambda: got.append(board.capture(0, timeout_s=5)))
+    waiter.start()
+    time.sleep(0.1)
+    node.sim_silent = False
+    waiter.join(10)
+    assert got and got[0].frame == last + 4  # frames last+1..last+3 were lost

@@ -250,6 +250,8 @@ class V4L2Board:
             if not stream.ring.wait_newer(waited_from, patience):
                 self._check_connected(stream)
                 raise TimeoutError(self._silence(stream, patience))
+        if frame is None:  # the next frame the driver delivered (a lost one has no slot)
+            wanted = min((f for f in stream.ring.frames() if f >= wanted), default=wanted)
         got = stream.ring.get(wanted)
         return Frame(image=got.image, frame=got.frame, timestamp_ns=got.timestamp_ns)
 

@@ -37,6 +37,8 @@ DISPLAY: dict[str, dict[str, Any]] = {
 }
 CHOICES: dict[str, dict[int, str]] = {
     "TRIG": dict(zip(TRIG_VALUES, ("free-run", "snapshot", "snapshot + GRR"), strict=True)),
+    "BIN_HOR": {1: "none", 2: "x2"},
+    "BIN_VERT": {1: "none", 2: "x2"},
     "FLIPH": {0: "off", 1: "on"},
     "FLIPV": {0: "off", 1: "on"},
 }
