@@ -20,6 +20,7 @@ from elphel_camd.errors import (
     PortDisconnectedError,
 )
 from elphel_camd.params import EXPOSURE, GAINS, WINDOW
+from elphel_camd.service import CameraService
 from elphel_camd.v4l2.controls import CID_ANALOGUE_GAIN, CID_DIGITAL_GAIN, CID_EXPOSURE
 from elphel_camd.v4l2.synthetic import SyntheticSource
 
@@ -294,3 +295,23 @@ def test_the_next_frame_after_lost_ones_is_the_next_delivered(
     node.sim_silent = False
     waiter.join(10)
     assert got and got[0].frame == last + 4  # frames last+1..last+3 were lost
+
+
+def test_a_window_due_after_a_lost_frame_still_starts_at_the_frame_it_names() -> None:
+    nodes = Nodes(fourcc="RG10", fps=50.0, crop=True)
+    service = CameraService(V4L2Board(["/dev/video0"], open_source=nodes, ring_frames=16))
+    try:
+        service.capture(0)
+        node = nodes.made["/dev/video0"]
+        node.sim_silent = True
+        time.sleep(0.1)
+        target = service.set_params(0, {"WOI_WIDTH": 8, "WOI_HEIGHT": 4})
+        node.sim_drop(1)  # the frame before the target is lost
+        node.sim_silent = False
+        got, meta = service.capture(0, frame=target)
+        assert got.image.shape == (4, 8) and (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (8, 4)
+        np.testing.assert_array_equal(got.image, _image()[:4, :8])
+        with pytest.raises(FrameNotAvailableError, match=f"frame {target - 1} is not in"):
+            service.capture(0, frame=target - 1)
+    finally:
+        service.close()

@@ -25,6 +25,9 @@ SEQUENCE_MODULO = 1 << 32  # v4l2_buffer.sequence is a __u32
 Opener = Callable[[], FrameSource]
 # Called as on_frame(port, frame, timestamp_ns) after the frame is in the ring.
 OnFrame = Callable[[int, int, int], None]
+# Called as on_lost(port, frame) for the last frame of a gap, before the frame after it is
+# taken: the schedule moves on as if it had come (a shape due then restarts the stream).
+OnLost = Callable[[int, int], None]
 # Called as on_event(kind, payload): "port" for a change of state, "error" for drops
 # (error "frames_dropped") and streaming errors (error "v4l2").
 OnEvent = Callable[[str, dict[str, Any]], None]
@@ -45,7 +48,7 @@ class PortStream:
         Where frames go.
     buffers
         Driver buffers to stream with.
-    on_frame, on_event
+    on_frame, on_event, on_lost
         Callbacks (see the module's aliases).
     reconnect_s
         Seconds between attempts to reopen a vanished node.
@@ -61,6 +64,7 @@ class PortStream:
         buffers: int = 4,
         on_frame: OnFrame,
         on_event: OnEvent,
+        on_lost: OnLost | None = None,
         reconnect_s: float = 0.5,
     ) -> None:
         self.port = port
@@ -76,6 +80,8 @@ class PortStream:
         self._buffers = buffers
         self._on_frame = on_frame
         self._on_event = on_event
+        self._on_lost = on_lost
+        self.reshapes = 0  # shape changes so far
         self._reconnect_s = reconnect_s
         self._last_sequence: int | None = None
         self._last_frame = 0
@@ -125,6 +131,7 @@ class PortStream:
         with self._io:
             self.source.stop()
             self._last_sequence = None
+            self.reshapes += 1
             try:
                 return self.source.set_shape(shape)
             finally:
@@ -156,6 +163,8 @@ class PortStream:
 
     def _take(self, buf: Buffer) -> None:
         frame = self._number(buf.sequence)
+        if self._stale_after_loss(frame):
+            return
         try:
             if buf.error:
                 self._on_event(
@@ -179,6 +188,21 @@ class PortStream:
         self._last_frame, self._last_ts = frame, buf.timestamp_ns
         self.frames += 1
         self._on_frame(self.port, frame, buf.timestamp_ns)
+
+    def _stale_after_loss(self, frame: int) -> bool:
+        """After lost frames, move the schedule on; True if that changed the shape.
+
+        The buffer then holds the old shape and belongs to the stopped stream: it is
+        dropped, and the new stream's first frame takes its number.
+        """
+        if self._on_lost is None or not self._last_frame or frame <= self._last_frame + 1:
+            return False
+        shapes = self.reshapes
+        self._on_lost(self.port, frame - 1)
+        if self.reshapes == shapes:
+            return False
+        self._last_frame = frame - 1
+        return True
 
     def _number(self, sequence: int) -> int:
         """The frame number of a buffer's sequence; counts and reports a gap as drops."""
