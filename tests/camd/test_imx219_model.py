@@ -4,6 +4,7 @@ import pytest
 
 from elphel_camd.errors import ParameterRangeError
 from elphel_camd.frame_metadata import bayer_after_flips
+from elphel_camd.params import WINDOW
 from elphel_camd.sensors import IMX219
 from elphel_camd.sensors import imx219 as spec
 from elphel_camd.sensors import imx219_registers as regs
@@ -131,9 +132,28 @@ def test_a_long_exposure_lengthens_the_frame_and_the_fps_limit_stretches_it():
     assert limited["FP1000S"] == 5000
 
 
+def test_binning_halves_the_output_and_the_frame_at_the_same_line_time():
+    d = driver()
+    both = frozenset({"BIN_HOR", "BIN_VERT"})
+    s = d.normalize({**d.defaults(), "BIN_HOR": 2, "BIN_VERT": 2}, both)
+    written = d.registers(WINDOW, s)
+    assert (written["x_output_size"], written["y_output_size"]) == (1640, 1232)
+    assert (written["x_addr_end"], written["y_addr_end"]) == (3279, 2463)  # the whole array
+    assert written["binning_mode_h"] == written["binning_mode_v"] == regs.BINNING_2X2
+    assert spec.frame_lines(s) == 1232 + 32
+    assert s["FP1000S"] == round(1000 / ((1232 + 32) * spec.row_time_s()))
+    assert s["EXPOS"] == round(s["VEXPOS"] * spec.row_time_s() * 1e6)
+    across = d.normalize({**d.defaults(), "BIN_HOR": 2}, frozenset({"BIN_HOR"}))
+    written = d.registers(WINDOW, across)
+    assert (written["x_output_size"], written["y_output_size"]) == (1640, 2464)
+    assert (written["binning_mode_h"], written["binning_mode_v"]) == (regs.BINNING_2X2, 0)
+
+
 @pytest.mark.parametrize(
     ("changes", "name", "allowed"),
     [
+        ({"BIN_HOR": 3}, "BIN_HOR", "1..2"),
+        ({"BIN_VERT": 2, "WOI_HEIGHT": 482}, "WOI_HEIGHT", "multiple of 4 while BIN_VERT=2"),
         ({"WOI_WIDTH": 3282}, "WOI_WIDTH", "2..3280"),
         ({"WOI_LEFT": 1, "WOI_WIDTH": 640}, "WOI_LEFT", "even"),
         ({"VEXPOS": 3}, "VEXPOS", "4..65531"),

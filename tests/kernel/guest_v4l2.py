@@ -89,6 +89,69 @@ def test_bayer_frames_match_vivids_bars_pixel_for_pixel(fourcc: str) -> None:
         b.close()
 
 
+MONO = ("GREY", "Y10 ", "Y12 ", "Y16 ")
+
+
+def v4l2_ctl_frame(fourcc: str, directory: Path) -> np.ndarray:
+    """One frame of ``fourcc`` taken by v4l2-ctl (another reader), decoded here."""
+    raw_file = directory / "frame.raw"
+    width, height = (int(v) for v in SIZE.split("x"))
+    subprocess.run(
+        [
+            "v4l2-ctl",
+            "-d",
+            NODE,
+            f"--set-fmt-video=width={width},height={height},pixelformat={fourcc}",
+            "--stream-mmap",
+            "--stream-count=1",
+            f"--stream-to={raw_file}",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    data = raw_file.read_bytes()
+    stride = len(data) // height  # a line's bytes, padding included
+    dtype = np.uint8 if raw_format(fourcc).bits == 8 else np.dtype("<u2")
+    lines = np.frombuffer(data, dtype).reshape(height, -1)
+    assert lines.shape[1] * lines.itemsize == stride
+    return lines[:, :width].astype(np.uint16)
+
+
+def assert_luma_bars(image: np.ndarray) -> None:
+    """Eight uniform vertical bars, from white down to black in luma."""
+    bar_width = image.shape[1] // len(BARS)
+    levels = []
+    for k in range(len(BARS)):
+        bar = image[:, k * bar_width : (k + 1) * bar_width]
+        assert (bar == bar[0, 0]).all(), f"bar {k} is not uniform: {np.unique(bar)[:8]}"
+        levels.append(int(bar[0, 0]))
+    assert levels == sorted(levels, reverse=True) and len(set(levels)) == len(BARS), levels
+
+
+def test_mono_frames_through_the_daemon_have_no_bayer_label_and_match_vivid(
+    tmp_path: Path,
+) -> None:
+    probe = VideoNode(NODE, size=(640, 480))
+    offered = [f for f in MONO if f in probe.offered()]
+    probe.close()
+    assert offered, f"vivid offers none of {MONO}"
+    for fourcc in offered:
+        reference = v4l2_ctl_frame(fourcc, tmp_path)
+        assert_luma_bars(reference)
+        service = CameraService(board(fourcc))
+        try:
+            with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+                r = c.post("/api/v1/ports/0/capture", timeout=60)
+                assert r.status_code == 200, r.text
+                images, (meta,) = read_tiff_pages(r.content)
+                schema = c.get("/api/v1/ports/0/params/schema").json()
+        finally:
+            service.close()
+        assert meta["bayer"] is None and schema["bayer"] is None, (fourcc, meta["bayer"])
+        assert service.sensor(0).bits == raw_format(fourcc).bits
+        np.testing.assert_array_equal(images[0], reference, err_msg=fourcc)
+
+
 def test_a_flip_mirrors_the_bars_and_the_label_is_the_nodes_order() -> None:
     b = board("RG10")
     try:
@@ -112,6 +175,116 @@ def test_a_flip_mirrors_the_bars_and_the_label_is_the_nodes_order() -> None:
         assert sensor.actual_gains({"FRAME": got.frame})["FLIPH"] == 1
     finally:
         b.close()
+
+
+def patch_window(c: httpx.Client, **woi: int) -> tuple[int, np.ndarray, np.ndarray, dict]:
+    """PATCH a window; the frame it names, that frame, the frame before and its metadata."""
+    assert c.post("/api/v1/ports/0/capture", timeout=60).status_code == 200
+    r = c.patch("/api/v1/ports/0/params", json=woi, timeout=60)
+    assert r.status_code == 200, r.text
+    first = r.json()["frame"]
+    got = c.post("/api/v1/ports/0/capture", params={"frame": first}, timeout=60)
+    before = c.post("/api/v1/ports/0/capture", params={"frame": first - 1}, timeout=60)
+    assert got.status_code == 200 and before.status_code == 200, (got.text, before.text)
+    (new,), (meta,) = read_tiff_pages(got.content)
+    (old,), _ = read_tiff_pages(before.content)
+    return first, new, old, meta
+
+
+def test_a_window_on_the_webcam_input_switches_mode_at_the_frame_the_patch_names() -> None:
+    b = board("RG10")
+    service = CameraService(b)
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            writable = {n for n, spec in schema["params"].items() if spec["writable"]}
+            assert {"WOI_WIDTH", "WOI_HEIGHT"} <= writable and "WOI_LEFT" not in writable
+            sizes = b.streams[0].source.shape_options().sizes
+            width, height = min(sizes, key=lambda size: size[0] * size[1])
+            _, new, old, meta = patch_window(c, WOI_WIDTH=width, WOI_HEIGHT=height)
+            refused = c.patch("/api/v1/ports/0/params", json={"WOI_WIDTH": width + 2})
+    finally:
+        service.close()
+    assert (640, 480) in sizes and (width, height) != (640, 480)
+    assert old.shape == (480, 640) and new.shape == (height, width)
+    assert (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (width, height)
+    np.testing.assert_array_equal(new, expected_bars(new.shape, "RGGB", 10))
+    assert refused.status_code == 422, refused.text
+    assert f"{width}x{height}, " in refused.json()["allowed"]
+
+
+@pytest.fixture
+def hdmi_input() -> Iterator[None]:
+    """vivid's second input, HDMI, which crops (ccs_cap_mode=1); back to the webcam after."""
+    subprocess.run(["v4l2-ctl", "-d", NODE, "-i", "1"], check=True)
+    subprocess.run(["v4l2-ctl", "-d", NODE, "--set-dv-bt-timings", "index=0"], check=False)
+    try:
+        yield
+    finally:
+        subprocess.run(["v4l2-ctl", "-d", NODE, "-i", "0"], check=True)
+
+
+def dropped(c: httpx.Client) -> int:
+    return int(c.get("/api/v1/health").json()["ports"][0]["stream"]["dropped"])
+
+
+def capture_page(c: httpx.Client, **params: int) -> tuple[np.ndarray, dict[str, Any]]:
+    r = c.post("/api/v1/ports/0/capture", params=params, timeout=60)
+    assert r.status_code == 200, r.text
+    (image,), (meta,) = read_tiff_pages(r.content)
+    return image, meta
+
+
+def test_a_window_through_vivids_crop_starts_at_the_frame_the_patch_names(
+    hdmi_input: None,
+) -> None:
+    """vivid's HDMI input runs at 60 fps and the emulated guest loses frames: the frame the
+    PATCH names, and the one before, are checked when they were not lost themselves."""
+    b = V4L2Board(ports=[{"video": NODE, "format": "RG10"}], buffers=8, ring_frames=16)
+    service = CameraService(b)
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            width, height = schema["window"]["width"], schema["window"]["height"]
+            left, top = width // 8 * 2, height // 8 * 2
+            woi = {
+                "WOI_LEFT": left,
+                "WOI_TOP": top,
+                "WOI_WIDTH": width // 2,
+                "WOI_HEIGHT": height // 2,
+            }
+            old, before = capture_page(c)
+            lost = dropped(c)
+            r = c.patch("/api/v1/ports/0/params", json=woi, timeout=60)
+            assert r.status_code == 200, r.text
+            first = r.json()["frame"]
+            named = c.post("/api/v1/ports/0/capture", params={"frame": first}, timeout=60)
+            previous = c.post("/api/v1/ports/0/capture", params={"frame": first - 1}, timeout=60)
+            some_lost = dropped(c) > lost
+            pages = [capture_page(c) for _ in range(6)]
+            refused = c.patch("/api/v1/ports/0/params", json={"WOI_LEFT": width})
+    finally:
+        service.close()
+    assert old.shape == (height, width) and before["WOI_WIDTH"] == width
+    for image, meta in pages:  # each frame's metadata is its own shape
+        assert image.shape == (meta["WOI_HEIGHT"], meta["WOI_WIDTH"]), meta
+    for answer, shape in ((named, (height // 2, width // 2)), (previous, (height, width))):
+        if answer.status_code == 404 and some_lost:  # that frame itself was lost
+            continue
+        assert answer.status_code == 200, answer.text
+        (image,), _ = read_tiff_pages(answer.content)
+        assert image.shape == shape
+    new, meta = pages[-1]
+    assert new.shape == (height // 2, width // 2)
+    assert {k: meta[k] for k in woi} == woi and meta["bayer"] == "RGGB"
+    full = expected_bars((height, width), "RGGB", 10)
+    expected = full[top : top + height // 2, left : left + width // 2]
+    # Compare the columns two pixels or more from a bar's edge (as the mirrored bars).
+    bar_width = width // len(BARS)
+    columns = (np.arange(width // 2) + left) % bar_width
+    inside = (columns >= 2) & (columns < bar_width - 2)
+    np.testing.assert_array_equal(new[:, inside], expected[:, inside])
+    assert refused.status_code == 422 and "crop bounds" in refused.json()["allowed"]
 
 
 def test_frame_numbers_follow_the_sequence_with_monotonic_timestamps() -> None:

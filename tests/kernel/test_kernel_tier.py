@@ -22,9 +22,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 GUEST_MODULE = Path(__file__).with_name("guest_v4l2.py")
-BOOT_TIMEOUT_S = 1200  # one boot and 14 guest tests: 3-7 min on 2 busy cores
+BOOT_TIMEOUT_S = 1200  # one boot and its guest tests: 5-9 min on 2 busy cores
 MODULES = (
-    "modprobe vivid n_devs=1 node_types=0x1 num_inputs=1 input_types=0x0",
+    # Input 0 a webcam (discrete sizes: modes), input 1 HDMI with capture cropping.
+    "modprobe vivid n_devs=1 node_types=0x1 num_inputs=2 input_types=0xc ccs_cap_mode=1",
     "modprobe i2c-dev",
     "modprobe i2c-stub chip_addr=0x48",
 )

@@ -130,6 +130,18 @@ def test_window_flips_gain_and_exposure_through_the_daemon(camera):
     assert longer.image.mean() / base.mean() == pytest.approx(2.0, rel=0.01)
 
 
+def test_binning_through_the_daemon_halves_the_frame_averaging_same_colours(camera):
+    _, cam = camera()
+    full, _ = settle(cam)
+    binned, meta = settle(cam, BIN_HOR=2, BIN_VERT=2)
+    assert binned.image.shape == (48, 64) and meta["bayer"] == "RGGB"
+    assert (meta["WOI_WIDTH"], meta["BIN_HOR"], meta["BIN_VERT"]) == (128, 2, 2)
+    expected = bin_bayer(full.image, horizontal=True, vertical=True)
+    np.testing.assert_array_equal(binned.image, expected)
+    across, meta = settle(cam, BIN_HOR=2, BIN_VERT=1)
+    assert across.image.shape == (96, 64)
+
+
 def test_rest_schema_offers_what_the_imx219_can_set(camera):
     _, cam = camera()
     client = TestClient(create_app(cam, token="t", public_reads=True))

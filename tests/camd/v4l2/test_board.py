@@ -20,6 +20,7 @@ from elphel_camd.errors import (
     PortDisconnectedError,
 )
 from elphel_camd.params import EXPOSURE, GAINS, WINDOW
+from elphel_camd.service import CameraService
 from elphel_camd.v4l2.controls import CID_ANALOGUE_GAIN, CID_DIGITAL_GAIN, CID_EXPOSURE
 from elphel_camd.v4l2.synthetic import SyntheticSource
 
@@ -249,3 +250,68 @@ def test_a_frame_that_cannot_be_taken_restarts_the_stream_instead_of_ending_it(
     assert board.capture(0, timeout_s=5).frame > first
     errors = [p["detail"] for k, p in board.events if k == "error"]  # type: ignore[attr-defined]
     assert any("could not be taken" in d for d in errors)
+
+
+def test_a_shape_the_driver_refuses_keeps_the_old_one_streaming_and_is_asked_once() -> None:
+    nodes = Nodes(fourcc="RG10", fps=200.0, sizes=((WIDTH, HEIGHT), (8, 4)))
+    b = V4L2Board(["/dev/video0"], open_source=nodes, ring_frames=16)
+    asked: list[Any] = []
+
+    def refuse(shape: Any) -> Any:
+        asked.append(shape)
+        raise ControlRefusedError("size", shape.size, "not today (the driver)")
+
+    try:
+        b.capture(0)
+        nodes.made["/dev/video0"].set_shape = refuse  # type: ignore[method-assign]
+        sensor = b.sensors()[0]
+        state = sensor.normalize(
+            {**sensor.defaults(), "WOI_WIDTH": 8, "WOI_HEIGHT": 4},
+            frozenset({"WOI_WIDTH", "WOI_HEIGHT"}),
+        )
+        with pytest.raises(ControlRefusedError, match="a window the driver of /dev/video0 takes"):
+            sensor.program(WINDOW, state)
+        assert "WOI_WIDTH" not in sensor.program(WINDOW, state) and len(asked) == 1
+        got = b.capture(0)
+        assert got.image.shape == (HEIGHT, WIDTH)
+        assert b.port_status(0)["state"] == "streaming"
+    finally:
+        b.close()
+
+
+def test_the_next_frame_after_lost_ones_is_the_next_delivered(
+    board: V4L2Board, nodes: Nodes
+) -> None:
+    board.capture(0)
+    node = nodes.made["/dev/video0"]
+    node.sim_silent = True
+    time.sleep(0.1)
+    last = board.streams[0].last_frame
+    node.sim_drop(3)
+    got: list[Any] = []
+    waiter = threading.Thread(target=lambda: got.append(board.capture(0, timeout_s=5)))
+    waiter.start()
+    time.sleep(0.1)
+    node.sim_silent = False
+    waiter.join(10)
+    assert got and got[0].frame == last + 4  # frames last+1..last+3 were lost
+
+
+def test_a_window_due_after_a_lost_frame_still_starts_at_the_frame_it_names() -> None:
+    nodes = Nodes(fourcc="RG10", fps=50.0, crop=True)
+    service = CameraService(V4L2Board(["/dev/video0"], open_source=nodes, ring_frames=16))
+    try:
+        service.capture(0)
+        node = nodes.made["/dev/video0"]
+        node.sim_silent = True
+        time.sleep(0.1)
+        target = service.set_params(0, {"WOI_WIDTH": 8, "WOI_HEIGHT": 4})
+        node.sim_drop(1)  # the frame before the target is lost
+        node.sim_silent = False
+        got, meta = service.capture(0, frame=target)
+        assert got.image.shape == (4, 8) and (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (8, 4)
+        np.testing.assert_array_equal(got.image, _image()[:4, :8])
+        with pytest.raises(FrameNotAvailableError, match=f"frame {target - 1} is not in"):
+            service.capture(0, frame=target - 1)
+    finally:
+        service.close()

@@ -204,3 +204,88 @@ def test_the_hosts_camera_commands_work_on_the_v4l2_board(cam, tmp_path, capsys)
     _, pages = read_tiff_pages(out.read_bytes())
     assert len(pages) == 3 and all(p["bayer"] == "RGGB" for p in pages)
     assert pages[-1]["EXPOS"] == round(round(2000e-6 / LINE_S) * LINE_S * 1e6)
+
+
+def test_a_mono_node_gives_frames_without_a_bayer_label() -> None:
+    def mono(port: V4L2Port) -> SyntheticSource:
+        return SyntheticSource(_image(), fourcc="Y10 ", fps=50.0, path=port.video)
+
+    service = CameraService(V4L2Board(["/dev/video0"], open_source=mono))
+    try:
+        with serve(service) as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            image, meta, _ = _capture(c)
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            preview = c.get("/api/v1/ports/0/preview")
+    finally:
+        service.close()
+    np.testing.assert_array_equal(image, _image())
+    assert meta["bayer"] is None and schema["bayer"] is None
+    assert preview.status_code == 200 and preview.headers["content-type"] == "image/jpeg"
+
+
+def _served(**node: Any) -> tuple[CameraService, Any]:
+    def opener(port: V4L2Port) -> SyntheticSource:
+        return SyntheticSource(_image(), fourcc="RG10", fps=50.0, path=port.video, **node)
+
+    service = CameraService(V4L2Board(["/dev/video0"], open_source=opener, ring_frames=32))
+    return service, serve(service)
+
+
+def test_a_window_through_the_drivers_crop_starts_at_the_frame_the_patch_names() -> None:
+    service, served_cm = _served(crop=True, pad=6)
+    try:
+        with served_cm as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            _capture(c)
+            r = c.patch(
+                "/api/v1/ports/0/params",
+                json={"WOI_LEFT": 8, "WOI_TOP": 4, "WOI_WIDTH": 16, "WOI_HEIGHT": 8},
+            )
+            assert r.status_code == 200, r.text
+            first = r.json()["frame"]
+            new, meta, _ = _capture(c, frame=first)
+            old, before, _ = _capture(c, frame=first - 1)
+            refused = c.patch("/api/v1/ports/0/params", json={"WOI_LEFT": 20})
+            odd = c.patch("/api/v1/ports/0/params", json={"WOI_TOP": 3})
+            health = c.get("/api/v1/health").json()["ports"][0]["stream"]
+    finally:
+        service.close()
+    assert schema["window"] == {"width": WIDTH, "height": HEIGHT, "step": 2}
+    woi = ("WOI_LEFT", "WOI_TOP", "WOI_WIDTH", "WOI_HEIGHT")
+    assert all(schema["params"][n]["writable"] for n in woi)
+    np.testing.assert_array_equal(new, _image()[4:12, 8:24])
+    assert [meta[n] for n in woi] == [8, 4, 16, 8] and meta["bayer"] == "RGGB"
+    np.testing.assert_array_equal(old, _image())
+    assert [before[n] for n in woi] == [0, 0, WIDTH, HEIGHT]
+    assert refused.status_code == 422, refused.text
+    assert refused.json()["allowed"] == "0..16 (even), inside the driver's crop bounds 32x16"
+    assert odd.status_code == 422 and odd.json()["allowed"].startswith("0..8 (even)")
+    assert health["dropped"] == 0 and health["restarts"] == 0
+
+
+def test_a_window_through_the_sensors_modes_is_a_size_it_offers() -> None:
+    service, served_cm = _served(sizes=((WIDTH, HEIGHT), (16, 8), (8, 4)))
+    try:
+        with served_cm as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
+            schema = c.get("/api/v1/ports/0/params/schema").json()
+            _capture(c)
+            r = c.patch("/api/v1/ports/0/params", json={"WOI_WIDTH": 16, "WOI_HEIGHT": 8})
+            assert r.status_code == 200, r.text
+            first = r.json()["frame"]
+            new, meta, _ = _capture(c, frame=first)
+            old, _, _ = _capture(c, frame=first - 1)
+            refused = c.patch("/api/v1/ports/0/params", json={"WOI_WIDTH": 20, "WOI_HEIGHT": 8})
+            offset = c.patch("/api/v1/ports/0/params", json={"WOI_LEFT": 2})
+    finally:
+        service.close()
+    writable = {n for n, spec in schema["params"].items() if spec["writable"]}
+    assert {"WOI_WIDTH", "WOI_HEIGHT"} <= writable and not {"WOI_LEFT", "WOI_TOP"} & writable
+    assert schema["window"] is None
+    assert schema["params"]["WOI_WIDTH"]["minimum"] == 8
+    assert schema["params"]["WOI_WIDTH"]["maximum"] == WIDTH
+    np.testing.assert_array_equal(new, _image()[:8, :16])
+    assert (meta["WOI_WIDTH"], meta["WOI_HEIGHT"]) == (16, 8)
+    assert old.shape == (HEIGHT, WIDTH)
+    assert refused.status_code == 422
+    assert "32x16, 16x8, 8x4" in refused.json()["allowed"]
+    assert offset.status_code == 409 and "WOI_LEFT" in offset.json()["detail"]

@@ -84,6 +84,24 @@ PARAMS: dict[str, ParamSpec] = {
             _WIN,
             doc="window height (even); in photo-finish the composite frame's height",
         ),
+        ParamSpec(
+            "BIN_HOR",
+            "factor",
+            1,
+            2,
+            _WIN,
+            doc="horizontal binning: 1 none, 2 two same-colour pixels become one "
+            "(the frame is WOI_WIDTH / 2 wide)",
+        ),
+        ParamSpec(
+            "BIN_VERT",
+            "factor",
+            1,
+            2,
+            _WIN,
+            doc="vertical binning: 1 none, 2 two same-colour rows become one "
+            "(the frame is WOI_HEIGHT / 2 high)",
+        ),
         ParamSpec("FLIPH", "bit", 0, 1, _WIN, doc="mirror horizontally"),
         ParamSpec("FLIPV", "bit", 0, 1, _WIN, doc="mirror vertically"),
         ParamSpec("EXPOS", "us", 1, 0x7FFFFFFF, (EXPOSURE, LIMITFPS), doc="exposure time"),

@@ -95,9 +95,17 @@ class CameraService:
         self.capture_pool = CapturePool()
         self.frames = FrameCapture(board, self.sequencers, sensor=self.sensor, params=self.params)
         board.on_frame_sync(self._frame_sync)
+        on_lost = getattr(board, "on_frame_lost", None)
+        if on_lost is not None:  # lost frames still move the schedule on (the v4l2 board)
+            on_lost(self._frame_lost)
         on_event = getattr(board, "on_event", None)
         if on_event is not None:  # a board's own news: port states, lost frames
             on_event(self.events.publish)
+
+    def _frame_lost(self, port: int, frame: int) -> None:
+        seq = self.sequencers.get(port)
+        if seq is not None:
+            seq.on_frame_sync(frame)
 
     def _frame_sync(self, port: int, frame: int, timestamp_ns: int) -> None:
         seq = self.sequencers.get(port)

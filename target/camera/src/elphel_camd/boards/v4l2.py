@@ -13,6 +13,7 @@ import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from elphel_camd.boards.base import Frame, FrameSync
@@ -27,6 +28,7 @@ from elphel_camd.v4l2.stream import PortStream
 log = logging.getLogger(__name__)
 
 EventSink = Callable[[str, dict[str, Any]], None]
+FrameLost = Callable[[int, int], None]  # (port, frame) of a frame the driver lost
 
 
 @dataclass(frozen=True)
@@ -133,6 +135,7 @@ class V4L2Board:
         self.ports = dict(enumerate(specs, start=first_port))
         self.timeout_periods = timeout_periods
         self._subscribers: list[FrameSync] = []
+        self._lost_subscribers: list[FrameLost] = []
         self._event_sinks: list[EventSink] = []
         self._buses: dict[int, I2CBus] = {}
         self._sensors: dict[int, V4L2Sensor] = {}
@@ -156,6 +159,7 @@ class V4L2Board:
             buffers=buffers,
             on_frame=self._on_frame,
             on_event=self._on_event,
+            on_lost=self._on_lost,
         )
         self.streams[port] = stream
         if spec.bus is not None:
@@ -165,6 +169,7 @@ class V4L2Board:
                 lambda: stream.source,
                 model=spec.model or source.model,
                 period_s=lambda: stream.period_ns / 1e9,
+                reshape=stream.reshape,
             )
         stream.start()
 
@@ -181,6 +186,18 @@ class V4L2Board:
     def on_frame_sync(self, callback: FrameSync) -> None:
         self._subscribers.append(callback)
 
+    def on_frame_lost(self, callback: FrameLost) -> None:
+        """Call ``callback(port, frame)`` for the last frame of a gap the driver left.
+
+        The frame sync it never had: a parameter schedule moves on with it, so a window
+        due at the lost frame's successor is set before that frame is taken.
+        """
+        self._lost_subscribers.append(callback)
+
+    def _on_lost(self, port: int, frame: int) -> None:
+        for callback in self._lost_subscribers:
+            self._guarded(port, frame, partial(callback, port, frame))
+
     def on_event(self, sink: EventSink) -> None:
         """Call ``sink(kind, payload)`` for dropped frames, port states and stream errors."""
         self._event_sinks.append(sink)
@@ -193,19 +210,23 @@ class V4L2Board:
         if sensor is not None:
             sensor.record(frame, timestamp_ns)
         for callback in self._subscribers:
-            try:
-                callback(port, frame, timestamp_ns)
-            except Exception:  # the stream must go on: log, and report as an event
-                log.exception("port %d: frame %d: a frame-sync subscriber failed", port, frame)
-                self._on_event(
-                    "error",
-                    {
-                        "port": port,
-                        "frame": frame,
-                        "error": "frame_sync",
-                        "detail": f"port {port}: handling frame {frame} failed (see the log)",
-                    },
-                )
+            self._guarded(port, frame, partial(callback, port, frame, timestamp_ns))
+
+    def _guarded(self, port: int, frame: int, call: Callable[[], None]) -> None:
+        """Run a subscriber; a failure is logged and reported, and the stream goes on."""
+        try:
+            call()
+        except Exception as e:
+            log.exception("port %d: frame %d: a frame-sync subscriber failed", port, frame)
+            self._on_event(
+                "error",
+                {
+                    "port": port,
+                    "frame": frame,
+                    "error": "frame_sync",
+                    "detail": f"port {port}: handling frame {frame} failed: {e}",
+                },
+            )
 
     def _on_event(self, kind: str, payload: dict[str, Any]) -> None:
         for sink in self._event_sinks:
@@ -250,6 +271,8 @@ class V4L2Board:
             if not stream.ring.wait_newer(waited_from, patience):
                 self._check_connected(stream)
                 raise TimeoutError(self._silence(stream, patience))
+        if frame is None:  # the next frame the driver delivered (a lost one has no slot)
+            wanted = min((f for f in stream.ring.frames() if f >= wanted), default=wanted)
         got = stream.ring.get(wanted)
         sensor = self._sensors.get(port)
         if sensor is not None:  # its metadata may be asked for before the stream noted it

@@ -12,7 +12,11 @@ kernel driver's V4L2 controls maps the same parameters the same way:
   the digital gain is value / 256; a 16.16 gain is split into the largest analogue gain
   not above it and the digital rest (`split_gain`, `total_gain`);
 - the flips change the Bayer order of the first pixel (`bayer_order`);
-- binning halves the output size (`binned_size`).
+- binning (BIN_HOR, BIN_VERT: 1 or 2) halves the output size along its axis
+  (`binned_size`) with the 2x2 mode of registers 0x0174/0x0175; a line keeps its
+  duration, so a binned frame has half the lines and the exposure the same line time
+  (`frame_lines`); the window is then a multiple of 4 along that axis, so that the
+  binned frame keeps whole 2x2 Bayer cells.
 
 The sensor has one gain for all colours: writing any of GAINR, GAING, GAINGB, GAINB sets
 all four. It runs free (no trigger input): TRIG is 0.
@@ -41,6 +45,7 @@ from elphel_camd.sensors.imx219_registers import (
     ACTIVE_WIDTH,
     ANALOGUE_GAIN_CODE_MAX,
     BAYER,
+    BINNING_2X2,
     BINNING_NONE,
     BITS,
     CHIP_ID,
@@ -74,6 +79,8 @@ WRITABLE = frozenset(
     {
         *IMAGE_PARAMS,
         *GAIN_PARAMS,
+        "BIN_HOR",
+        "BIN_VERT",
         "FP1000SLIM",
         "FPSFLAGS",
     }
@@ -154,22 +161,43 @@ def binned_size(width: int, height: int, *, binning_h: int, binning_v: int) -> t
     return (width // 2 if binning_h else width, height // 2 if binning_v else height)
 
 
+def binning_mode(factor: int) -> int:
+    """The binning register's value for a BIN_HOR / BIN_VERT factor (1 or 2)."""
+    return BINNING_2X2 if factor == 2 else BINNING_NONE
+
+
+def output_size(state: Mapping[str, int]) -> tuple[int, int]:
+    """The frame's size: the window divided by the binning."""
+    return state["WOI_WIDTH"] // state["BIN_HOR"], state["WOI_HEIGHT"] // state["BIN_VERT"]
+
+
 def frame_lines(state: Mapping[str, int], *, row_s: float | None = None) -> int:
     """frame_length_lines for a state.
 
-    The window plus the minimum blanking, stretched to the FP1000SLIM limit when
+    The output's lines plus the minimum blanking, stretched to the FP1000SLIM limit when
     FPSFLAGS bit 0 is set, and at least `EXPOSURE_MARGIN_LINES` longer than the exposure.
     """
     row = row_time_s() if row_s is None else row_s
-    lines = state["WOI_HEIGHT"] + FRAME_BLANKING_MIN
+    lines = output_size(state)[1] + FRAME_BLANKING_MIN
     if state["FPSFLAGS"] & 1 and state["FP1000SLIM"]:
         lines = max(lines, math.ceil(1000 / state["FP1000SLIM"] / row))
     return max(lines, state["VEXPOS"] + EXPOSURE_MARGIN_LINES)
 
 
+def _check_binning(s: Mapping[str, int]) -> None:
+    """BIN_* is 1 or 2; a binned axis's window is a multiple of 4 (whole 2x2 cells out)."""
+    for factor, size in (("BIN_HOR", "WOI_WIDTH"), ("BIN_VERT", "WOI_HEIGHT")):
+        check_range(factor, s[factor], 1, 2)
+        if s[factor] == 2 and s[size] % 4:
+            raise ParameterRangeError(
+                size, s[size], f"a multiple of 4 while {factor}=2 (whole Bayer cells binned)"
+            )
+
+
 def _check_window(s: Mapping[str, int]) -> None:
     check_range("WOI_WIDTH", s["WOI_WIDTH"], 2, ACTIVE_WIDTH, even=True)
     check_range("WOI_HEIGHT", s["WOI_HEIGHT"], 2, ACTIVE_HEIGHT, even=True)
+    _check_binning(s)
     check_range("WOI_LEFT", s["WOI_LEFT"], 0, ACTIVE_WIDTH - s["WOI_WIDTH"], even=True)
     check_range("WOI_TOP", s["WOI_TOP"], 0, ACTIVE_HEIGHT - s["WOI_HEIGHT"], even=True)
     for name in ("FLIPH", "FLIPV"):
@@ -280,7 +308,7 @@ class IMX219(RegisterFileSensor):
             [*WRITABLE, "TRIG", "TRIG_PERIOD", "TRIG_MASTER", "TRIG_DELAY", "TRIG_DECIMATE"], 0
         )
         state.update(WOI_WIDTH=ACTIVE_WIDTH, WOI_HEIGHT=ACTIVE_HEIGHT, EXPOS=10_000)
-        state.update(dict.fromkeys(GAIN_PARAMS, GAIN_MIN), PF_HEIGHT=0)
+        state.update(dict.fromkeys(GAIN_PARAMS, GAIN_MIN), PF_HEIGHT=0, BIN_HOR=1, BIN_VERT=1)
         return self.normalize(state, frozenset({"EXPOS"}))
 
     def normalize(self, state: Mapping[str, int], changed: frozenset[str]) -> State:
@@ -310,15 +338,16 @@ class IMX219(RegisterFileSensor):
         if function == WINDOW:
             left, top = state["WOI_LEFT"], state["WOI_TOP"]
             width, height = state["WOI_WIDTH"], state["WOI_HEIGHT"]
+            out_width, out_height = output_size(state)
             values = {
                 "x_addr_start": left,
                 "x_addr_end": left + width - 1,
                 "y_addr_start": top,
                 "y_addr_end": top + height - 1,
-                "x_output_size": width,
-                "y_output_size": height,
-                "binning_mode_h": BINNING_NONE,
-                "binning_mode_v": BINNING_NONE,
+                "x_output_size": out_width,
+                "y_output_size": out_height,
+                "binning_mode_h": binning_mode(state["BIN_HOR"]),
+                "binning_mode_v": binning_mode(state["BIN_VERT"]),
             }
         elif function == LIMITFPS:
             values = {"frame_length_lines": frame_lines(state, row_s=self.row_time_s())}

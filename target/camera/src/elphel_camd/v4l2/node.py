@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from elphel_camd.errors import (
+    CameraError,
     ControlRefusedError,
     DeviceBusyError,
     PortDisconnectedError,
@@ -27,6 +28,7 @@ from elphel_camd.errors import (
 from elphel_camd.v4l2.controls import PARAMETER_CONTROLS
 from elphel_camd.v4l2.formats import RAW_BY_CODE, RAW_FORMATS, choose_format, fourcc_text
 from elphel_camd.v4l2.media import SensorSubdev, open_sensor
+from elphel_camd.v4l2.shape import Rect, Shape, ShapeOptions
 from elphel_camd.v4l2.source import Buffer, ControlInfo, StreamFormat
 
 try:
@@ -40,6 +42,8 @@ MMAP = raw.Memory.MMAP
 # Errors meaning the device itself is gone (unplugged, unbound, vivid's disconnect).
 GONE = {errno.ENODEV, errno.ENXIO, errno.EPIPE}
 _NUMERIC = {raw.CtrlType.INTEGER, raw.CtrlType.BOOLEAN, raw.CtrlType.INTEGER64}
+# What a driver answers to a selection it does not have (no crop on this node or input).
+_NO_SELECTION = {errno.ENOTTY, errno.EINVAL, errno.ENODATA}
 
 
 def _present_nodes() -> str:
@@ -71,6 +75,8 @@ class VideoNode:
             self.stream_format = self._set_format(fourcc, size)
             self.sensor = open_sensor(path)
             self._control_fd = self._choose_control_fd()
+            self._options = self._read_shape_options()
+            self._crop = self._selection(v4l2.SelectionTarget.CROP)
         except BaseException:
             self._close_fds()
             raise
@@ -270,6 +276,64 @@ class VideoNode:
     def close(self) -> None:
         self.stop()
         self._close_fds()
+
+    # -- shape -----------------------------------------------------------------------------
+
+    def _selection(self, target: Any) -> Rect | None:
+        """A selection rectangle of the capture queue, or None if the driver has none."""
+        try:
+            r = v4l2.get_selection(self._fd, CAPTURE, target)
+        except OSError as e:
+            if e.errno in _NO_SELECTION:
+                return None
+            raise
+        return Rect(r.left, r.top, r.width, r.height)
+
+    def _read_shape_options(self) -> ShapeOptions:
+        bounds = self._selection(v4l2.SelectionTarget.CROP_BOUNDS)
+        if bounds is not None and self._selection(v4l2.SelectionTarget.CROP) is None:
+            bounds = None
+        sizes = self.offered().get(self.stream_format.format.fourcc, [])
+        return ShapeOptions(crop_bounds=bounds, sizes=tuple(sizes))
+
+    def shape_options(self) -> ShapeOptions:
+        return self._options
+
+    def shape(self) -> Shape:
+        return Shape(self._crop, (self.stream_format.width, self.stream_format.height))
+
+    def set_shape(self, shape: Shape) -> StreamFormat:
+        if shape.crop is not None and shape.crop != self._crop:
+            c = shape.crop
+            try:
+                v4l2.set_selection(
+                    self._fd,
+                    CAPTURE,
+                    v4l2.SelectionTarget.CROP,
+                    v4l2.Rect(c.left, c.top, c.width, c.height),
+                )
+            except OSError as e:
+                raise self._shape_refused(
+                    e, f"crop {c.width}x{c.height} at ({c.left}, {c.top})"
+                ) from e
+            self._crop = self._selection(v4l2.SelectionTarget.CROP)
+        pix = self._current()
+        if (pix.width, pix.height) != shape.size:
+            width, height = shape.size
+            try:
+                v4l2.set_format(self._fd, CAPTURE, width, height, fourcc_text(pix.pixelformat))
+            except OSError as e:
+                raise self._shape_refused(e, f"frame size {width}x{height}") from e
+        return self.refresh_format()
+
+    def _shape_refused(self, error: OSError, asked: str) -> CameraError:
+        if error.errno in GONE:
+            return PortDisconnectedError(f"{self.path}: device gone ({error.strerror})")
+        if error.errno == errno.EBUSY:
+            return self._busy_or(error, f"setting the {asked}")
+        return ControlRefusedError(
+            "WOI_WIDTH", asked, f"what the driver takes ({error.strerror}): {self._options}"
+        )
 
     # -- controls --------------------------------------------------------------------------
 

@@ -21,7 +21,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
-from elphel_camd.errors import ControlRefusedError, PortDisconnectedError
+from elphel_camd.errors import ControlRefusedError, PortDisconnectedError, VideoNodeError
 from elphel_camd.i2c.bus import I2CBus
 from elphel_camd.params import EXPOSURE, FUNCTIONS, GAINS, PARAMS, WINDOW, check_range
 from elphel_camd.sensors.base import SensorDriver, State
@@ -36,9 +36,19 @@ from elphel_camd.v4l2.controls import (
     ControlMap,
 )
 from elphel_camd.v4l2.formats import flipped_bayer
-from elphel_camd.v4l2.source import FrameSource
+from elphel_camd.v4l2.shape import (
+    SHAPE_PARAMS,
+    Shape,
+    check_window,
+    wanted_shape,
+    window_limits,
+    window_params,
+    with_binned_modes,
+)
+from elphel_camd.v4l2.source import FrameSource, StreamFormat
 
 READBACK_FRAMES = 4096  # frames (and control sets) kept for the frames' metadata
+Reshape = Callable[[Shape], StreamFormat]  # stops the stream, sets a shape, starts again
 _STATE_NAMES = [n for n, spec in PARAMS.items() if not spec.read_only]
 
 
@@ -53,6 +63,9 @@ class V4L2Sensor(SensorDriver):
         The kernel driver's name (the card or the sensor subdevice), for gain laws.
     period_s
         Returns the port's measured frame period (0 before two frames).
+    reshape
+        Changes the node's shape between two frames (`elphel_camd.v4l2.stream.PortStream.
+        reshape`); without it the window is fixed.
     """
 
     model = "V4L2"
@@ -66,21 +79,33 @@ class V4L2Sensor(SensorDriver):
     writable: ClassVar[frozenset[str]] = frozenset()  # set per instance: the controls
 
     def __init__(
-        self, source: Callable[[], FrameSource], *, model: str, period_s: Callable[[], float]
+        self,
+        source: Callable[[], FrameSource],
+        *,
+        model: str,
+        period_s: Callable[[], float],
+        reshape: Reshape | None = None,
     ) -> None:
         self._source = source
         self.kernel_model = model
         self._period_s = period_s
+        self._reshape = reshape
         node = source()
         self.map = ControlMap(node.controls(), model=model)
-        self.writable = self.map.offered  # type: ignore[misc]
+        self.shape_options = with_binned_modes(node.shape_options(), model)
+        window = self.shape_options.writable if reshape is not None else frozenset()
+        self.writable = self.map.offered | window  # type: ignore[misc]
+        self._asked: tuple[FrameSource, Shape] | None = None  # the last shape asked of a node
         self.bits = node.stream_format.format.bits  # type: ignore[misc]
         self._written: dict[int, int] = {}
         # (monotonic ns after the set, control values read back then), oldest first
         self._sets: list[tuple[int, dict[int, int]]] = []
         self._frame_times: OrderedDict[int, int] = OrderedDict()  # frame -> timestamp_ns
+        # (monotonic ns after a stream restart, the window's parameters from then on)
+        self._shapes: list[tuple[int, dict[str, int]]] = []
         self._lock = threading.Lock()
         self._log_values(0, self._read_back())
+        self._shapes.append((0, self._window_now()))
         self._update_bayer(self._now_params())
 
     @classmethod
@@ -111,6 +136,7 @@ class V4L2Sensor(SensorDriver):
             "width": fmt.width,
             "height": fmt.height,
             "controls": sorted(self.writable),
+            "window": self.shape_options.kind,
         }
 
     # -- state -----------------------------------------------------------------------------
@@ -127,7 +153,12 @@ class V4L2Sensor(SensorDriver):
         return self._source().get_controls(self.map.read_ids())
 
     def _now_params(self) -> dict[str, int]:
-        return self.map.to_params(self._read_back(), width=self._width())
+        params = self.map.to_params(self._read_back(), width=self._width())
+        params.update(self._window_now())
+        return params
+
+    def _window_now(self) -> dict[str, int]:
+        return window_params(self._source().shape(), self.shape_options)
 
     def _update_bayer(self, params: Mapping[str, int]) -> None:
         order = self._source().refresh_format().format.bayer
@@ -146,9 +177,8 @@ class V4L2Sensor(SensorDriver):
             node.set_controls(present)
 
     def defaults(self) -> State:
-        fmt = self._source().stream_format
         state = dict.fromkeys(_STATE_NAMES, 0)
-        state.update(WOI_WIDTH=fmt.width, WOI_HEIGHT=fmt.height, EXPOS=10_000)
+        state.update(EXPOS=10_000)
         state.update(dict.fromkeys(COLOUR_GAINS, UNITY))
         state.update(self._now_params())
         state.pop("VEXPOS", None)
@@ -165,6 +195,8 @@ class V4L2Sensor(SensorDriver):
             s.update(dict.fromkeys(COLOUR_GAINS, s[name]))
         for name in changed & {"FLIPH", "FLIPV"}:
             check_range(name, s[name], 0, 1)
+        if changed & set(SHAPE_PARAMS):
+            check_window(s, self.shape_options)
         if changed & self.writable:
             self.map.to_controls(s, width=self._width(), timing=self._timing())
         period = self._period_s()
@@ -174,15 +206,18 @@ class V4L2Sensor(SensorDriver):
 
     def limits(self) -> dict[str, tuple[int, int]]:
         """Each offered parameter's range under the driver's control limits, now."""
-        fmt = self._source().stream_format
-        found = self.map.limits(width=fmt.width, timing=self._timing())
-        found.update(
-            WOI_LEFT=(0, 0),
-            WOI_TOP=(0, 0),
-            WOI_WIDTH=(fmt.width, fmt.width),
-            WOI_HEIGHT=(fmt.height, fmt.height),
-        )
+        node = self._source()
+        found = self.map.limits(width=node.stream_format.width, timing=self._timing())
+        window = window_params(node.shape(), self.shape_options)
+        found.update(window_limits(window, self.shape_options))
         return found
+
+    def window(self) -> dict[str, int] | None:
+        """The crop bounds' size and the edges' step, when the driver crops (else None)."""
+        bounds = self.shape_options.crop_bounds
+        if bounds is None or "WOI_LEFT" not in self.writable:
+            return None
+        return {"width": bounds.width, "height": bounds.height, "step": 2}
 
     def frame_period_s(self, state: Mapping[str, int]) -> float:
         return self._period_s()
@@ -191,22 +226,52 @@ class V4L2Sensor(SensorDriver):
 
     def program(self, function: str, state: Mapping[str, int]) -> list[str]:
         """Set the controls of a function's parameters that differ from those last set."""
+        shaped = self._program_shape(state) if function == WINDOW else []
         names = {WINDOW: ("FLIPH", "FLIPV"), GAINS: COLOUR_GAINS, EXPOSURE: ("EXPOS",)}
         wanted = [n for n in names.get(function, ()) if n in self.writable]
         if not wanted:
-            return []
+            return shaped
         values = self.map.to_controls(state, width=self._width(), timing=self._timing())
         ids = set(self.map.ids_of(wanted))
         changed = {c: v for c, v in values.items() if c in ids and self._written.get(c) != v}
         if not changed:
-            return []
+            return shaped
         node = self._source()
         node.set_controls(changed)
         self._written.update(changed)
         self._log_values(time.monotonic_ns(), self._read_back())
         if function == WINDOW:
             self._update_bayer(state)
-        return wanted
+        return shaped + wanted
+
+    def _program_shape(self, state: Mapping[str, int]) -> list[str]:
+        """Give the node the state's window if it differs: the stream restarts.
+
+        A shape is asked of a node once: a driver that adjusts it (or refuses it) is not
+        asked again until the window or the node (after a reconnect) changes; the frames'
+        metadata records what the driver set.
+        """
+        if self._reshape is None or not self.shape_options.writable:
+            return []
+        node = self._source()
+        current = node.shape()
+        wanted = wanted_shape(state, self.shape_options, current)
+        if wanted == current or self._asked == (node, wanted):
+            return []
+        self._asked = (node, wanted)
+        try:
+            fmt = self._reshape(wanted)
+        except (ControlRefusedError, VideoNodeError) as e:
+            raise ControlRefusedError(
+                "WOI_WIDTH", state["WOI_WIDTH"], f"a window the driver of {node.path} takes: {e}"
+            ) from e
+        self.bits = fmt.format.bits  # type: ignore[misc]
+        window = self._window_now()
+        with self._lock:  # frames from the restarted stream are taken after now
+            self._shapes.append((time.monotonic_ns(), window))
+            del self._shapes[:-READBACK_FRAMES]
+        self._update_bayer(state)
+        return [n for n in SHAPE_PARAMS if n in self.writable]
 
     def _log_values(self, when_ns: int, values: dict[int, int]) -> None:
         """Values the driver holds from ``when_ns`` on (a set, or a change seen)."""
@@ -249,7 +314,18 @@ class V4L2Sensor(SensorDriver):
 
         Empty for a frame that has not arrived: its parameters are those asked for.
         """
-        values = self.values_at(state.get("FRAME", -1))
+        frame = state.get("FRAME", -1)
+        values = self.values_at(frame)
         if values is None:
             return {}
-        return self.map.to_params(values, width=self._width())
+        params = self.map.to_params(values, width=self._width())
+        params.update(self._window_at(frame))
+        return params
+
+    def _window_at(self, frame: int) -> dict[str, int]:
+        """The window's parameters of a frame that arrived (the last restart before it)."""
+        with self._lock:
+            taken = self._frame_times.get(frame, 0)
+            times = [t for t, _ in self._shapes]
+            k = bisect.bisect_right(times, taken)
+            return dict(self._shapes[max(k - 1, 0)][1])

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from elphel_camd.v4l2.formats import RawFormat
+from elphel_camd.v4l2.shape import Shape, ShapeOptions
 from elphel_camd.v4l2.unpack import FrameData
 
 
@@ -104,6 +105,21 @@ class FrameSource(Protocol):
 
     def refresh_format(self) -> StreamFormat:
         """Read the format back from the driver (a flip may change the Bayer order)."""
+        ...
+
+    def shape_options(self) -> ShapeOptions:
+        """How the node's shape can change: the driver's crop bounds, or its sizes."""
+        ...
+
+    def shape(self) -> Shape:
+        """The crop (when the driver crops) and the frame size the node is set to."""
+        ...
+
+    def set_shape(self, shape: Shape) -> StreamFormat:
+        """With the stream stopped: crop, then the frame size; the format read back.
+
+        Raises ControlRefusedError when the driver refuses the crop or the size.
+        """
         ...
 
     def close(self) -> None:

@@ -16,7 +16,8 @@ from typing import Any
 
 from elphel_camd.errors import PortDisconnectedError, VideoNodeError
 from elphel_camd.v4l2.ring import FrameRing
-from elphel_camd.v4l2.source import Buffer, FrameSource
+from elphel_camd.v4l2.shape import Shape
+from elphel_camd.v4l2.source import Buffer, FrameSource, StreamFormat
 
 log = logging.getLogger(__name__)
 
@@ -24,6 +25,9 @@ SEQUENCE_MODULO = 1 << 32  # v4l2_buffer.sequence is a __u32
 Opener = Callable[[], FrameSource]
 # Called as on_frame(port, frame, timestamp_ns) after the frame is in the ring.
 OnFrame = Callable[[int, int, int], None]
+# Called as on_lost(port, frame) for the last frame of a gap, before the frame after it is
+# taken: the schedule moves on as if it had come (a shape due then restarts the stream).
+OnLost = Callable[[int, int], None]
 # Called as on_event(kind, payload): "port" for a change of state, "error" for drops
 # (error "frames_dropped") and streaming errors (error "v4l2").
 OnEvent = Callable[[str, dict[str, Any]], None]
@@ -44,7 +48,7 @@ class PortStream:
         Where frames go.
     buffers
         Driver buffers to stream with.
-    on_frame, on_event
+    on_frame, on_event, on_lost
         Callbacks (see the module's aliases).
     reconnect_s
         Seconds between attempts to reopen a vanished node.
@@ -60,6 +64,7 @@ class PortStream:
         buffers: int = 4,
         on_frame: OnFrame,
         on_event: OnEvent,
+        on_lost: OnLost | None = None,
         reconnect_s: float = 0.5,
     ) -> None:
         self.port = port
@@ -75,11 +80,15 @@ class PortStream:
         self._buffers = buffers
         self._on_frame = on_frame
         self._on_event = on_event
+        self._on_lost = on_lost
+        self.reshapes = 0  # shape changes so far
         self._reconnect_s = reconnect_s
         self._last_sequence: int | None = None
         self._last_frame = 0
         self._last_ts = 0
         self._stop = threading.Event()
+        # Held while a buffer is taken and while the shape changes: one at a time.
+        self._io = threading.RLock()
         self._thread = threading.Thread(target=self._run, name=f"v4l2-port{port}", daemon=True)
 
     @property
@@ -111,27 +120,51 @@ class PortStream:
         self.ring.wake()
         self._on_event("port", {"port": self.port, "state": state, "detail": detail})
 
+    def reshape(self, shape: Shape) -> StreamFormat:
+        """Stop the stream, give the node a new shape, start again; the format read back.
+
+        Called between two frames (from the frame callback, or from another thread, which
+        waits for the frame being taken): the next frame is the first of the new shape and
+        gets the next frame number. A shape the driver refuses leaves the old one
+        streaming and raises.
+        """
+        with self._io:
+            self.source.stop()
+            self._last_sequence = None
+            self.reshapes += 1
+            try:
+                return self.source.set_shape(shape)
+            finally:
+                self.source.start(self._buffers)
+
     def _run(self) -> None:
         while not self._stop.is_set():
-            try:
-                buf = self.source.dequeue(0.2)
-            except PortDisconnectedError as e:
-                self._set_state("disconnected", str(e))
-                self._reconnect()
-                continue
-            except OSError as e:
-                self._restart(f"{self.source.path}: streaming failed ({e}); restarting")
-                continue
-            if buf is None:
-                continue
-            try:
-                self._take(buf)
-            except Exception as e:  # a frame that cannot be taken must not end the stream
-                log.exception("port %d: frame of sequence %d not taken", self.port, buf.sequence)
-                self._restart(f"{self.source.path}: a frame could not be taken ({e}); restarting")
+            with self._io:
+                self._step()
+
+    def _step(self) -> None:
+        """Take one buffer (or notice that none came, or that the node failed)."""
+        try:
+            buf = self.source.dequeue(0.2)
+        except PortDisconnectedError as e:
+            self._set_state("disconnected", str(e))
+            self._reconnect()
+            return
+        except OSError as e:
+            self._restart(f"{self.source.path}: streaming failed ({e}); restarting")
+            return
+        if buf is None:
+            return
+        try:
+            self._take(buf)
+        except Exception as e:  # a frame that cannot be taken must not end the stream
+            log.exception("port %d: frame of sequence %d not taken", self.port, buf.sequence)
+            self._restart(f"{self.source.path}: a frame could not be taken ({e}); restarting")
 
     def _take(self, buf: Buffer) -> None:
         frame = self._number(buf.sequence)
+        if self._stale_after_loss(frame):
+            return
         try:
             if buf.error:
                 self._on_event(
@@ -155,6 +188,21 @@ class PortStream:
         self._last_frame, self._last_ts = frame, buf.timestamp_ns
         self.frames += 1
         self._on_frame(self.port, frame, buf.timestamp_ns)
+
+    def _stale_after_loss(self, frame: int) -> bool:
+        """After lost frames, move the schedule on; True if that changed the shape.
+
+        The buffer then holds the old shape and belongs to the stopped stream: it is
+        dropped, and the new stream's first frame takes its number.
+        """
+        if self._on_lost is None or not self._last_frame or frame <= self._last_frame + 1:
+            return False
+        shapes = self.reshapes
+        self._on_lost(self.port, frame - 1)
+        if self.reshapes == shapes:
+            return False
+        self._last_frame = frame - 1
+        return True
 
     def _number(self, sequence: int) -> int:
         """The frame number of a buffer's sequence; counts and reports a gap as drops."""

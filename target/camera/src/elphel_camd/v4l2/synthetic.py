@@ -6,8 +6,10 @@ sequence numbers and monotonic timestamps, and IMX219-like controls. A control s
 applies to the frames due after it, as a driver's does, and `applied` keeps, by
 sequence number, the control values each frame was taken with (the truth a frame's
 metadata is checked against); a driver that rounds values to its hardware's steps is
-made with ``quantum``. Faults are injected through ``sim_*`` methods: dropped frames, a
-vanished device, a streaming error, silence.
+made with ``quantum``. It can crop (the frame is the crop of the image) or offer modes
+(a mode of size w x h delivers the image's top-left w x h pixels); either needs the
+stream stopped, as drivers do. Faults are injected through ``sim_*`` methods: dropped
+frames, a vanished device, a streaming error, silence.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +41,7 @@ from elphel_camd.v4l2.formats import (
     flipped_bayer,
     raw_format,
 )
+from elphel_camd.v4l2.shape import Rect, Shape, ShapeOptions
 from elphel_camd.v4l2.source import Buffer, ControlInfo, StreamFormat
 
 # Controls of the IMX219's kernel driver in its 3280x2464 mode (reference: frame-paths.md).
@@ -97,6 +101,10 @@ class SyntheticSource:
     quantum
         Control id -> the step the driver rounds that control's values to (the value
         read back is the rounded one, as from a driver that adjusts to its hardware).
+    crop
+        Whether the driver crops (its bounds are the whole image).
+    sizes
+        Its modes' frame sizes (the image's size alone by default).
     """
 
     card = "imx219 (synthetic)"  # its controls are those of the IMX219 driver
@@ -112,13 +120,18 @@ class SyntheticSource:
         pad: int = 0,
         controls: tuple[ControlInfo, ...] = IMX219_CONTROLS,
         quantum: Mapping[int, int] | None = None,
+        crop: bool = False,
+        sizes: tuple[tuple[int, int], ...] = (),
     ) -> None:
         fmt = raw_format(fourcc)
         height, width = image.shape
         self.path = path
         self._native = fmt.bayer
-        self.stream_format = StreamFormat(fmt, width, height, fmt.line_bytes(width) + pad)
-        self.data = pack(image, fmt, stride=self.stream_format.stride).reshape(-1)
+        self._image, self._pad = image, pad
+        full = Rect(0, 0, width, height)
+        self._options = ShapeOptions(crop_bounds=full if crop else None, sizes=sizes)
+        self._crop = full if crop else None
+        self._deliver(fmt, image)
         self.period_s = 1.0 / fps
         self._controls = {c.id: c for c in controls}
         self._values = {c.id: c.default for c in controls}
@@ -138,6 +151,11 @@ class SyntheticSource:
         self.sim_busy = False
         self._drop_next = 0
         self._fail_next = False
+
+    def _deliver(self, fmt: RawFormat, image: NDArray[np.uint16]) -> None:
+        height, width = image.shape
+        self.stream_format = StreamFormat(fmt, width, height, fmt.line_bytes(width) + self._pad)
+        self.data = pack(image, fmt, stride=self.stream_format.stride).reshape(-1)
 
     # -- faults ----------------------------------------------------------------------------
 
@@ -216,6 +234,39 @@ class SyntheticSource:
 
     def close(self) -> None:
         self.stop()
+
+    def shape_options(self) -> ShapeOptions:
+        return self._options
+
+    def shape(self) -> Shape:
+        return Shape(self._crop, (self.stream_format.width, self.stream_format.height))
+
+    def set_shape(self, shape: Shape) -> StreamFormat:
+        if self._streaming:
+            raise DeviceBusyError(f"{self.path}: the shape cannot change while streaming")
+        bounds, fmt = self._options.crop_bounds, self.stream_format.format
+        if bounds is not None and shape.crop is not None:
+            c = shape.crop
+            across = c.width > 0 and c.left >= 0 and c.left + c.width <= bounds.width
+            down = c.height > 0 and c.top >= 0 and c.top + c.height <= bounds.height
+            if not (across and down):
+                raise ControlRefusedError("crop", c, f"inside {bounds} (the driver's bounds)")
+            self._crop = c
+            image = self._image[c.top : c.top + c.height, c.left : c.left + c.width]
+        elif shape.size in self._options.sizes:
+            width, height = shape.size
+            image = self._image[:height, :width]
+        else:
+            raise ControlRefusedError("size", shape.size, f"one of {self._options.sizes}")
+        line_pixels = self.stream_format.width + self._values.get(CID_HBLANK, 0)
+        self._deliver(fmt, np.ascontiguousarray(image))
+        if CID_HBLANK in self._values:  # the line keeps its length, as the IMX219's modes do
+            blank = line_pixels - self.stream_format.width
+            self._controls[CID_HBLANK] = replace(
+                self._controls[CID_HBLANK], minimum=blank, maximum=blank, default=blank
+            )
+            self._values[CID_HBLANK] = blank
+        return self.refresh_format()
 
     def refresh_format(self) -> StreamFormat:
         fmt = self.stream_format.format

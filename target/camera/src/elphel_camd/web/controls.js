@@ -7,7 +7,7 @@ import { ApiError, NeedsToken, json } from "./api.js";
 const GROUPS = [
   ["Exposure", ["EXPOS", "VEXPOS"]],
   ["Gains", ["GAINR", "GAING", "GAINGB", "GAINB"]],
-  ["Window", ["WOI_LEFT", "WOI_TOP", "WOI_WIDTH", "WOI_HEIGHT", "FLIPH", "FLIPV"]],
+  ["Window", ["WOI_LEFT", "WOI_TOP", "WOI_WIDTH", "WOI_HEIGHT", "BIN_HOR", "BIN_VERT", "FLIPH", "FLIPV"]],
   ["Trigger", ["TRIG", "TRIG_PERIOD", "TRIG_MASTER", "TRIG_DELAY", "TRIG_DECIMATE"]],
   ["Photo-finish", ["PF_HEIGHT"]],
   ["Frame rate", ["FP1000SLIM", "FPSFLAGS"]],

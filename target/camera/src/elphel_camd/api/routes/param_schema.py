@@ -37,6 +37,8 @@ DISPLAY: dict[str, dict[str, Any]] = {
 }
 CHOICES: dict[str, dict[int, str]] = {
     "TRIG": dict(zip(TRIG_VALUES, ("free-run", "snapshot", "snapshot + GRR"), strict=True)),
+    "BIN_HOR": {1: "none", 2: "x2"},
+    "BIN_VERT": {1: "none", 2: "x2"},
     "FLIPH": {0: "off", 1: "on"},
     "FLIPV": {0: "off", 1: "on"},
 }
@@ -90,6 +92,8 @@ def window_of(driver: SensorDriver) -> dict[str, int] | None:
     """The sensor's full window and the step of its edges (None if the window is fixed)."""
     if isinstance(driver, (AptinaSensor, IMX219)):
         return {"width": driver.image_width, "height": driver.image_height, "step": 2}
+    if isinstance(driver, V4L2Sensor):
+        return driver.window()
     return None
 
 
