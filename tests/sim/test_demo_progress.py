@@ -108,13 +108,14 @@ def commands_run(node: ast.AST, times: int = 1, *, module: object = None) -> int
         elif isinstance(it, ast.Call) and getattr(it.func, "id", "") == "range":
             (arg,) = it.args
             if isinstance(arg, ast.Name):
-                turns = getattr(module, arg.id)
+                count = getattr(module, arg.id)
             else:
                 assert isinstance(arg, ast.Constant), (
                     "a loop over range(N), N a literal or constant"
                 )
-                turns = arg.value
-            assert isinstance(turns, int), f"line {node.lineno}: range() of {turns!r}"
+                count = arg.value
+            assert isinstance(count, int), f"line {node.lineno}: range() of {count!r}"
+            turns = count
         else:
             inner = sum(commands_run(c, module=module) for c in node.body)
             assert inner == 0, f"line {node.lineno}: elphel() in a loop of unknown length"
