@@ -112,6 +112,11 @@ def test_calib_scene_drifts_the_cameras_it_renders_through(tmp_path: Path) -> No
     assert sim_main([*argv, *size]) == 0
     truth = json.loads((tmp_path / "moved" / "truth.json").read_text())
     assert np.allclose(truth["drift_px"], random_drift_px(2.0, seed=3))
-    assert "drift_px" not in json.loads((tmp_path / "still" / "truth.json").read_text())
+    still_truth = json.loads((tmp_path / "still" / "truth.json").read_text())
+    assert "drift_px" not in still_truth
+    label, names = np.asarray(still_truth["label"]), still_truth["names"]
+    near = label == names.index("fronto_2.5")  # each tile names the region it sees
+    assert near.sum() > 20
+    assert np.allclose(np.asarray(still_truth["disparity"])[near], 2.5, atol=1e-6)
     still, moved = (tifffile.imread(tmp_path / d / "cam1.tif") for d in ("still", "moved"))
     assert np.mean(np.abs(still.astype(float) - moved)) > 10  # the same scene, moved

@@ -17,6 +17,7 @@ import pytest
 
 from elphel_host.progress import ProgressLine
 from elphel_sim.demo import burst as demo_burst
+from elphel_sim.demo import calib as demo_calib
 from elphel_sim.demo import depth as demo_depth
 from elphel_sim.demo import rig as demo_rig
 from elphel_sim.demo import run as demo
@@ -91,30 +92,45 @@ def test_a_failed_command_is_a_demo_error_with_its_message(
     assert message.startswith(f"elphel mfsr {tmp_path}") and "elphel: " in message
 
 
-def commands_run(node: ast.AST, times: int = 1) -> int:
-    """`elphel(...)` calls under ``node``, a call in a loop over a literal counted per turn."""
+def commands_run(node: ast.AST, times: int = 1, *, module: object = None) -> int:
+    """`elphel(...)` calls under ``node``, a call in a loop over a literal counted per turn.
+
+    ``range(NAME)`` counts as a literal when NAME is an int constant of ``module``.
+    """
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "elphel":
-        return times + sum(commands_run(c, times) for c in ast.iter_child_nodes(node))
+        return times + sum(
+            commands_run(c, times, module=module) for c in ast.iter_child_nodes(node)
+        )
     if isinstance(node, ast.For):
         it = node.iter
         if isinstance(it, (ast.Tuple, ast.List)):
             turns = len(it.elts)
         elif isinstance(it, ast.Call) and getattr(it.func, "id", "") == "range":
             (arg,) = it.args
-            assert isinstance(arg, ast.Constant), "a loop over range(N) with N a literal"
-            turns = arg.value
+            if isinstance(arg, ast.Name):
+                count = getattr(module, arg.id)
+            else:
+                assert isinstance(arg, ast.Constant), (
+                    "a loop over range(N), N a literal or constant"
+                )
+                count = arg.value
+            assert isinstance(count, int), f"line {node.lineno}: range() of {count!r}"
+            turns = count
         else:
-            inner = sum(commands_run(c) for c in node.body)
+            inner = sum(commands_run(c, module=module) for c in node.body)
             assert inner == 0, f"line {node.lineno}: elphel() in a loop of unknown length"
             turns = 0
-        return sum(commands_run(c, times * turns) for c in node.body)
-    return sum(commands_run(c, times) for c in ast.iter_child_nodes(node))
+        return sum(commands_run(c, times * turns, module=module) for c in node.body)
+    return sum(commands_run(c, times, module=module) for c in ast.iter_child_nodes(node))
+
+
+def counted(module: object) -> int:
+    return commands_run(ast.parse(Path(module.__file__).read_text()), module=module)  # type: ignore[attr-defined]
 
 
 def test_the_bar_counts_every_command_of_the_demo() -> None:
-    own = commands_run(ast.parse(Path(demo.__file__).read_text()))
-    burst = commands_run(ast.parse(Path(demo_burst.__file__).read_text()))
-    depth = commands_run(ast.parse(Path(demo_depth.__file__).read_text()))
+    own, burst, calib, depth = (counted(m) for m in (demo, demo_burst, demo_calib, demo_depth))
     assert depth == demo_depth.COMMANDS == 11
     assert burst == demo_burst.COMMANDS == 9
-    assert own + burst + depth == demo.COMMANDS
+    assert calib == demo_calib.COMMANDS == 4 + demo_calib.VIEWS + 1 + 3
+    assert own + burst + calib + depth == demo.COMMANDS

@@ -174,6 +174,8 @@ def _calib_scene(args: argparse.Namespace) -> int:
         "disparity": truth.disparity.tolist(),
         "interior": truth.interior.tolist(),
         "textured": truth.textured.tolist(),
+        "label": truth.label.tolist(),
+        "names": list(truth.names),
         "focal_length_px": ideal.intrinsics.focal_length_px,
         "baseline_mm": ideal.baseline_mm,
     }

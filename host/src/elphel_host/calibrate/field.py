@@ -196,6 +196,15 @@ def _fit_disparity(eq: TileEquations, x: F64, weight: F64) -> F64:
 
 def _solve(eq: TileEquations, weight: F64, infinity: NDArray[np.bool_]) -> F64:
     """Weighted least squares of the 12 corrections, each tile's disparity eliminated."""
+    normal, rhs = normal_equations(eq, weight, infinity)
+    x: F64 = np.asarray(np.linalg.lstsq(normal, rhs, rcond=1e-10)[0], dtype=np.float64)
+    return x
+
+
+def normal_equations(
+    eq: TileEquations, weight: F64, infinity: NDArray[np.bool_]
+) -> tuple[F64, F64]:
+    """Normal equations ``(12, 12)``, ``(12,)`` of the corrections, tile disparities eliminated."""
     wu = weight * eq.disparity
     den = (wu * eq.disparity).sum(1)
     free = (den > 0) & ~infinity
@@ -204,10 +213,9 @@ def _solve(eq: TileEquations, weight: F64, infinity: NDArray[np.bool_]) -> F64:
     proj[free] -= wu[free, :, None] * wu[free, None, :] / den[free, None, None]
     known = eq.measured + np.where(infinity, eq.target, 0.0)[:, None] * eq.disparity
     at_p = eq.design.transpose(0, 2, 1) @ proj
-    normal = (at_p @ eq.design).sum(0)
-    rhs = (at_p @ known[:, :, None])[..., 0].sum(0)
-    x: F64 = np.linalg.lstsq(normal, rhs, rcond=1e-10)[0]
-    return x
+    normal: F64 = (at_p @ eq.design).sum(0)
+    rhs: F64 = (at_p @ known[:, :, None])[..., 0].sum(0)
+    return normal, rhs
 
 
 def _infinity_tiles(eq: TileEquations, x: F64, weight: F64, band_px: float) -> NDArray[np.bool_]:
@@ -267,17 +275,39 @@ def measure_quad(
     InputFormatError
         The images are of another size than the calibration (the message names both).
     """
-    placed = replace(
+    placed = placed_quad(quad, geometry)
+    dsi = disparity_map(placed, config=config)
+    return dsi_equations(placed, dsi["disparity"], config=config, search_px=search_px)
+
+
+def placed_quad(quad: QuadImages, geometry: CalibratedGeometry) -> QuadImages:
+    """``quad`` with ``geometry`` as its calibration."""
+    return replace(
         quad, geometry=QuadGeometry(positions=quad.geometry.positions, calibration=geometry)
     )
-    dsi = disparity_map(placed, config=config)
-    target = np.nan_to_num(np.asarray(dsi["disparity"], dtype=np.float64))
+
+
+def dsi_equations(
+    placed: QuadImages,
+    disparity: NDArray[np.floating],
+    *,
+    config: TpConfig = DEFAULT_CONFIG,
+    search_px: int = 2,
+) -> TileEquations:
+    """The equations of a quad whose DSI (``disparity``) was made with its calibration.
+
+    ``placed``: the quad with the calibration to refine (:func:`placed_quad`).
+    """
+    geometry = placed.geometry.calibration
+    if not isinstance(geometry, CalibratedGeometry):
+        raise ValueError("the quad has no calibration; allowed: a quad placed by placed_quad")
+    target = np.nan_to_num(np.asarray(disparity, dtype=np.float64))
     target = np.clip(target, config.min_disparity, None)
     offsets = pair_offsets(placed, target, config=config, search_px=search_px)
     return tile_equations(geometry, offsets, placed.geometry.pairs)
 
 
-def _total(initial: Sequence[Camera], final: Sequence[Camera]) -> F64:
+def total_corrections(initial: Sequence[Camera], final: Sequence[Camera]) -> F64:
     """Per camera the corrections that turn ``initial`` into ``final``."""
     out = np.zeros((4, len(CORRECTIONS)))
     for cam, ((lens0, r0, _), (lens1, r1, _)) in enumerate(zip(initial, final, strict=True)):
@@ -335,7 +365,7 @@ def refine_extrinsics(
     for it in range(iterations + 1):
         geometry = CalibratedGeometry.from_cameras(current)
         eq = _concat([measure_quad(q, geometry, config=config, search_px=search) for q in quads])
-        _check_texture(eq)
+        check_texture(eq)
         x, weight, infinity = robust_solve(eq, infinity_band_px)
         found += x
         first += [] if first else [(eq, weight)]
@@ -348,7 +378,7 @@ def refine_extrinsics(
         search = 2
     return FieldResult(
         cameras=current,
-        corrections=_total(cameras, current),
+        corrections=total_corrections(cameras, current),
         mismatch_before_px=camera_mismatch_px(first[0][0], found, first[0][1]),
         mismatch_after_px=mismatch,
         scatter_px=_scatter_px(eq, x, weight, infinity),
@@ -358,7 +388,8 @@ def refine_extrinsics(
     )
 
 
-def _check_texture(eq: TileEquations) -> None:
+def check_texture(eq: TileEquations) -> None:
+    """Refuse equations with fewer than 50 textured tiles (InputFormatError says what to do)."""
     textured = int(((eq.weight > 0).sum(1) >= 6).sum())
     if textured < _MIN_TILES:
         raise InputFormatError(

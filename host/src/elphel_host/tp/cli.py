@@ -27,7 +27,8 @@ from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_ml_data
 from elphel_host.tp.io import QuadSet, read_quad_dir
 from elphel_host.tp.layout import read_layout
-from elphel_host.tp.sequence import find_quads, plan_jobs, quad_dsi, run_sequence
+from elphel_host.tp.refining import run_refining
+from elphel_host.tp.sequence import QuadJob, find_quads, plan_jobs, quad_dsi, run_sequence
 from elphel_host.tp.texture import rendered_images, rgba_texture, write_texture
 from elphel_host.tp.tile_pass import correlation_tiles
 from elphel_host.tp.trigger import DEFAULT_TRIGGER_PERIOD_MS
@@ -36,6 +37,7 @@ CAPTURE = "capture"
 USAGE = """elphel tp QUAD_DIR --out DSI.tif [--no-png] [--ply CLOUD.ply] [--json]
                          [tile processor options]
        elphel tp QUAD_DIR... --out-dir DIR [--scheduler ADDRESS] [--workers N] [--json]
+       elphel tp QUAD_DIR... --out-dir DIR --refine-extrinsics [--refine-memory F] [--json]
        elphel tp capture --camera URL [--token T] --out QUAD_DIR [--geometry FILE]
                          [--calibration CALIB_DIR] [--trigger-period-ms MS] [--force]
                          [--json]"""
@@ -177,6 +179,21 @@ def _add_sequence_options(p: Any) -> None:
         metavar="N",
         help="local cluster: worker processes (default: one per core)",
     )
+    seq.add_argument(
+        "--refine-extrinsics",
+        action="store_true",
+        help="calibrated quads: run them in order, each refining the calibration (lazy eye: "
+        "cameras 1-3's tilt, azimuth, roll and zoom) for the next ones; the refined "
+        "calibration is written to DIR/calibration.json",
+    )
+    seq.add_argument(
+        "--refine-memory",
+        type=float,
+        default=0.5,
+        metavar="F",
+        help="with --refine-extrinsics: how much a quad's measurement counts one quad later, "
+        "0..1 (default 0.5; 0: the latest quad alone)",
+    )
 
 
 # Options of one form that make no sense in the other (compared with their defaults).
@@ -193,7 +210,7 @@ _TP_ONLY = (
     "max_disagreement",
 )
 _CAPTURE_ONLY = ("geometry", "calibration", "trigger_period_ms", "force", "timeout")
-_SEQUENCE_ONLY = ("scheduler", "workers")
+_SEQUENCE_ONLY = ("scheduler", "workers", "refine_extrinsics", "refine_memory")
 
 
 def _misplaced(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
@@ -392,6 +409,10 @@ def run_many(args: argparse.Namespace) -> int:
     quads = find_quads(args.quad_dirs)
     jobs = plan_jobs(quads, args.out_dir)
     Path(args.out_dir).mkdir(parents=True, exist_ok=True)
+    if args.refine_extrinsics:
+        return run_refine(args, jobs)
+    if args.refine_memory != args.parser.get_default("refine_memory"):
+        args.parser.error("--refine-memory: only with --refine-extrinsics")
     # one quad per single-threaded worker process, unless --threads says otherwise
     threads = args.threads if args.threads != args.parser.get_default("threads") else 1
     config = TpConfig(
@@ -433,6 +454,60 @@ def run_many(args: argparse.Namespace) -> int:
     human = (
         f"{args.out_dir}: {len(results)} quads, {counts['done']} done, {counts['skipped']} "
         f"skipped (already there), {counts['failed']} failed, {seconds:.1f} s"
+    )
+    emit(args, result, human)
+    return 1 if counts["failed"] else 0
+
+
+def run_refine(args: argparse.Namespace, jobs: list[QuadJob]) -> int:
+    """``--out-dir DIR --refine-extrinsics``: the quads in order, refining the calibration."""
+    if args.scheduler or args.workers is not None:
+        args.parser.error(
+            "--refine-extrinsics runs the quads in order here: no --scheduler, --workers"
+        )
+    if not 0 <= args.refine_memory < 1:
+        args.parser.error(f"--refine-memory {args.refine_memory:g}; allowed: 0 <= F < 1")
+    config = TpConfig(
+        refine_passes=args.refine,
+        scan=tuple(args.scan),
+        fat_zero=args.fat_zero,
+        threads=args.threads,
+    )
+    progress = ProgressLine()
+    quad_line = progress.say("")
+    counts = {"done": 0, "failed": 0}
+
+    def report(res: dict[str, Any], done: int, total: int) -> None:
+        counts[res["status"]] += 1
+        if res["status"] == "failed":
+            quad_line(f"{res['quad']}: failed: {res['error']}")
+        else:
+            r = res["refinement"]
+            quad_line(
+                f"{res['quad']}: mismatch {r['mismatch_before_px']:.4f} -> "
+                f"{r['mismatch_after_px']:.4f} px"
+                + ("" if r["updated"] else " (too little texture)")
+            )
+        progress.update(f"{done}/{total} quads ({counts['failed']} failed)", done=done, total=total)
+
+    t0 = time.perf_counter()
+    try:
+        got = run_refining(jobs, args.out_dir, config, memory=args.refine_memory, on_result=report)
+    finally:
+        progress.end()
+    seconds = time.perf_counter() - t0
+    result = {
+        "out_dir": str(args.out_dir),
+        "quads": got.results,
+        "done": counts["done"],
+        "failed": counts["failed"],
+        "calibration": str(got.calibration),
+        "corrections": got.corrections,
+        "seconds": round(seconds, 3),
+    }
+    human = (
+        f"{args.out_dir}: {len(got.results)} quads, {counts['done']} done, {counts['failed']} "
+        f"failed, {seconds:.1f} s; refined calibration {got.calibration}"
     )
     emit(args, result, human)
     return 1 if counts["failed"] else 0

@@ -1,9 +1,10 @@
 """How the demo acts as a user: the simulated rig, the `elphel` CLI, the lines it prints.
 
 `simulated_rig` runs `elphel-sim up --json` in a child process, `elphel` runs an
-`elphel ... --json` command as a user types it, `read_frame_metadata` reads the metadata of
-a TIFF the CLI wrote, and `step` prints one line of the demo's account. Every step of
-`elphel_sim.demo` (`make demo`) goes through these; a failure is a `DemoError`.
+`elphel ... --json` command as a user types it (`elphel_sim` an `elphel-sim` one),
+`read_frame_metadata` reads the metadata of a TIFF the CLI wrote, and `step` prints one
+line of the demo's account. Every step of `elphel_sim.demo` (`make demo`) goes through
+these; a failure is a `DemoError`.
 
 While a command runs, its own progress (what it writes on stderr) is relayed to the
 demo's progress line on stderr (`DEMO_PROGRESS`): on a terminal one updating line with a
@@ -157,6 +158,21 @@ def elphel(*args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
         failed = [e for e in errors if e.startswith("elphel: ")] or errors
         raise DemoError(f"elphel {' '.join(args)}: {' '.join(failed).strip() or proc.returncode}")
     result: dict[str, Any] = json.loads(stdout)
+    return result
+
+
+def elphel_sim(*args: str) -> dict[str, Any]:
+    """Run an `elphel-sim ... --json` command (not `up`) as a user would; its JSON object."""
+    done = subprocess.run(
+        [sys.executable, "-m", "elphel_sim.cli", *args, "--json"],
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
+    if done.returncode != 0:
+        message = done.stderr.strip().splitlines()[-1:] or [str(done.returncode)]
+        raise DemoError(f"elphel-sim {' '.join(args)}: {message[0]}")
+    result: dict[str, Any] = json.loads(done.stdout)
     return result
 
 

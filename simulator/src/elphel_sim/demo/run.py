@@ -6,11 +6,12 @@ calibrate the stage and check it against the simulator's truth; capture a sub-pi
 and fuse it, and the same burst again through a blurred lens (`elphel-sim up
 --lens-blur`; both in `elphel_sim.demo.burst`); capture one trigger-synchronised set
 from the simulated quad camera (`elphel-sim up --scenario quad`) and compute its
-disparity map; read a recording of a simulated stock NC393; and last, put the quad on
-the stage carriage, capture a quad burst and turn it into super-resolved depth
-(`elphel_sim.demo.depth`). Everything goes under ``out/`` with a summary a person can
-read (``summary.json`` and the printed lines).
-The rig and the user's tools the steps go through are in `elphel_sim.demo.rig`.
+disparity map; calibrate a quad of distorted, turned cameras from views of a board and
+compute its DSI and depth from their raw images (`elphel_sim.demo.calib`); read a
+recording of a simulated stock NC393; and last, put the quad on the stage carriage,
+capture a quad burst and turn it into super-resolved depth (`elphel_sim.demo.depth`).
+Everything goes under ``out/`` with a summary a person can read (``summary.json`` and the
+printed lines). The rig and the user's tools the steps go through are in `elphel_sim.demo.rig`.
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ from elphel_host.preview import (
 )
 from elphel_sim.demo.burst import COMMANDS as BURST_COMMANDS
 from elphel_sim.demo.burst import burst_step, lens_blur_step
+from elphel_sim.demo.calib import COMMANDS as CALIB_COMMANDS
+from elphel_sim.demo.calib import calib_step
 from elphel_sim.demo.depth import COMMANDS as DEPTH_COMMANDS
 from elphel_sim.demo.depth import depth_step
 from elphel_sim.demo.rig import (
@@ -49,9 +52,9 @@ from elphel_sim.demo.rig import (
     step,
 )
 
-# The `elphel` commands the demo runs (stage 2, quad 2, stock NC393 2, and the burst and
-# depth steps'): the progress bar counts them.
-COMMANDS = 6 + BURST_COMMANDS + DEPTH_COMMANDS
+# The `elphel` commands the demo runs (stage 2, quad 2, stock NC393 2, and the burst,
+# calibration and depth steps'): the progress bar counts them.
+COMMANDS = 6 + BURST_COMMANDS + CALIB_COMMANDS + DEPTH_COMMANDS
 
 # -- camera -----------------------------------------------------------------------------------
 
@@ -288,6 +291,7 @@ def run(out: Path, *, seed: int) -> dict[str, Any]:
         summary["burst"] = burst_step(rig, out, summary["stage"], seed=seed)
     summary["burst_lens_blur"] = lens_blur_step(out, summary["burst"], seed=seed)
     summary["quad"] = quad_step(out, seed=seed)
+    summary["calibration"] = calib_step(out, seed=seed)
     summary["stock_nc393"] = stock_camera_step(out, seed=seed)
     summary["depth"] = depth_step(out, seed=seed)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
