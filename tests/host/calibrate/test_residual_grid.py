@@ -126,3 +126,24 @@ def test_a_lens_without_a_residual_keeps_the_rational_model_alone() -> None:
     cal = calibrate(observe(rig, poses, noise_px=NOISE_PX, seed=24), cross_validate=False)
     assert cal.residual_grid["kept"] is False
     assert all(c.lens.residual is None for c in cal.cameras)
+
+
+def test_a_forced_grid_is_kept_and_written_with_its_loss(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from elphel_host.calibrate.export import write_exports
+    from elphel_host.calibrate.result import write_calibration
+
+    poses = board_poses(RIG, BOARD, 12, seed=30, min_cameras=2)
+    obs = observe(RIG, poses, noise_px=NOISE_PX, seed=31)
+    cal = calibrate(obs, cross_validate=False, residual_grid=(4, 3))
+    assert cal.residual_grid["kept"] is True and cal.residual_grid["cells"] == [4, 3]
+    exports = write_exports(cal, tmp_path)
+    path = write_calibration(cal, tmp_path, extra={"exports": exports})
+    doc = json.loads(path.read_text())
+    lens = CameraModel.from_json(doc["cameras"][1])
+    assert lens.residual is not None and lens.residual.cells == (4, 3)
+    losses = exports["mrcal"]["loss_px"]  # type: ignore[index]
+    assert [round(x["rms_px"], 6) for x in losses] == [
+        round(c.lens.residual.size_px()[0], 6)
+        for c in cal.cameras  # type: ignore[union-attr]
+    ]
+    assert min(x["max_px"] for x in losses) > 0.05

@@ -146,26 +146,34 @@ def _solve_with_outliers(
             )
         ]
         problem = problem.keep(~bad)
+    else:  # the last round left corners out: solve once more without them
+        x, jac = bundle.adjust(x, problem)
     return x, jac, problem, outliers
 
 
 def _fit_residual_grids(
-    obs: Observations, x: FloatArray, jac: FloatArray, problem: bundle.Problem, option: GridOption
+    obs: Observations,
+    full: bundle.Problem,
+    solved: tuple[FloatArray, FloatArray, bundle.Problem, list[Outlier]],
+    option: GridOption,
 ) -> tuple[FloatArray, FloatArray, bundle.Problem, list[Outlier], dict[str, object]]:
     """Solve again with a residual grid per camera; keep it when the data supports it.
 
-    With ``"auto"`` the grids stay when the drop in the whitened squared residuals, in
-    units of the residuals' variance with the grids, exceeds twice the parameters they
-    add (Akaike's criterion): corners that the rational model already fits to their noise
-    leave the model as it was. A tuple of cells always keeps them.
+    The grid solve starts from ``solved`` (the rational model's solve of ``full``) but
+    on every corner of ``full``: corners the rational model could not follow, left out
+    as outliers, get a second chance. With ``"auto"`` the grids stay when the drop in the
+    whitened squared residuals over the same corners, in units of the residuals'
+    variance with the grids, exceeds twice the parameters they add (Akaike's
+    criterion): corners that the rational model already fits to their noise leave the
+    model as it was. A tuple of cells always keeps them.
     """
+    x, jac, problem, rational_outliers = solved
     cells = DEFAULT_CELLS if option == "auto" else option
     assert isinstance(cells, tuple)
-    grid_problem = problem.with_grid(cells)
     xg, jac_g, grid_problem, outliers = _solve_with_outliers(
-        obs, grid_problem, bundle.with_grid(x, problem, cells)
+        obs, full.with_grid(cells), bundle.with_grid(x, full, cells)
     )
-    before = bundle.residuals(x, problem.keep(_rows_kept(problem, grid_problem)))
+    before = bundle.residuals(x, full.keep(_rows_kept(full, grid_problem)))
     after = bundle.residuals(xg, grid_problem)
     added = problem.cameras * (grid_problem.grid_controls - 6)  # mean and tilt held
     variance = float(after @ after) / max(len(after) - len(xg), 1)
@@ -178,7 +186,7 @@ def _fit_residual_grids(
         "parameters": added,
     }
     if not kept:
-        return x, jac, problem, [], note
+        return x, jac, problem, rational_outliers, note
     return xg, jac_g, grid_problem, outliers, note
 
 
@@ -198,7 +206,7 @@ def _covariance(x: FloatArray, jac: FloatArray, problem: bundle.Problem) -> Floa
     """
     res = bundle.residuals(x, problem)
     dof = max(len(res) - len(x), 1)
-    jtj = jac.T @ jac
+    jtj, _ = bundle.normal_equations(jac, res)
     inverse = np.linalg.pinv(jtj + bundle.prior_matrix(problem))
     out: FloatArray = inverse @ jtj @ inverse * (res @ res / dof)
     return out
@@ -276,14 +284,14 @@ def calibrate(
     seen = [v for v, row in enumerate(obs.corners) if any(f is not None for f in row)]
     used = obs.subset(seen)
     warnings = check_observations(used)
-    problem = make_problem(used)
-    x, jac, problem, outliers = _solve_with_outliers(
-        used, problem, bundle.pack(initial_guess(used))
-    )
+    full = make_problem(used)
+    solved = _solve_with_outliers(used, full, bundle.pack(initial_guess(used)))
+    x, jac, problem, outliers = solved
     grid_note: dict[str, object] = {"kept": False, "fitted": False}
     if residual_grid != "off":
-        x, jac, problem, more, grid_note = _fit_residual_grids(used, x, jac, problem, residual_grid)
-        outliers += more
+        x, jac, problem, outliers, grid_note = _fit_residual_grids(
+            used, full, solved, residual_grid
+        )
     cov = _covariance(x, jac, problem)
     cameras = tuple(
         _camera_result(x, problem, cov, c, grid_step_px) for c in range(problem.cameras)
