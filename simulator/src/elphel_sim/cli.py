@@ -88,6 +88,7 @@ def _add_calib_views(sub: Any) -> None:
     cv.add_argument("--height", type=int, default=968)
     cv.add_argument("--pattern", default="checkerboard:9x6:25", metavar="SPEC")
     cv.add_argument("--seed", type=int, default=0, help="seed of the rig, the poses and the noise")
+    _add_residual_option(cv)
     cv.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -97,7 +98,9 @@ def _calib_views(args: argparse.Namespace) -> int:
     from elphel_sim.calib_target import PrintedBoard
 
     board = PrintedBoard(Checkerboard.parse(args.pattern))
-    rig = make_rig(args.width, args.height, cameras=args.cameras, seed=args.seed)
+    rig = make_rig(
+        args.width, args.height, cameras=args.cameras, seed=args.seed, residual_px=args.residual_px
+    )
     need = 1 if args.cameras == 1 else 2
     poses = board_poses(rig, board, args.views, seed=args.seed + 1, min_cameras=need)
     paths = write_views(args.out, rig, board, poses, seed=args.seed + 100)
@@ -108,6 +111,27 @@ def _calib_views(args: argparse.Namespace) -> int:
         json.dumps(result) if args.json else f"{len(paths)} views in {args.out}, truth in {truth}"
     )
     return 0
+
+
+def _non_negative_px(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}; allowed: a number of pixels >= 0") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}; allowed: a number of pixels >= 0")
+    return value
+
+
+def _add_residual_option(parser: Any) -> None:
+    parser.add_argument(
+        "--residual-px",
+        type=_non_negative_px,
+        default=0.0,
+        metavar="PX",
+        help="each lens's smooth non-radial error on top of its rational model, up to PX px "
+        "per axis (default 0: the rational model is the whole lens)",
+    )
 
 
 def _add_calib_scene(sub: Any) -> None:
@@ -134,6 +158,7 @@ def _add_calib_scene(sub: Any) -> None:
     cs.add_argument("--width", type=int, default=1296)
     cs.add_argument("--height", type=int, default=968)
     cs.add_argument("--seed", type=int, default=0, help="seed of the rig (as calib-views)")
+    _add_residual_option(cs)
     cs.add_argument(
         "--scene-seed", type=int, default=None, metavar="N", help="seed of the scene (--seed)"
     )
@@ -162,7 +187,7 @@ def _calib_scene(args: argparse.Namespace) -> int:
     )
     from elphel_sim.quad import render_quad, standard_scene, tile_truth, write_quad_dir
 
-    rig = make_rig(args.width, args.height, cameras=4, seed=args.seed)
+    rig = make_rig(args.width, args.height, cameras=4, seed=args.seed, residual_px=args.residual_px)
     drift = None
     if args.drift_px is not None:
         drift = random_drift_px(args.drift_px, seed=args.drift_seed)

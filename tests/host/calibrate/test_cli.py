@@ -109,3 +109,27 @@ def test_bad_spec_is_a_usage_error(views: Path, tmp_path: Path) -> None:
             ["calibrate", "solve", str(views), "--pattern", "9x6", "--out", str(tmp_path / "c")]
         )
     assert e.value.code == 2
+
+
+def test_a_lens_the_model_follows_gets_no_grid_and_the_summary_says_so(
+    views: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "calib"
+    argv = ["calibrate", "solve", str(views), "--pattern", "checkerboard:9x6:25"]
+    assert elphel_main([*argv, "--out", str(out), "--no-cross-validation"]) == 0
+    assert "residual grid: not kept" in capsys.readouterr().out
+    doc = json.loads((out / "calibration.json").read_text())
+    assert doc["residual_grid_fit"]["kept"] is False
+    assert "residual_grid" not in doc["cameras"][0]
+    assert doc["exports"]["opencv"]["loss_px"] == 0.0
+
+
+@pytest.mark.parametrize("value", ["6", "1x4", "6x40", "fine"])
+def test_a_bad_residual_grid_is_a_usage_error(
+    views: Path, tmp_path: Path, value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["calibrate", "solve", str(views), "--pattern", "checkerboard:9x6:25"]
+    with pytest.raises(SystemExit) as e:
+        elphel_main([*argv, "--out", str(tmp_path / "c"), "--residual-grid", value])
+    assert e.value.code == 2
+    assert "--residual-grid" in capsys.readouterr().err

@@ -13,10 +13,12 @@ pixel, as OpenCV's ``projectPoints`` with the coefficients
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+
+from elphel_host.calibrate.residual_grid import ResidualGrid
 
 FloatArray = NDArray[np.float64]
 
@@ -73,7 +75,11 @@ def undistort(
 
 @dataclass(frozen=True)
 class CameraModel:
-    """One camera's intrinsics: pinhole plus OpenCV's rational distortion (8 coefficients)."""
+    """One camera's intrinsics: pinhole plus OpenCV's rational distortion (8 coefficients).
+
+    ``residual``, when the solve found one, is added to every projected pixel
+    (`residual_grid`): the lens's smooth error the rational model cannot follow.
+    """
 
     width: int
     height: int
@@ -82,6 +88,7 @@ class CameraModel:
     cx: float
     cy: float
     distortion: tuple[float, ...] = (0.0,) * 8
+    residual: ResidualGrid | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if len(self.distortion) != 8:
@@ -104,14 +111,34 @@ class CameraModel:
         """Pixels ``(N, 2)`` of points ``(N, 3)`` in the camera's frame."""
         p = np.asarray(points, dtype=np.float64)
         xd, yd = distort(p[:, 0] / p[:, 2], p[:, 1] / p[:, 2], self.coefficients)
-        return np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=1)
+        return self.add_residual(np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=1))
+
+    def add_residual(self, pixels: FloatArray) -> FloatArray:
+        """Pixels ``(N, 2)`` of the rational model moved by the residual grid, if any."""
+        if self.residual is None:
+            return pixels
+        out: FloatArray = pixels + self.residual.at(pixels)
+        return out
+
+    def remove_residual(self, pixels: FloatArray) -> FloatArray:
+        """The rational model's pixels ``(N, 2)`` that the residual moves to ``pixels``.
+
+        Fixed-point iteration: the residual changes by far less than a pixel per pixel,
+        so each round shrinks the error by that slope.
+        """
+        if self.residual is None:
+            return pixels
+        q = np.array(pixels, dtype=np.float64)
+        for _ in range(6):
+            q = pixels - self.residual.at(q)
+        return q
 
     def rays(self, pixels: FloatArray, *, strict: bool = True) -> FloatArray:
         """Normalised undistorted coordinates ``(N, 2)`` (``x = X/Z``) of pixels ``(N, 2)``.
 
         ``strict``: see `undistort` (False: NaN where the model folds).
         """
-        q = np.asarray(pixels, dtype=np.float64)
+        q = self.remove_residual(np.asarray(pixels, dtype=np.float64))
         x, y = undistort(
             (q[:, 0] - self.cx) / self.fx,
             (q[:, 1] - self.cy) / self.fy,
@@ -131,7 +158,7 @@ class CameraModel:
         return cls(width, height, v[0], v[1], v[2], v[3], tuple(v[4:]))
 
     def to_json(self) -> dict[str, object]:
-        return {
+        out: dict[str, object] = {
             "width": self.width,
             "height": self.height,
             "fx": self.fx,
@@ -140,6 +167,9 @@ class CameraModel:
             "cy": self.cy,
             "distortion": {"model": "opencv", "coefficients": list(self.distortion)},
         }
+        if self.residual is not None:
+            out["residual_grid"] = self.residual.to_json()
+        return out
 
     @classmethod
     def from_json(cls, data: dict[str, object]) -> CameraModel:
@@ -150,14 +180,17 @@ class CameraModel:
         coeffs += [0.0] * max(0, 8 - len(coeffs))
         if any(coeffs[8:]):
             raise ValueError("distortion: thin-prism terms (s1..s4) are not supported; allowed: 8")
+        width, height = int(data["width"]), int(data["height"])  # type: ignore[call-overload]
+        grid = data.get("residual_grid")
         return cls(
-            int(data["width"]),  # type: ignore[call-overload]
-            int(data["height"]),  # type: ignore[call-overload]
+            width,
+            height,
             float(data["fx"]),  # type: ignore[arg-type]
             float(data["fy"]),  # type: ignore[arg-type]
             float(data["cx"]),  # type: ignore[arg-type]
             float(data["cy"]),  # type: ignore[arg-type]
             tuple(coeffs[:8]),
+            None if grid is None else ResidualGrid.from_json(width, height, grid),
         )
 
 

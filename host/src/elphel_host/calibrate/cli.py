@@ -82,7 +82,8 @@ def _register_solve(sub: Any) -> None:
         help="detect the board in every view and solve intrinsics, rig, board poses and bend",
         description="Detect the checkerboard's corners in every view of VIEWS_DIR (image files "
         "of one camera, or one quad directory per view) and solve one bundle adjustment of "
-        "every camera's intrinsics (OpenCV's rational model), the cameras' poses from camera 0, "
+        "every camera's intrinsics (OpenCV's rational model, plus a smooth residual grid where "
+        "the corners show the lens needs one), the cameras' poses from camera 0, "
         "the board poses and the board's bend. Writes calibration.json, camN.yml (OpenCV "
         "FileStorage), residuals.png, coverage.png, uncertainty.png and exports/ (mrcal, "
         "COLMAP, Kalibr) into CALIB_DIR.",
@@ -95,8 +96,31 @@ def _register_solve(sub: Any) -> None:
         action="store_true",
         help="skip the two half-calibrations that measure how well the result repeats",
     )
+    s.add_argument(
+        "--residual-grid",
+        default="auto",
+        type=_grid_option,
+        metavar="auto|off|CXxCY",
+        help="each lens's smooth residual on top of the rational model: auto (default) fits "
+        "6x4 spline spans and keeps them when the corners support them, off never, CXxCY "
+        "always with that many spans along x and y (2..32)",
+    )
     add_json_option(s)
     s.set_defaults(func=run_solve, parser=s)
+
+
+def _grid_option(text: str) -> str | tuple[int, int]:
+    if text in ("auto", "off"):
+        return text
+    try:
+        cx, cy = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}; allowed: auto, off or CXxCY spans such as 6x4"
+        ) from None
+    if not (2 <= cx <= 32 and 2 <= cy <= 32):
+        raise argparse.ArgumentTypeError(f"{text!r}: spans 2..32 along each side")
+    return cx, cy
 
 
 def _add_pattern_option(parser: argparse.ArgumentParser) -> None:
@@ -308,6 +332,27 @@ def run_psf(args: argparse.Namespace) -> int:
     return 0
 
 
+def _grid_line(cal: Calibration) -> str:
+    fit = cal.residual_grid
+    if not fit.get("fitted", True):
+        return "residual grid: off"
+    spans = "x".join(str(v) for v in fit["cells"])  # type: ignore[attr-defined]
+    if not fit["kept"]:
+        return (
+            f"residual grid: not kept ({spans} spans would explain {fit['chi2_drop']} of "
+            f"the residuals' variance for {fit['parameters']} parameters): the rational "
+            "model follows these lenses"
+        )
+    sizes = [c.lens.residual.size_px() for c in cal.cameras if c.lens.residual is not None]
+    return (
+        f"residual grid: {spans} spans kept, RMS "
+        + ", ".join(f"{rms:.3f}" for rms, _ in sizes)
+        + " px per camera (largest "
+        + ", ".join(f"{top:.3f}" for _, top in sizes)
+        + " px)"
+    )
+
+
 def _human(cal: Calibration, path: Path) -> str:
     lines = [f"calibration: {path}", f"rms {cal.rms_px:.4f} px over {len(cal.cameras)} camera(s)"]
     for n, cam in enumerate(cal.cameras):
@@ -324,6 +369,7 @@ def _human(cal: Calibration, path: Path) -> str:
     if "skipped" in cv:
         lines.append(f"  cross-validation skipped: {cv['skipped']}")
     lines.append(f"board bend {cal.warp_mm[0]:.3f}, {cal.warp_mm[1]:.3f} mm")
+    lines.append(_grid_line(cal))
     if cal.missing:
         lines.append("board not found in: " + ", ".join(f"{v} (cam{c})" for v, c in cal.missing))
     if cal.outliers:
@@ -348,7 +394,9 @@ def run_solve(args: argparse.Namespace) -> int:
     )
     line.update("solving")
     line.end()
-    cal = calibrate(obs, cross_validate=not args.no_cross_validation)
+    cal = calibrate(
+        obs, cross_validate=not args.no_cross_validation, residual_grid=args.residual_grid
+    )
     Path(args.out).mkdir(parents=True, exist_ok=True)
     exports = write_exports(cal, args.out)
     path = write_calibration(cal, args.out, extra={"exports": exports})
@@ -361,6 +409,7 @@ def run_solve(args: argparse.Namespace) -> int:
             for c in cal.cameras
         ],
         "cross_validation": cal.cross_validation,
+        "residual_grid_fit": cal.residual_grid,
         "outliers": len(cal.outliers),
         "missing": [{"view": v, "camera": c} for v, c in cal.missing],
         "warnings": list(cal.warnings),

@@ -10,6 +10,10 @@
   camera's radtan model is fitted to this one's projection over the image (less a 5 %
   border); the fit's residual (RMS and largest, px) is the accuracy lost, per camera. ``T_cn_cnm1``
   takes camera n-1's frame into camera n's, translation in metres (Kalibr's unit).
+
+None of these formats (nor OpenCV's camN.yml) holds a residual grid: when the solve kept
+one, each camera's grid size (RMS and largest offset over the image, px) is what the
+lossless ones lose, and Kalibr's fit is made to the whole model, grid included.
 """
 
 from __future__ import annotations
@@ -122,11 +126,24 @@ def write_exports(cal: Calibration, out_dir: str | Path) -> dict[str, object]:
     (out / "cameras.txt").write_text(colmap_cameras([c.lens for c in cal.cameras]))
     chain, losses = kalibr_camchain(cal)
     (out / "camchain.yaml").write_text(chain)
+    grid_loss = grid_losses(cal)
     return {
+        "opencv": {"files": [f"cam{n}.yml" for n in range(len(cal.cameras))], "loss_px": grid_loss},
         "mrcal": {
             "files": [f"exports/cam{n}.cameramodel" for n in range(len(cal.cameras))],
-            "loss_px": 0.0,
+            "loss_px": grid_loss,
         },
-        "colmap": {"file": "exports/cameras.txt", "loss_px": 0.0},
+        "colmap": {"file": "exports/cameras.txt", "loss_px": grid_loss},
         "kalibr": {"file": "exports/camchain.yaml", "loss_px": losses},
     }
+
+
+def grid_losses(cal: Calibration) -> float | list[dict[str, float]]:
+    """0.0 without residual grids, else per camera its grid's RMS and largest offset (px)."""
+    if all(c.lens.residual is None for c in cal.cameras):
+        return 0.0
+    out = []
+    for cam in cal.cameras:
+        rms, top = (0.0, 0.0) if cam.lens.residual is None else cam.lens.residual.size_px()
+        out.append({"rms_px": rms, "max_px": top})
+    return out

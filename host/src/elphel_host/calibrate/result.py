@@ -51,6 +51,7 @@ def calibration_json(cal: Calibration) -> dict[str, Any]:
         "outliers": [asdict(o) for o in cal.outliers],
         "missing": [{"view": v, "camera": c} for v, c in cal.missing],
         "warnings": list(cal.warnings),
+        "residual_grid_fit": cal.residual_grid,
         "cross_validation": cal.cross_validation,
     }
 

@@ -4,7 +4,9 @@
 solves the bundle adjustment (`bundle.adjust`), drops outlier corners and solves again
 (a corner whose error is more than `OUTLIER_SIGMAS` times the residuals' robust spread,
 the worst of each image per round),
-then measures: per-camera and per-view residuals, the intrinsics' covariance and from it
+then, unless told not to, fits each camera's residual grid on top of its rational model
+and keeps the grids when the data supports them (`_fit_residual_grids`), then measures:
+per-camera and per-view residuals, the intrinsics' covariance and from it
 each camera's projection uncertainty, and (when asked) the cross-validation of two
 halves of the views (mrcal's projection difference between their calibrations).
 """
@@ -12,6 +14,7 @@ halves of the views (mrcal's projection difference between their calibrations).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,6 +29,7 @@ from elphel_host.calibrate.quality import (
     projection_difference,
     projection_uncertainty,
 )
+from elphel_host.calibrate.residual_grid import DEFAULT_CELLS
 
 FloatArray = NDArray[np.float64]
 
@@ -33,6 +37,9 @@ OUTLIER_SIGMAS = 5.0
 #: The border (fraction of each side) the quality measures leave out, as mrcal's tools do.
 MARGIN = 0.05
 ROUNDS = 8
+#: How the solve treats residual grids: fit and keep when supported, never, or always
+#: with these ``(cells_x, cells_y)``.
+GridOption = Literal["auto", "off"] | tuple[int, int]
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,7 @@ class Calibration:
     outliers: tuple[Outlier, ...]
     missing: tuple[tuple[str, int], ...]
     warnings: tuple[str, ...]
+    residual_grid: dict[str, object]
     cross_validation: dict[str, object] | None = None
 
 
@@ -119,9 +127,8 @@ def _worst_per_image(
 
 
 def _solve_with_outliers(
-    obs: Observations, problem: bundle.Problem
+    obs: Observations, problem: bundle.Problem, x: FloatArray
 ) -> tuple[FloatArray, FloatArray, bundle.Problem, list[Outlier]]:
-    x = bundle.pack(initial_guess(obs))
     outliers: list[Outlier] = []
     for _ in range(ROUNDS):
         x, jac = bundle.adjust(x, problem)
@@ -139,7 +146,55 @@ def _solve_with_outliers(
             )
         ]
         problem = problem.keep(~bad)
+    else:  # the last round left corners out: solve once more without them
+        x, jac = bundle.adjust(x, problem)
     return x, jac, problem, outliers
+
+
+def _fit_residual_grids(
+    obs: Observations,
+    full: bundle.Problem,
+    solved: tuple[FloatArray, FloatArray, bundle.Problem, list[Outlier]],
+    option: GridOption,
+) -> tuple[FloatArray, FloatArray, bundle.Problem, list[Outlier], dict[str, object]]:
+    """Solve again with a residual grid per camera; keep it when the data supports it.
+
+    The grid solve starts from ``solved`` (the rational model's solve of ``full``) but
+    on every corner of ``full``: corners the rational model could not follow, left out
+    as outliers, get a second chance. With ``"auto"`` the grids stay when the drop in the
+    whitened squared residuals over the same corners, in units of the residuals'
+    variance with the grids, exceeds twice the parameters they add (Akaike's
+    criterion): corners that the rational model already fits to their noise leave the
+    model as it was. A tuple of cells always keeps them.
+    """
+    x, jac, problem, rational_outliers = solved
+    cells = DEFAULT_CELLS if option == "auto" else option
+    assert isinstance(cells, tuple)
+    xg, jac_g, grid_problem, outliers = _solve_with_outliers(
+        obs, full.with_grid(cells), bundle.with_grid(x, full, cells)
+    )
+    before = bundle.residuals(x, full.keep(_rows_kept(full, grid_problem)))
+    after = bundle.residuals(xg, grid_problem)
+    added = problem.cameras * (grid_problem.grid_controls - 6)  # mean and tilt held
+    variance = float(after @ after) / max(len(after) - len(xg), 1)
+    drop = (float(before @ before) - float(after @ after)) / variance
+    kept = option != "auto" or drop > 2 * added
+    note: dict[str, object] = {
+        "cells": list(cells),
+        "kept": kept,
+        "chi2_drop": round(drop, 1),
+        "parameters": added,
+    }
+    if not kept:
+        return x, jac, problem, rational_outliers, note
+    return xg, jac_g, grid_problem, outliers, note
+
+
+def _rows_kept(problem: bundle.Problem, smaller: bundle.Problem) -> NDArray[np.bool_]:
+    """Which rows of ``problem`` are still in ``smaller`` (a ``keep`` of it)."""
+    key = (problem.view * problem.cameras + problem.camera) * 100_000 + problem.corner
+    small = (smaller.view * smaller.cameras + smaller.camera) * 100_000 + smaller.corner
+    return np.isin(key, small)
 
 
 def _covariance(x: FloatArray, jac: FloatArray, problem: bundle.Problem) -> FloatArray:
@@ -151,8 +206,8 @@ def _covariance(x: FloatArray, jac: FloatArray, problem: bundle.Problem) -> Floa
     """
     res = bundle.residuals(x, problem)
     dof = max(len(res) - len(x), 1)
-    jtj = jac.T @ jac
-    inverse = np.linalg.pinv(jtj + np.diag(bundle.prior_weights(problem)))
+    jtj, _ = bundle.normal_equations(jac, res)
+    inverse = np.linalg.pinv(jtj + bundle.prior_matrix(problem))
     out: FloatArray = inverse @ jtj @ inverse * (res @ res / dof)
     return out
 
@@ -161,7 +216,7 @@ def _camera_result(
     x: FloatArray, problem: bundle.Problem, cov: FloatArray, c: int, grid_step_px: float
 ) -> CameraResult:
     lens = bundle.lens(x, problem, c)
-    p = bundle.unpack(x, problem.cameras, problem.views)
+    p = bundle.unpack(x, problem)
     rows = problem.camera == c
     d = bundle.project(x, problem)[rows] - problem.pixels[rows]
     block = cov[
@@ -188,7 +243,7 @@ def _view_results(
     obs: Observations, x: FloatArray, problem: bundle.Problem
 ) -> list[dict[str, object]]:
     d = np.linalg.norm(bundle.project(x, problem) - problem.pixels, axis=1)
-    boards = bundle.unpack(x, problem.cameras, problem.views).boards
+    boards = bundle.unpack(x, problem).boards
     out = []
     for v, name in enumerate(obs.view_names):
         rows = problem.view == v
@@ -210,9 +265,16 @@ def _view_results(
 
 
 def calibrate(
-    obs: Observations, *, cross_validate: bool = True, grid_step_px: float = 32.0
+    obs: Observations,
+    *,
+    cross_validate: bool = True,
+    grid_step_px: float = 32.0,
+    residual_grid: GridOption = "auto",
 ) -> Calibration:
     """Solve the calibration of ``obs``'s cameras; see the module's notes.
+
+    ``grid_step_px`` is the spacing of the quality maps; ``residual_grid`` see
+    `_fit_residual_grids` (``"off"``: the rational model alone).
 
     Raises
     ------
@@ -222,14 +284,20 @@ def calibrate(
     seen = [v for v, row in enumerate(obs.corners) if any(f is not None for f in row)]
     used = obs.subset(seen)
     warnings = check_observations(used)
-    problem = make_problem(used)
-    x, jac, problem, outliers = _solve_with_outliers(used, problem)
+    full = make_problem(used)
+    solved = _solve_with_outliers(used, full, bundle.pack(initial_guess(used)))
+    x, jac, problem, outliers = solved
+    grid_note: dict[str, object] = {"kept": False, "fitted": False}
+    if residual_grid != "off":
+        x, jac, problem, outliers, grid_note = _fit_residual_grids(
+            used, full, solved, residual_grid
+        )
     cov = _covariance(x, jac, problem)
     cameras = tuple(
         _camera_result(x, problem, cov, c, grid_step_px) for c in range(problem.cameras)
     )
     d = bundle.project(x, problem) - problem.pixels
-    warp = bundle.unpack(x, problem.cameras, problem.views).warp_mm
+    warp = bundle.unpack(x, problem).warp_mm
     result = Calibration(
         obs.pattern.spec,
         float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
@@ -239,13 +307,17 @@ def calibrate(
         tuple(outliers),
         tuple(obs.missing()),
         tuple(warnings),
+        grid_note,
     )
     if not cross_validate:
         return result
-    return replace(result, cross_validation=cross_validation(used, grid_step_px=grid_step_px))
+    cv = cross_validation(used, grid_step_px=grid_step_px, residual_grid=residual_grid)
+    return replace(result, cross_validation=cv)
 
 
-def cross_validation(obs: Observations, *, grid_step_px: float = 32.0) -> dict[str, object]:
+def cross_validation(
+    obs: Observations, *, grid_step_px: float = 32.0, residual_grid: GridOption = "auto"
+) -> dict[str, object]:
     """Two calibrations from alternate views; their projection difference per camera (px).
 
     ``expected_px`` is what two calibrations that differ only by their noise should show:
@@ -253,7 +325,12 @@ def cross_validation(obs: Observations, *, grid_step_px: float = 32.0) -> dict[s
     """
     halves = [obs.subset(list(range(k, len(obs.corners), 2))) for k in (0, 1)]
     try:
-        fits = [calibrate(h, cross_validate=False, grid_step_px=grid_step_px) for h in halves]
+        fits = [
+            calibrate(
+                h, cross_validate=False, grid_step_px=grid_step_px, residual_grid=residual_grid
+            )
+            for h in halves
+        ]
     except ValueError as e:
         return {"skipped": f"the halves of the views cannot be calibrated alone: {e}"}
     cams = []

@@ -145,7 +145,12 @@ class CalibratedGeometry:
         xc, yc, zc = (r[k, 0] * ray[0] + r[k, 1] * ray[1] + r[k, 2] * ray[2] for k in range(3))
         lens = self.lenses[camera]
         xd, yd = distort(xc / zc, yc / zc, lens.coefficients)
-        return lens.fx * xd + lens.cx + 0.5, lens.fy * yd + lens.cy + 0.5
+        px, py = lens.fx * xd + lens.cx, lens.fy * yd + lens.cy
+        if lens.residual is not None:
+            px, py = np.broadcast_arrays(px, py)
+            moved = lens.residual.at(np.column_stack([px.ravel(), py.ravel()]))
+            px, py = px + moved[:, 0].reshape(px.shape), py + moved[:, 1].reshape(py.shape)
+        return px + 0.5, py + 0.5
 
     def lens_parameters(self, camera: int) -> F64:
         """``camera`` packed for the compiled :func:`elphel_host.tp.fused.lens_pixels`.
@@ -241,7 +246,8 @@ def scaled_lens(lens: CameraModel, scale: int) -> CameraModel:
     up-sampled one (``cv2.resize``'s alignment; pixel (0, 0) at the centre of the first
     pixel, as calibration.json), so the focal lengths grow by ``scale``, the principal
     point maps to ``scale * c + (scale - 1) / 2`` and the image size grows by ``scale``;
-    the distortion, acting on normalised coordinates, stays.
+    the distortion, acting on normalised coordinates, stays; a residual grid's offsets
+    grow by ``scale``.
 
     Raises
     ------
@@ -259,6 +265,7 @@ def scaled_lens(lens: CameraModel, scale: int) -> CameraModel:
         lens.cx * s + (s - 1) / 2,
         lens.cy * s + (s - 1) / 2,
         lens.distortion,
+        None if lens.residual is None else lens.residual.scaled(s),
     )
 
 
