@@ -9,6 +9,7 @@ disparity of every tile for both.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -18,6 +19,7 @@ import numpy as np
 import pytest
 
 from elphel_host.calibrate.camera_model import CameraModel
+from elphel_host.calibrate.residual_grid import ResidualGrid
 from elphel_host.cli import main as elphel_main
 from elphel_host.depth.products import dsi_depth
 from elphel_host.errors import InputFormatError
@@ -271,3 +273,27 @@ def test_capture_copies_the_calibration_into_the_quad_directory(
 def test_capture_refuses_a_bad_calibration_before_touching_the_camera(tmp_path: Path) -> None:
     with pytest.raises(InputFormatError, match="no such calibration file"):
         capture.capture_quad(None, tmp_path / "q", calibration=tmp_path / "none")  # type: ignore[arg-type]
+
+
+def test_lenses_with_residual_grids_are_placed_through_their_grids(tmp_path: Path) -> None:
+    cal = read_calibration(write_true_calibration(tmp_path, make_rig(W, H, seed=5)))
+    rng = np.random.default_rng(2)
+    lenses = tuple(
+        dataclasses.replace(lens, residual=ResidualGrid(W, H, rng.normal(0, 0.3, (7, 9, 2))))
+        for lens in cal.lenses
+    )
+    gridded = dataclasses.replace(cal, lenses=lenses)
+    x, y = rng.uniform(-20, W + 20, 3000), rng.uniform(-20, H + 20, 3000)
+    disparity = rng.uniform(-2.0, 40.0, 3000)
+    for cam in range(4):
+        px, py = gridded.pixels(cam, x, y, disparity)
+        plain = np.stack(cal.pixels(cam, x, y, disparity), -1)
+        moved = np.stack([px, py], -1) - plain
+        assert moved == pytest.approx(lenses[cam].residual.at(plain - 0.5), abs=1e-9)
+        got = gridded.place(cam, x, y, disparity)
+        for first, shift, want in ((got.left_x, got.shift_x, px), (got.top_y, got.shift_y, py)):
+            assert np.allclose(first - shift, window_at(want)[0] - window_at(want)[1], atol=1e-9)
+    gain = QuadGeometry(calibration=gridded).disparity_gain(x.reshape(50, 60), y.reshape(50, 60))
+    plain_gain = QuadGeometry(calibration=cal).disparity_gain(x.reshape(50, 60), y.reshape(50, 60))
+    assert np.abs(gain - plain_gain).max() > 1e-6  # the grid's slope changes the lens's scale
+    assert np.abs(gain - plain_gain).max() < 0.05

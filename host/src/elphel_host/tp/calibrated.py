@@ -47,7 +47,7 @@ from numpy.typing import NDArray
 from elphel_host.calibrate.camera_model import CameraModel, distort
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.errors import InputFormatError
-from elphel_host.tp.geometry import TilePlacement
+from elphel_host.tp.geometry import TilePlacement, window_at
 
 F64 = NDArray[np.float64]
 
@@ -184,16 +184,32 @@ class CalibratedGeometry:
         from elphel_host.tp.fused import lens_windows  # numba: loaded on first use
 
         x, y, d = _flat_points(cx, cy, disparity)
+        shape = np.broadcast(cx, cy, disparity).shape
+        if self.lenses[camera].residual is not None:
+            at = self._flat_pixels(camera, x, y, d)
+            left_x, shift_x = window_at(at[0].reshape(shape))
+            top_y, shift_y = window_at(at[1].reshape(shape))
+            return TilePlacement(left_x=left_x, shift_x=shift_x, top_y=top_y, shift_y=shift_y)
         first = np.empty((2, x.size), dtype=np.int64)
         shift = np.empty((2, x.size), dtype=np.float64)
         lens_windows(x, y, d, self.lens_parameters(camera), first, shift)
-        shape = np.broadcast(cx, cy, disparity).shape
         return TilePlacement(
             left_x=first[0].reshape(shape),
             shift_x=shift[0].reshape(shape),
             top_y=first[1].reshape(shape),
             shift_y=shift[1].reshape(shape),
         )
+
+    def _flat_pixels(self, camera: int, x: F64, y: F64, disparity: F64) -> F64:
+        """:meth:`pixels` ``(2, N)`` of flat points, by the compiled loop plus any residual grid."""
+        from elphel_host.tp.fused import lens_pixels  # numba: loaded on first use
+
+        out = np.empty((2, x.size))
+        lens_pixels(x, y, disparity, self.lens_parameters(camera), out)
+        residual = self.lenses[camera].residual
+        if residual is not None:  # the grid moves the model's pixel (0 at a pixel's centre)
+            out += residual.at(out.T - 0.5).T
+        return out
 
     def disparity_gain(
         self,
@@ -208,15 +224,11 @@ class CalibratedGeometry:
         geometry), the change of ``p_b - p_a`` per unit of D, projected on ``v`` and
         divided by ``|v|^2``; the mean over the pairs. 1 for an ideal quad.
         """
-        from elphel_host.tp.fused import lens_pixels  # numba: loaded on first use
-
         x, y, zero = _flat_points(cx, cy, 0.0)
-        at0, at1 = np.empty((2, x.size)), np.empty((2, x.size))
         moved = []
         for cam in range(len(self.lenses)):
-            model = self.lens_parameters(cam)
-            lens_pixels(x, y, zero, model, at0)
-            lens_pixels(x, y, zero + 1.0, model, at1)
+            at0 = self._flat_pixels(cam, x, y, zero)
+            at1 = self._flat_pixels(cam, x, y, zero + 1.0)
             moved.append((at1 - at0).T.reshape(*np.shape(cx), 2))
         gain = np.zeros(np.shape(cx))
         for (a, b), v in zip(pairs, np.asarray(vectors, dtype=np.float64), strict=True):
