@@ -1,7 +1,7 @@
 """Batched LDL^H solve of the small Hermitian systems the Fourier solver splits into.
 
 The forward model (:mod:`elphel_host.mfsr.forward`) decouples into one S^2 x S^2 system
-``(D G D + diag(mu)) x = b`` per LR frequency; :func:`solve_blocks` solves all of them at
+``(D G D + w diag(L)) x = c D r`` per LR frequency; :func:`solve_blocks` solves all of them at
 once, over the frequencies, and over a batch of such problems (the folds of a
 cross-validation, the colour planes of a Bayer burst) that each have their own ``G``.
 
@@ -27,7 +27,9 @@ _BLOCK = 64
 _F32_IN = nb.types.Array(nb.float32, 2, "A", readonly=True)
 _KERNEL_SIGNATURE = nb.void(
     _F32_IN,  # D (A, N)
-    _F32_IN,  # mu (A, N)
+    _F32_IN,  # prior L (A, N)
+    nb.float32,  # the prior's weight w
+    nb.float32,  # the right-hand side's scale c
     _F32_IN,  # Re G (A, A)
     _F32_IN,  # Im G
     nb.types.Array(nb.complex64, 2, "A", readonly=True),  # b (A, N)
@@ -36,7 +38,9 @@ _KERNEL_SIGNATURE = nb.void(
 
 
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
-def _load(D: F32, mu: F32, gr: F32, gi: F32, p0: int, m: int, lr: F32, li: F32) -> None:
+def _load(
+    D: F32, prior: F32, w: np.float32, gr: F32, gi: F32, p0: int, m: int, lr: F32, li: F32
+) -> None:
     """The lower triangle of the block's matrices, row-major, into ``lr``, ``li``."""
     for a in range(D.shape[0]):
         for c in range(a + 1):
@@ -47,7 +51,7 @@ def _load(D: F32, mu: F32, gr: F32, gi: F32, p0: int, m: int, lr: F32, li: F32) 
                 li[t, j] = dd * gi[a, c]
         t = a * (a + 1) // 2 + a
         for j in range(m):
-            lr[t, j] += mu[a, p0 + j]
+            lr[t, j] += w * prior[a, p0 + j]
 
 
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
@@ -101,8 +105,10 @@ def _substitute(m: int, lr: F32, li: F32, inv_d: F32, yr: F32, yi: F32) -> None:
 
 
 @nb.njit(_KERNEL_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
-def _ldl_kernel(D: F32, mu: F32, gr: F32, gi: F32, b: C64, x: C64) -> None:
-    """Solve x = (D G D + diag(mu))^-1 b for every column (N frequencies) of D, mu, b."""
+def _ldl_kernel(
+    D: F32, prior: F32, w: np.float32, c: np.float32, gr: F32, gi: F32, r: C64, x: C64
+) -> None:
+    """Solve (D G D + w diag(L)) x = c D r for every column (N frequencies) of D, L, r."""
     A, n = D.shape
     lr = np.empty((A * (A + 1) // 2, _BLOCK), np.float32)
     li = np.empty_like(lr)
@@ -111,36 +117,44 @@ def _ldl_kernel(D: F32, mu: F32, gr: F32, gi: F32, b: C64, x: C64) -> None:
     yi = np.empty_like(yr)
     for p0 in range(0, n, _BLOCK):
         m = min(_BLOCK, n - p0)
-        _load(D, mu, gr, gi, p0, m, lr, li)
+        _load(D, prior, w, gr, gi, p0, m, lr, li)
         _factor(A, m, lr, li, inv_d)
         for a in range(A):
             for j in range(m):
-                yr[a, j] = b[a, p0 + j].real
-                yi[a, j] = b[a, p0 + j].imag
+                cd = c * D[a, p0 + j]
+                yr[a, j] = cd * r[a, p0 + j].real
+                yi[a, j] = cd * r[a, p0 + j].imag
         _substitute(m, lr, li, inv_d, yr, yi)
         for a in range(A):
             for j in range(m):
                 x[a, p0 + j] = complex(yr[a, j], yi[a, j])
 
 
-def solve_blocks(D: F32, G: C64, mu: F32, b: C64) -> C64:
-    """Solve (D G D + diag(mu)) x = b for every pixel of the trailing axes (LDL^H).
+def solve_blocks(
+    D: F32, G: C64, prior: F32, r: C64, *, weight: F32 | float, scale: float = 1.0
+) -> C64:
+    """Solve (D G D + w diag(L)) x = c D r for every pixel of the trailing axes (LDL^H).
 
     Parameters
     ----------
-    D, mu
-        (A, ...) real diagonal factors and prior weights; with a batched ``G``,
+    D, prior
+        (A, ...) real diagonal factors and the prior's shape L; with a batched ``G``,
         (A, P or 1, ...).
     G
         (A, A) Hermitian, the same for every pixel; or (A, A, P, 1, ..., 1), one per
         problem of a batch of P.
-    b
-        (A, ...) right-hand sides; with a batched ``G``, (A, P, ...).
+    r
+        (A, ...) right-hand sides before their factor ``c D``; with a batched ``G``,
+        (A, P, ...).
+    weight
+        The prior's weight w: one, or (P,) one per problem.
+    scale
+        The right-hand side's factor c.
 
     Returns
     -------
     x
-        The solutions (complex64), shaped as ``b``.
+        The solutions (complex64), shaped as ``r``.
 
     Notes
     -----
@@ -148,20 +162,26 @@ def solve_blocks(D: F32, G: C64, mu: F32, b: C64) -> C64:
     which halves the arithmetic of every product with them.
     """
     if G.ndim == 2:
-        return solve_blocks(D[:, None], G[:, :, None], mu[:, None], b[:, None])[:, 0]
+        x = solve_blocks(
+            D[:, None], G[:, :, None], prior[:, None], r[:, None], weight=weight, scale=scale
+        )
+        return x[:, 0]
     A, P = G.shape[0], G.shape[2]
-    if b.shape[:2] != (A, P):
-        raise ValueError(f"b of shape {b.shape}; allowed: ({A}, {P}, ...) for G of {G.shape}")
-    n = int(np.prod(b.shape[2:]))
-    out = np.empty(b.shape, np.complex64)
+    if r.shape[:2] != (A, P):
+        raise ValueError(f"r of shape {r.shape}; allowed: ({A}, {P}, ...) for G of {G.shape}")
+    w = np.broadcast_to(np.asarray(weight, np.float32), (P,))
+    n = int(np.prod(r.shape[2:]))
+    out = np.empty(r.shape, np.complex64)
     for p in range(P):
         g = np.asarray(G[:, :, p], np.complex64).reshape(A, A)
         _ldl_kernel(
             _columns(D, p, n),
-            _columns(mu, p, n),
+            _columns(prior, p, n),
+            np.float32(w[p]),
+            np.float32(scale),
             np.ascontiguousarray(g.real),
             np.ascontiguousarray(g.imag),
-            np.asarray(b[:, p], np.complex64).reshape(A, n),
+            np.asarray(r[:, p], np.complex64).reshape(A, n),
             out[:, p].reshape(A, n),
         )
     return out

@@ -10,6 +10,7 @@ import scipy.fft as sfft
 from numpy.typing import NDArray
 
 from elphel_host.mfsr.forward import C64, F32, FourierSolver
+from elphel_host.mfsr.kernels import predict, pseudo_data
 
 
 class ModelSpectra:
@@ -39,18 +40,6 @@ class ModelSpectra:
             self.Zx[a] = (z * wx[None, :]).ravel()
 
 
-# No BLAS here: a threaded BLAS sums in an order that depends on its thread count, and a
-# burst must fuse to the same numbers in every process (the fusion fed while capturing
-# and `elphel mfsr` afterwards agree bit for bit); its threads would also spin against the
-# solver's own.
-def _combined(coef: C64, rows: C64) -> C64:
-    """sum_a coef[a] rows[a], alias by alias."""
-    out = rows[0] * coef[0]
-    for a in range(1, len(coef)):
-        out += rows[a] * coef[a]
-    return out
-
-
 def _dot(a: F32, b: F32) -> float:
     return float(np.einsum("i,i->", a, b, dtype=np.float64))
 
@@ -78,21 +67,24 @@ def refine_and_pseudo(
     nxh = solver.nxh
     ck = solver.C[k].conj()
     ry, rx = solver.ramps(k)
-    ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
-    q = _combined(ck, spectra.Z).reshape(ny, nxh)
-    q *= ryc
-    q *= rxc
+    ryc, rxc = ry.conj(), rx.conj()
+
+    def model(rows: C64) -> C64:
+        # no BLAS: a threaded BLAS sums in an order that depends on its thread count, and
+        # a burst must fuse to the same numbers in every process (the fusion fed while
+        # capturing and `elphel mfsr` afterwards agree bit for bit)
+        out = np.empty((ny, nxh), np.complex64)
+        predict(out, ck, rows.reshape(len(ck), ny, nxh), ryc, rxc)
+        return out
+
+    q = model(spectra.Z)
     pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
     del q
     dt = (0.0, 0.0)
     if refine:
         if spectra.Zy is None or spectra.Zx is None:
             raise ValueError("refine=True with spectra made without derivatives")
-        gy = _combined(ck, spectra.Zy).reshape(ny, nxh)
-        gx = _combined(ck, spectra.Zx).reshape(ny, nxh)
-        for g in (gy, gx):
-            g *= ryc
-            g *= rxc
+        gy, gx = model(spectra.Zy), model(spectra.Zx)
         dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
         dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
         del gy, gx
@@ -105,9 +97,6 @@ def refine_and_pseudo(
         if det > 1e-12 * max(a11 * a22, 1e-30):
             dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
             pred += (dt[0] * dy + dt[1] * dx).reshape(ny, nx)
-    r2 = frame - pred
-    c = np.float32(huber * sigma)
-    pseudo = np.clip(r2, -c, c)
-    pseudo += pred
-    np.copyto(pseudo, pred, where=~valid)
-    return pseudo, dt, r2
+    resid = np.empty_like(pred)
+    pseudo_data(frame, pred, valid, np.float32(huber * sigma), resid)  # pred: pseudo-data now
+    return pred, dt, resid
