@@ -40,7 +40,7 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.kernels import accumulate, place
+from elphel_host.mfsr.kernels import MAX_FRAMES, accumulate, place
 from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.parallel import parallel_map
 
@@ -51,7 +51,7 @@ F64 = NDArray[np.float64]
 # A frame source: index -> (aligned LR frame float32, validity mask bool or None)
 FrameSource = Callable[[int], tuple[F32, NDArray[np.bool_] | None]]
 
-_CHUNK_FRAMES = 4
+_CHUNK_FRAMES = MAX_FRAMES  # frames kernels.accumulate takes at once
 
 
 _SOLVE_ROWS = 128
@@ -217,11 +217,12 @@ class FourierSolver:
         spectra = parallel_map(partial(sfft.rfft2, workers=1), [np.asarray(f) for f in frames])
         coef = (sign * self.C[ks]).astype(np.complex64)  # (k, A)
         ramps = [self.ramps(k) for k in ks]
+        ry, rx = np.stack([r[0] for r in ramps]), np.stack([r[1] for r in ramps])
 
         def band(r0: int) -> None:
             r1 = r0 + _BAND_ROWS
-            for i, (spec, (ry, rx)) in enumerate(zip(spectra, ramps, strict=True)):
-                accumulate(self.rhs[:, r0:r1], spec[r0:r1], coef[i], ry[r0:r1], rx)
+            rows = tuple(spec[r0:r1] for spec in spectra)
+            accumulate(self.rhs[:, r0:r1], rows, coef, ry[:, r0:r1], rx)
 
         parallel_map(band, range(0, self.rhs.shape[1], _BAND_ROWS))  # memory-bound
 
@@ -362,7 +363,7 @@ def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
     def rows(r0: int) -> None:
         r1 = min(ny, r0 + _SOLVE_ROWS)
         band = (d_all[:, :, r0:r1], g, l_all[:, :, r0:r1], rhs[:, :, r0:r1])
-        out[:, :, r0:r1] = solve_blocks(*band, weight=weight, scale=float(s2))
+        solve_blocks(*band, weight=weight, scale=float(s2), out=out[:, :, r0:r1])
 
     parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
     return np.moveaxis(out, 1, 0)

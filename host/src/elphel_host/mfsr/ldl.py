@@ -131,7 +131,14 @@ def _ldl_kernel(
 
 
 def solve_blocks(
-    D: F32, G: C64, prior: F32, r: C64, *, weight: F32 | float, scale: float = 1.0
+    D: F32,
+    G: C64,
+    prior: F32,
+    r: C64,
+    *,
+    weight: F32 | float,
+    scale: float = 1.0,
+    out: C64 | None = None,
 ) -> C64:
     """Solve (D G D + w diag(L)) x = c D r for every pixel of the trailing axes (LDL^H).
 
@@ -150,11 +157,14 @@ def solve_blocks(
         The prior's weight w: one, or (P,) one per problem.
     scale
         The right-hand side's factor c.
+    out
+        Where to write the solutions (complex64, shaped as ``r``, each problem's trailing
+        axes contiguous); default a new array.
 
     Returns
     -------
     x
-        The solutions (complex64), shaped as ``r``.
+        The solutions (complex64), shaped as ``r``: ``out`` when given.
 
     Notes
     -----
@@ -162,16 +172,18 @@ def solve_blocks(
     which halves the arithmetic of every product with them.
     """
     if G.ndim == 2:
-        x = solve_blocks(
-            D[:, None], G[:, :, None], prior[:, None], r[:, None], weight=weight, scale=scale
-        )
-        return x[:, 0]
+        dest = None if out is None else out[:, None]
+        batch = (D[:, None], G[:, :, None], prior[:, None], r[:, None])
+        return solve_blocks(*batch, weight=weight, scale=scale, out=dest)[:, 0]
     A, P = G.shape[0], G.shape[2]
     if r.shape[:2] != (A, P):
         raise ValueError(f"r of shape {r.shape}; allowed: ({A}, {P}, ...) for G of {G.shape}")
     w = np.broadcast_to(np.asarray(weight, np.float32), (P,))
     n = int(np.prod(r.shape[2:]))
-    out = np.empty(r.shape, np.complex64)
+    if out is None:
+        out = np.empty(r.shape, np.complex64)
+    elif out.shape != r.shape or out.dtype != np.complex64:
+        raise ValueError(f"out {out.dtype} {out.shape}; allowed: complex64 {r.shape}")
     for p in range(P):
         g = np.asarray(G[:, :, p], np.complex64).reshape(A, A)
         _ldl_kernel(
@@ -182,7 +194,7 @@ def solve_blocks(
             np.ascontiguousarray(g.real),
             np.ascontiguousarray(g.imag),
             np.asarray(r[:, p], np.complex64).reshape(A, n),
-            out[:, p].reshape(A, n),
+            np.reshape(out[:, p], (A, n), copy=False),
         )
     return out
 

@@ -25,19 +25,20 @@ class ModelSpectra:
         s2 = float(solver.model.scale**2)
         A = len(solver.offsets)
         nxh = solver.nxh
-        self.Z = np.empty((A, ny * nxh), np.complex64)
+        self.Z = np.empty((A, ny, nxh), np.complex64)
         self.Zy = np.empty_like(self.Z) if derivatives else None
         self.Zx = np.empty_like(self.Z) if derivatives else None
         d_all = solver.block_factors()[0]
         for a, (jy, jx) in enumerate(solver.offsets):
-            z = (d_all[a] / np.float32(s2)) * X[a]
-            self.Z[a] = z.ravel()
+            z = self.Z[a]
+            np.multiply(X[a], d_all[a], out=z)
+            z *= np.float32(1.0 / s2)
             if self.Zy is None or self.Zx is None:
                 continue
             wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
             wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
-            self.Zy[a] = (z * wy[:, None]).ravel()
-            self.Zx[a] = (z * wx[None, :]).ravel()
+            np.multiply(z, wy[:, None], out=self.Zy[a])
+            np.multiply(z, wx[None, :], out=self.Zx[a])
 
 
 def _dot(a: F32, b: F32) -> float:
@@ -74,7 +75,7 @@ def refine_and_pseudo(
         # a burst must fuse to the same numbers in every process (the fusion fed while
         # capturing and `elphel mfsr` afterwards agree bit for bit)
         out = np.empty((ny, nxh), np.complex64)
-        predict(out, ck, rows.reshape(len(ck), ny, nxh), ryc, rxc)
+        predict(out, ck, rows, ryc, rxc)
         return out
 
     q = model(spectra.Z)
