@@ -9,7 +9,7 @@ such operations in a row. Each kernel here is one pass over a band of rows:
 * :func:`predict`: one frame's model spectrum, the aliases combined by the frame's
   coupling and multiplied by its (conjugate) ramp;
 * :func:`place`: an alias block scattered into the HR half-spectrum;
-* :func:`pseudo_data`: a frame's residual and its Huber pseudo-data.
+* :func:`pseudo_data`: a frame's Huber pseudo-data and a sample of its residual.
 
 Each pixel's arithmetic does not depend on how the rows are split: the result is the
 same on any number of threads. The kernels release the GIL and are compiled on first
@@ -146,24 +146,33 @@ def place(spec: C64, block: C64, iy: I64, ix: I64, conjugate: bool) -> None:
 
 
 _F32_2D_IN = nb.types.Array(nb.float32, 2, "A", readonly=True)
-_PSEUDO_SIGNATURE = nb.void(
+_PSEUDO_SIGNATURE = nb.int64(
     _F32_2D_IN,  # frame (rows, cols)
     nb.types.Array(nb.float32, 2, "A"),  # prediction in, pseudo-data out
     nb.types.Array(nb.boolean, 2, "A", readonly=True),  # valid pixels
     nb.float32,  # clipping level
-    nb.types.Array(nb.float32, 2, "A"),  # residual out
+    nb.int64,  # the sample's step
+    nb.types.Array(nb.float32, 1, "A"),  # the sample out
 )
 
 
 @nb.njit(_PSEUDO_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
-def pseudo_data(frame: F32, pred: F32, valid: B2, clip: np.float32, resid: F32) -> None:
-    """Huber pseudo-data in place of the prediction, and the residual ``frame - pred``.
+def pseudo_data(frame: F32, pred: F32, valid: B2, clip: np.float32, step: int, sample: F32) -> int:
+    """Huber pseudo-data in place of the prediction, and a sample of the residual's size.
 
     Valid pixels get ``pred + clip(frame - pred, -clip, clip)``; the others keep ``pred``.
+    ``sample`` receives ``|frame - pred|`` of the valid pixels on every ``step``-th row
+    and column, in row order (it needs ``ceil(rows / step) * ceil(cols / step)``
+    places); returns how many.
     """
+    n = 0
     for y in range(frame.shape[0]):
+        on_row = y % step == 0
         for x in range(frame.shape[1]):
             r = frame[y, x] - pred[y, x]
-            resid[y, x] = r
             if valid[y, x]:
                 pred[y, x] += min(max(r, -clip), clip)
+                if on_row and x % step == 0:
+                    sample[n] = abs(r)
+                    n += 1
+    return n

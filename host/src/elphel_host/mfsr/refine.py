@@ -12,6 +12,8 @@ from numpy.typing import NDArray
 from elphel_host.mfsr.forward import C64, F32, FourierSolver
 from elphel_host.mfsr.kernels import predict, pseudo_data
 
+_SPREAD_STEP = 3  # the residual's sample: every third row and column
+
 
 class ModelSpectra:
     """Per-pass spectra of the solution: prediction and its shift derivatives by alias.
@@ -62,7 +64,9 @@ def refine_and_pseudo(
     The shift update is one Gauss-Newton step over the frame's valid, non-outlier pixels
     (the mirror padding moves the opposite way and must not vote). Returns the
     pseudo-data (prediction + clipped residual on valid pixels, prediction elsewhere), the
-    shift update (HR px, to add to frame k's position) and the residual.
+    shift update (HR px, to add to frame k's position) and the residual's absolute values
+    on the valid pixels of every third row and column (the sample its spread is measured
+    on).
     """
     ny, nx = solver.model.lr_shape
     nxh = solver.nxh
@@ -98,6 +102,7 @@ def refine_and_pseudo(
         if det > 1e-12 * max(a11 * a22, 1e-30):
             dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
             pred += (dt[0] * dy + dt[1] * dx).reshape(ny, nx)
-    resid = np.empty_like(pred)
-    pseudo_data(frame, pred, valid, np.float32(huber * sigma), resid)  # pred: pseudo-data now
-    return pred, dt, resid
+    sample = np.empty(-(-ny // _SPREAD_STEP) * -(-nx // _SPREAD_STEP), np.float32)
+    clip = np.float32(huber * sigma)
+    n = pseudo_data(frame, pred, valid, clip, _SPREAD_STEP, sample)  # pred: pseudo-data now
+    return pred, dt, sample[:n]
