@@ -96,10 +96,11 @@ def test_block_solver_matches_a_direct_solve(aliases):
     b = (rng.normal(size=(aliases, 6, 7)) + 1j * rng.normal(size=(aliases, 6, 7))).astype(
         np.complex64
     )
-    x = solve_blocks(d, g, mu, b)
+    x = solve_blocks(d, g, mu, b, weight=0.7, scale=1.3)
     for i, j in [(0, 0), (3, 4), (5, 6)]:
         m = np.diag(d[:, i, j]) @ g.astype(np.complex128) @ np.diag(d[:, i, j])
-        direct = np.linalg.solve(m + np.diag(mu[:, i, j]), b[:, i, j])
+        rhs = 1.3 * d[:, i, j] * b[:, i, j]
+        direct = np.linalg.solve(m + np.diag(0.7 * mu[:, i, j]), rhs)
         assert np.abs(x[:, i, j] - direct).max() <= 1e-5 * np.abs(direct).max()
 
 

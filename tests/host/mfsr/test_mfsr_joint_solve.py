@@ -20,11 +20,13 @@ def test_batched_block_solve_matches_each_problem_alone():
         c = rng.normal(size=(20, a)) + 1j * rng.normal(size=(20, a))
         grams.append((c.conj().T @ c).astype(np.complex64))
     d = rng.uniform(0.1, 1.0, (a, 6, 7)).astype(np.float32)
-    mu = rng.uniform(0.01, 1.0, (a, p, 6, 7)).astype(np.float32)
+    prior = rng.uniform(0.01, 1.0, (a, p, 6, 7)).astype(np.float32)
+    weight = rng.uniform(0.5, 2.0, p).astype(np.float32)
     b = (rng.normal(size=(a, p, 6, 7)) + 1j * rng.normal(size=(a, p, 6, 7))).astype(np.complex64)
-    batched = solve_blocks(d[:, None], np.stack(grams, axis=-1)[..., None, None], mu, b)
+    g = np.stack(grams, axis=-1)[..., None, None]
+    batched = solve_blocks(d[:, None], g, prior, b, weight=weight, scale=1.5)
     for k in range(p):
-        alone = solve_blocks(d, grams[k], mu[:, k], b[:, k])
+        alone = solve_blocks(d, grams[k], prior[:, k], b[:, k], weight=weight[k], scale=1.5)
         # the same single-precision operations on the same numbers, broadcast
         assert np.array_equal(batched[:, k], alone)
 

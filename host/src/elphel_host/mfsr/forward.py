@@ -40,6 +40,7 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
+from elphel_host.mfsr.kernels import MAX_FRAMES, accumulate, place
 from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.parallel import parallel_map
 
@@ -50,10 +51,11 @@ F64 = NDArray[np.float64]
 # A frame source: index -> (aligned LR frame float32, validity mask bool or None)
 FrameSource = Callable[[int], tuple[F32, NDArray[np.bool_] | None]]
 
-_CHUNK_FRAMES = 4
+_CHUNK_FRAMES = MAX_FRAMES  # frames kernels.accumulate takes at once
 
 
 _SOLVE_ROWS = 128
+_BAND_ROWS = 64  # rows of the right-hand side a step of the accumulation takes
 
 
 @dataclass(frozen=True)
@@ -202,31 +204,27 @@ class FourierSolver:
         rx = np.exp(-2j * np.pi * self._vx * tx / Nx).astype(np.complex64)
         return ry, rx
 
-    def frame_term(self, k: int, frame: F32, *, workers: int = -1) -> C64:
-        """FFT of a frame times its frequency ramp (P_k in the module notes)."""
-        spec = sfft.rfft2(frame, workers=workers)
-        ry, rx = self.ramps(k)
-        spec *= ry[:, None]
-        spec *= rx[None, :]
-        return np.asarray(spec, dtype=np.complex64)
-
     def add_frames(self, ks: Sequence[int], frames: Sequence[F32], *, sign: float = 1.0) -> None:
         """Add (or with sign=-1 remove) frames' contributions to the right-hand side."""
         for start in range(0, len(ks), _CHUNK_FRAMES):
             idx = list(ks[start : start + _CHUNK_FRAMES])
-            pairs = list(zip(idx, frames[start : start + _CHUNK_FRAMES], strict=True))
-            # one frame per core, each FFT on one thread
-            spectra = parallel_map(lambda kf: self.frame_term(*kf, workers=1), pairs)
-            coef = sign * self.C[idx]  # (k, A)
-            # memory-bound and in place: one alias per core
-            parallel_map(partial(self._accumulate, spectra, coef), range(len(self.offsets)))
+            self._add_chunk(idx, frames[start : start + len(idx)], sign)
 
-    def _accumulate(self, spectra: Sequence[C64], coef: C64, a: int) -> None:
-        """rhs[a] += sum_k coef[k, a] P_k without temporaries of the whole stack."""
-        rhs, term = self.rhs[a], np.empty_like(spectra[0])
-        for j, spec in enumerate(spectra):
-            np.multiply(spec, coef[j, a], out=term)
-            rhs += term
+    def _add_chunk(self, ks: list[int], frames: Sequence[F32], sign: float) -> None:
+        """rhs[a] += sign sum_k C[k, a] P_k: the FFTs a frame per core, one pass per band."""
+        # one array per frame: a stack of them is large enough to be mapped afresh (and
+        # page-faulted in) on every call
+        spectra = parallel_map(partial(sfft.rfft2, workers=1), [np.asarray(f) for f in frames])
+        coef = (sign * self.C[ks]).astype(np.complex64)  # (k, A)
+        ramps = [self.ramps(k) for k in ks]
+        ry, rx = np.stack([r[0] for r in ramps]), np.stack([r[1] for r in ramps])
+
+        def band(r0: int) -> None:
+            r1 = r0 + _BAND_ROWS
+            rows = tuple(spec[r0:r1] for spec in spectra)
+            accumulate(self.rhs[:, r0:r1], rows, coef, ry[:, r0:r1], rx)
+
+        parallel_map(band, range(0, self.rhs.shape[1], _BAND_ROWS))  # memory-bound
 
     # -- solve ---------------------------------------------------------------------------
     def block_factors(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -318,13 +316,11 @@ class FourierSolver:
         for direct in (False, True):
             sign = 1 if direct else -1
             for block, (jy, jx) in zip(blocks, self.offsets, strict=True):
-                iy = ((sign * (self._vy + jy * ny)) % Ny).astype(np.intp)
-                ix = ((sign * (self._vx + jx * nx)) % Nx).astype(np.intp)
-                keep = ix < Nxh
-                if not keep.any():
-                    continue
-                part = block[:, keep]
-                spec[np.ix_(iy, ix[keep])] = part if direct else np.conj(part)
+                iy = ((sign * (self._vy + jy * ny)) % Ny).astype(np.int64)
+                ix = ((sign * (self._vx + jx * nx)) % Nx).astype(np.int64)
+                ix[ix >= Nxh] = -1
+                if ix.max() >= 0:
+                    place(spec, block, iy, ix, not direct)
         img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
         return np.ascontiguousarray(img, dtype=np.float32)
 
@@ -359,16 +355,15 @@ def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
     l_all = factors[0][1][:, None] if same else np.stack([f[1] for f in factors], axis=1)
     p = len(solvers)
     g = np.stack([s.G for s in solvers], axis=-1).astype(np.complex64)[..., None, None]
-    lam = np.array([s.lam for s in solvers], np.float32)[:, None, None]
+    weight = np.array([s.lam for s in solvers], np.float32) * s2
     rhs = first.rhs[:, None] if p == 1 else np.stack([s.rhs for s in solvers], axis=1)
     out = np.empty_like(rhs)
 
     # single precision is enough: the prior keeps every block well conditioned
     def rows(r0: int) -> None:
         r1 = min(ny, r0 + _SOLVE_ROWS)
-        D = d_all[:, :, r0:r1]
-        mu = lam * s2 * l_all[:, :, r0:r1]
-        out[:, :, r0:r1] = solve_blocks(D, g, mu, s2 * D * rhs[:, :, r0:r1])
+        band = (d_all[:, :, r0:r1], g, l_all[:, :, r0:r1], rhs[:, :, r0:r1])
+        solve_blocks(*band, weight=weight, scale=float(s2), out=out[:, :, r0:r1])
 
     parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
     return np.moveaxis(out, 1, 0)

@@ -169,8 +169,9 @@ class CrossValidation:
         d, l2 = FourierSolver(model, [(0.0, 0.0)], lam=lam).block_factors()
         s2 = np.float32(self.fit_scale**2)
         d = d[:, None]
-        mu = np.float32(lam) * s2 * l2[:, None]
-        X: C64 = solve_blocks(d, self.gram, mu, s2 * d * self.rhs)
+        X: C64 = solve_blocks(
+            d, self.gram, l2[:, None], self.rhs, weight=float(lam * s2), scale=float(s2)
+        )
         X *= d / s2  # the model's LR spectra by alias
         q = np.einsum("fta,afyx->ftyx", self.coupling, X)
         q *= self.ramps

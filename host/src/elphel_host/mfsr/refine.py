@@ -10,6 +10,9 @@ import scipy.fft as sfft
 from numpy.typing import NDArray
 
 from elphel_host.mfsr.forward import C64, F32, FourierSolver
+from elphel_host.mfsr.kernels import predict, pseudo_data
+
+_SPREAD_STEP = 3  # the residual's sample: every third row and column
 
 
 class ModelSpectra:
@@ -24,31 +27,20 @@ class ModelSpectra:
         s2 = float(solver.model.scale**2)
         A = len(solver.offsets)
         nxh = solver.nxh
-        self.Z = np.empty((A, ny * nxh), np.complex64)
+        self.Z = np.empty((A, ny, nxh), np.complex64)
         self.Zy = np.empty_like(self.Z) if derivatives else None
         self.Zx = np.empty_like(self.Z) if derivatives else None
         d_all = solver.block_factors()[0]
         for a, (jy, jx) in enumerate(solver.offsets):
-            z = (d_all[a] / np.float32(s2)) * X[a]
-            self.Z[a] = z.ravel()
+            z = self.Z[a]
+            np.multiply(X[a], d_all[a], out=z)
+            z *= np.float32(1.0 / s2)
             if self.Zy is None or self.Zx is None:
                 continue
             wy = (2j * np.pi * (solver._vy + jy * ny) / Ny).astype(np.complex64)
             wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
-            self.Zy[a] = (z * wy[:, None]).ravel()
-            self.Zx[a] = (z * wx[None, :]).ravel()
-
-
-# No BLAS here: a threaded BLAS sums in an order that depends on its thread count, and a
-# burst must fuse to the same numbers in every process (the fusion fed while capturing
-# and `elphel mfsr` afterwards agree bit for bit); its threads would also spin against the
-# solver's own.
-def _combined(coef: C64, rows: C64) -> C64:
-    """sum_a coef[a] rows[a], alias by alias."""
-    out = rows[0] * coef[0]
-    for a in range(1, len(coef)):
-        out += rows[a] * coef[a]
-    return out
+            np.multiply(z, wy[:, None], out=self.Zy[a])
+            np.multiply(z, wx[None, :], out=self.Zx[a])
 
 
 def _dot(a: F32, b: F32) -> float:
@@ -72,27 +64,32 @@ def refine_and_pseudo(
     The shift update is one Gauss-Newton step over the frame's valid, non-outlier pixels
     (the mirror padding moves the opposite way and must not vote). Returns the
     pseudo-data (prediction + clipped residual on valid pixels, prediction elsewhere), the
-    shift update (HR px, to add to frame k's position) and the residual.
+    shift update (HR px, to add to frame k's position) and the residual's absolute values
+    on the valid pixels of every third row and column (the sample its spread is measured
+    on).
     """
     ny, nx = solver.model.lr_shape
     nxh = solver.nxh
     ck = solver.C[k].conj()
     ry, rx = solver.ramps(k)
-    ryc, rxc = ry.conj()[:, None], rx.conj()[None, :]
-    q = _combined(ck, spectra.Z).reshape(ny, nxh)
-    q *= ryc
-    q *= rxc
+    ryc, rxc = ry.conj(), rx.conj()
+
+    def model(rows: C64) -> C64:
+        # no BLAS: a threaded BLAS sums in an order that depends on its thread count, and
+        # a burst must fuse to the same numbers in every process (the fusion fed while
+        # capturing and `elphel mfsr` afterwards agree bit for bit)
+        out = np.empty((ny, nxh), np.complex64)
+        predict(out, ck, rows, ryc, rxc)
+        return out
+
+    q = model(spectra.Z)
     pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
     del q
     dt = (0.0, 0.0)
     if refine:
         if spectra.Zy is None or spectra.Zx is None:
             raise ValueError("refine=True with spectra made without derivatives")
-        gy = _combined(ck, spectra.Zy).reshape(ny, nxh)
-        gx = _combined(ck, spectra.Zx).reshape(ny, nxh)
-        for g in (gy, gx):
-            g *= ryc
-            g *= rxc
+        gy, gx = model(spectra.Zy), model(spectra.Zx)
         dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
         dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
         del gy, gx
@@ -105,9 +102,7 @@ def refine_and_pseudo(
         if det > 1e-12 * max(a11 * a22, 1e-30):
             dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
             pred += (dt[0] * dy + dt[1] * dx).reshape(ny, nx)
-    r2 = frame - pred
-    c = np.float32(huber * sigma)
-    pseudo = np.clip(r2, -c, c)
-    pseudo += pred
-    np.copyto(pseudo, pred, where=~valid)
-    return pseudo, dt, r2
+    sample = np.empty(-(-ny // _SPREAD_STEP) * -(-nx // _SPREAD_STEP), np.float32)
+    clip = np.float32(huber * sigma)
+    n = pseudo_data(frame, pred, valid, clip, _SPREAD_STEP, sample)  # pred: pseudo-data now
+    return pred, dt, sample[:n]

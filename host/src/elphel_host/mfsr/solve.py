@@ -113,10 +113,9 @@ def _robust_pass(
 
     def step(k: int) -> tuple[F32, tuple[float, float], float]:
         f, v = frames(k)
-        pseudo, dt, r = refine_and_pseudo(
+        pseudo, dt, sub = refine_and_pseudo(
             solver, spectra, k, f, v, huber=opts.huber, sigma=sigma, refine=opts.refine, workers=1
         )
-        sub = np.abs(r[::3, ::3][v[::3, ::3]])
         return pseudo, dt, float(np.median(sub)) if sub.size else 0.0
 
     # A frame's step reads only its own shift and the model of the previous solve, so the
