@@ -28,7 +28,9 @@ pointers; they are ignored like unknown commands.
 from __future__ import annotations
 
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 from PIL import Image
 
@@ -64,12 +66,17 @@ GIF_1X1 = _gif_1x1()
 
 @dataclass(frozen=True)
 class Reply:
-    """An HTTP answer: status, headers (besides Content-Length) and body."""
+    """An HTTP answer: status, headers (besides Content-Length) and body.
+
+    With ``rest``, ``body`` is only the answer's first bytes (a frame's Exif head) and
+    ``rest()`` gives the others (forming the frame's image: seconds for a full frame).
+    """
 
     body: bytes
     content_type: str
     headers: dict[str, str] = field(default_factory=dict)
     status: int = 200
+    rest: Callable[[], bytes] | None = None
 
 
 def gif() -> Reply:
@@ -136,17 +143,41 @@ class Imgsrv:
         return gif()
 
     def _image(self, frame: int, save: bool, timestamp_name: bool, base_chn: int) -> Reply:
+        """The frame's file; its Exif head and the rest to come unless it was encoded before."""
         fw, port = self.firmware, self.port
         if not fw.has_sensor(port) or not fw.oldest(port) <= frame <= fw.frame(port):
             return gif()  # not taken yet, or no longer in the buffer
         try:
-            encoded, metadata = fw.encoded(port, frame)
+            first = fw.kept(port, frame)
+            lazy = first is None
+            if first is None:
+                first = fw.head(port, frame)
+            if first is None:  # a raw frame: sent whole
+                first, lazy = fw.encoded(port, frame), False
         except FrameNotAvailableError:
             return gif()
+        encoded, metadata = first
         ns = int(metadata["timestamp_ns"])
         sec, usec = ns // 1_000_000_000, (ns // 1000) % 1_000_000
         prefix = "" if timestamp_name else "elphelimg_"
         name = f"{prefix}{sec}_{usec:06d}_{port + base_chn}.{encoded.extension}"
         disposition = f'{"attachment" if save else "inline"}; filename="{name}"'
         headers = {**HEADERS, **IMAGE_HEADERS, "Content-Disposition": disposition}
-        return Reply(encoded.data, encoded.content_type, headers)
+        rest = partial(self._rest, frame, encoded.data) if lazy else None
+        return Reply(encoded.data, encoded.content_type, headers, rest=rest)
+
+    def _rest(self, frame: int, head: bytes) -> bytes:
+        """What follows ``head`` in the frame's file (the frame is formed and encoded now).
+
+        Raises
+        ------
+        FrameNotAvailableError
+            The frame left the ring buffer since its head was sent.
+        """
+        encoded, _ = self.firmware.encoded(self.port, frame)
+        if not encoded.data.startswith(head):
+            raise RuntimeError(
+                f"port {self.port} frame {frame}: the encoded file does not start with the "
+                f"{len(head)}-byte Exif head sent before it"
+            )
+        return encoded.data[len(head) :]
