@@ -22,7 +22,7 @@ from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_de
 from elphel_host.preview import NO_VALUE_RGB, Swatch, save_map_picture
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.calibrated import CalibratedGeometry
-from elphel_host.tp.capture import capture_quad
+from elphel_host.tp.capture import DEFAULT_TIMEOUT_S, TIMEOUT_PERIODS, capture_quad
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_ml_data
 from elphel_host.tp.io import QuadSet, read_quad_dir
@@ -91,7 +91,8 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="MS",
         help="common trigger period while capturing (default: the camera's repeating period, "
-        f"else {DEFAULT_TRIGGER_PERIOD_MS:g} ms)",
+        f"else {DEFAULT_TRIGGER_PERIOD_MS:g} ms, longer if one frame's fetch, timed first, "
+        "says the four frames would not be fetched in time)",
     )
     cap.add_argument(
         "--force", action="store_true", help="replace an existing non-empty quad directory"
@@ -99,9 +100,9 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
     cap.add_argument(
         "--timeout",
         type=float,
-        default=60.0,
         metavar="S",
-        help="seconds to wait for the frames (default 60)",
+        help=f"seconds to wait for the frames (default {DEFAULT_TIMEOUT_S:g}, "
+        f"or {TIMEOUT_PERIODS} trigger periods if longer)",
     )
 
 
@@ -250,8 +251,9 @@ def run_capture(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     # A simulated board forms each full frame when it is fetched: allow it time.
+    wait_s = DEFAULT_TIMEOUT_S if args.timeout is None else args.timeout
     try:
-        with connect(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+        with connect(args.camera, args.token, timeout_s=max(wait_s, 30.0)) as camera:
             got = capture_quad(
                 camera,
                 args.out,
@@ -261,6 +263,7 @@ def run_capture(args: argparse.Namespace) -> int:
                 timeout_s=args.timeout,
                 progress=progress,
                 calibration=args.calibration,
+                say=line.say("tp capture: "),
             )
     finally:
         line.end()
