@@ -5,6 +5,8 @@ and hangs up; the simulator must not form a full image for that. A frame asked f
 several requests, at once or one after the other, is formed and encoded once.
 """
 
+import contextlib
+import io
 import threading
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -12,6 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 import httpx
 import pytest
 import uvicorn
+from fastapi import FastAPI
+from PIL import Image
 
 from elphel_host.camera.nc393.frames import newest_stamp
 from elphel_host.limits import HostLimits
@@ -25,8 +29,14 @@ from .test_stock_imgsrv import exif_of, set_params, snapshot
 @pytest.fixture
 def served(firmware: StockFirmware) -> Iterator[str]:
     """Port 0's imgsrv on a loopback socket (a real HTTP server: clients can hang up)."""
+    with serving(imgsrv_app(firmware, 0)) as url:
+        yield url
+
+
+@contextlib.contextmanager
+def serving(app: FastAPI) -> Iterator[str]:
+    """``app`` served on a loopback socket from a thread; its URL."""
     sock = bind_loopback(0)
-    app = imgsrv_app(firmware, 0)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
@@ -87,6 +97,25 @@ def test_a_frame_asked_for_at_once_and_again_is_formed_once(web, served, firmwar
     assert {a.content for a in answers} == {again.content}
     assert again.headers["content-length"] == str(len(again.content))  # kept: sent whole
     assert captures == [newest]
+
+
+def test_a_frame_whose_head_was_sent_comes_whole_after_leaving_the_ring(
+    firmware, captures, monkeypatch
+):
+    held: list[tuple[str, int]] = []
+    for name in ("hold", "release"):
+        real = getattr(firmware, name)
+        monkeypatch.setattr(
+            firmware, name, lambda p, f, real=real, name=name: (held.append((name, f)), real(p, f))
+        )
+    # 40 frames/s: the ring's 64 frames turn over in 1.6 s, before the rest is formed
+    with serving(imgsrv_app(firmware, 0, pixels_after_s=2.5)) as url:
+        answer = httpx.get(f"{url}/bimg", timeout=30)
+    number = exif_of(answer.content)[0x9211]
+    assert number < firmware.oldest(0)  # gone from the ring meanwhile
+    assert Image.open(io.BytesIO(answer.content)).size == (256, 128)  # the whole frame
+    assert captures == [number]
+    assert held == [("hold", number), ("release", number)]  # held from its head until sent
 
 
 @pytest.mark.parametrize(

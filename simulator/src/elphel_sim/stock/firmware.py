@@ -168,6 +168,20 @@ class StockFirmware:
         head = compressor.frame_head(metadata, state, shape=shape)
         return None if head is None else (head, metadata)
 
+    def hold(self, port: int, frame: int) -> None:
+        """Keep a frame of the ring available until `release`, even once it leaves the ring.
+
+        Raises
+        ------
+        FrameNotAvailableError
+            The frame is no longer in the ring buffer.
+        """
+        self.board.pin_frames(port, 1, frame=frame)
+
+    def release(self, port: int, frame: int) -> None:
+        """Let go of a frame `hold` kept (held by others, it stays)."""
+        self.board.release_frames(port, [frame])
+
     def close(self) -> None:
         """Let go of the encoded frames and close the service (and with it the board)."""
         with self._encoded_lock:

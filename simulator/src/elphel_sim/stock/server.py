@@ -100,8 +100,8 @@ class HeadFirst(Response):
 
     The head goes out at once; if the client hangs up within ``listen_s`` (it wanted the
     frame's number and time only), the image is never formed, otherwise ``reply.rest()``
-    forms it and the rest follows. The length is not known before: no Content-Length,
-    the answer is chunked.
+    forms it and the rest follows; ``reply.release()`` then lets go of the frame. The
+    length is not known before: no Content-Length, the answer is chunked.
     """
 
     def __init__(self, reply: Reply, *, listen_s: float) -> None:
@@ -113,13 +113,18 @@ class HeadFirst(Response):
         self.init_headers(reply.headers)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        start = {"type": "http.response.start", "status": self.status_code}
-        await send({**start, "headers": self.raw_headers})
-        await send({"type": "http.response.body", "body": self.reply.body, "more_body": True})
-        if self.reply.rest is None or await hung_up(receive, within_s=self.listen_s):
-            return
-        rest = await run_in_threadpool(self.reply.rest)
-        await send({"type": "http.response.body", "body": rest, "more_body": False})
+        try:
+            start = {"type": "http.response.start", "status": self.status_code}
+            await send({**start, "headers": self.raw_headers})
+            body = {"type": "http.response.body", "body": self.reply.body, "more_body": True}
+            await send(body)
+            if self.reply.rest is None or await hung_up(receive, within_s=self.listen_s):
+                return
+            rest = await run_in_threadpool(self.reply.rest)
+            await send({"type": "http.response.body", "body": rest, "more_body": False})
+        finally:
+            if self.reply.release is not None:
+                self.reply.release()
 
 
 async def hung_up(receive: Receive, *, within_s: float) -> bool:
