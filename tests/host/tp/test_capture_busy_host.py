@@ -40,18 +40,27 @@ class SlowCamera:
 
 
 def test_the_fetch_period_fits_the_frames_in_its_periods() -> None:
-    assert fetch_period(2.0, 4) == 500 * TICKS_PER_MS  # 8 s over 16 periods
-    assert fetch_period(7.0, 4) == 1750 * TICKS_PER_MS
-    assert fetch_period(7.0001, 4) == 1751 * TICKS_PER_MS  # whole milliseconds, rounded up
+    assert FIT_PERIODS == 32  # half of a 64-frame ring buffer
+    assert fetch_period(4.0, 4) == 500 * TICKS_PER_MS  # 16 s over 32 periods
+    assert fetch_period(7.0, 4) == 875 * TICKS_PER_MS
+    assert fetch_period(7.0001, 4) == 876 * TICKS_PER_MS  # whole milliseconds, rounded up
     assert FIT_PERIODS * fetch_period(3.3, 4) / TICKS_PER_MS >= 4 * 3.3 * 1000
 
 
-@pytest.mark.parametrize(("fetch_s", "longer"), [(0.05, False), (3.0, True)])
-def test_the_period_is_chosen_from_one_timed_fetch(fetch_s: float, longer: bool) -> None:
+@pytest.mark.parametrize(("fetch_s", "longer"), [(0.05, False), (6.0, True)])
+@pytest.mark.parametrize("newest", [False, True])
+def test_the_period_is_chosen_from_one_timed_fetch(fetch_s: float, longer: bool, newest) -> None:
     camera = SlowCamera(fetch_s)
     said: list[str] = []
-    period = capture._period_for_fetches(camera, (2, 0, 1, 3), HALF_S, said.append)  # type: ignore[arg-type]
-    assert camera.fetched == [(2, 40)]  # the first port's newest frame, once
+    period = capture._period_for_fetches(
+        camera,  # type: ignore[arg-type]
+        (2, 0, 1, 3),
+        HALF_S,
+        said.append,
+        newest=newest,
+    )
+    # the first port's next frame, once; its newest when frames do not come
+    assert camera.fetched == [(2, 40 if newest else None)]
     if longer:
         assert period >= fetch_period(fetch_s, 4) > HALF_S
     else:

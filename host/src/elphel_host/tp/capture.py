@@ -45,6 +45,7 @@ from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
 from elphel_host.tp.layout import QuadLayout
 from elphel_host.tp.trigger import (
     TICKS_PER_MS,
+    TRIG_PERIOD_MIN_REPEAT,
     TRIG_SNAPSHOT,
     choose_trigger,
     on_common_trigger,
@@ -52,8 +53,8 @@ from elphel_host.tp.trigger import (
 
 AHEAD_FRAMES = 2  # the set is taken this many triggers after every port is synchronised
 # Without a period given, the set's frames, fetched one after another at the time one
-# frame took, must be fetched within this many periods: a quarter of a 64-frame ring buffer.
-FIT_PERIODS = 16
+# frame took, must be fetched within this many periods: half of a 64-frame ring buffer.
+FIT_PERIODS = 32
 DEFAULT_TIMEOUT_S = 60.0
 # Without a timeout given, the frames are waited for at least this many trigger periods.
 TIMEOUT_PERIODS = 16
@@ -224,7 +225,12 @@ def _trigger_and_wait(
     period_ms, timeout_s = given
     master, period = choose_trigger(before, ports, period_ms)
     if period_ms is None:
-        period = _period_for_fetches(camera, ports, period, say or (lambda _line: None))
+        trig, repeat = before[ports[0]]["TRIG"], before[master]["TRIG_PERIOD"]
+        # the next frame, unless the port waits for a trigger that does not repeat
+        stopped = bool(trig & TRIG_SNAPSHOT) and repeat < TRIG_PERIOD_MIN_REPEAT
+        period = _period_for_fetches(
+            camera, ports, period, say or (lambda _line: None), newest=stopped
+        )
     if timeout_s is None:
         timeout_s = max(DEFAULT_TIMEOUT_S, TIMEOUT_PERIODS * period / (1000 * TICKS_PER_MS))
     return master, period, timeout_s
@@ -240,16 +246,21 @@ def fetch_period(fetch_s: float, frames: int) -> int:
 
 
 def _period_for_fetches(
-    camera: CameraInterface, ports: tuple[int, ...], period: int, say: Callable[[str], None]
+    camera: CameraInterface,
+    ports: tuple[int, ...],
+    period: int,
+    say: Callable[[str], None],
+    *,
+    newest: bool,
 ) -> int:
     """``period``, or longer if the set's frames would not be fetched in `FIT_PERIODS`.
 
-    One frame of the first port (the newest in its buffer) is fetched and timed; the
-    choice is said in one line.
+    One frame of the first port is fetched and timed: the next one, or with ``newest``
+    (frames do not come) the newest in its buffer. The choice is said in one line.
     """
-    newest = camera.frame(ports[0])["frame"]
+    frame = camera.frame(ports[0])["frame"] if newest else None
     started = time.monotonic()
-    camera.capture(ports[0], frame=newest if newest > 0 else None)
+    camera.capture(ports[0], frame=frame)
     fetch_s = time.monotonic() - started
     needed = fetch_period(fetch_s, len(ports))
     chosen = max(period, needed)

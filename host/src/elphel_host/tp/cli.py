@@ -19,6 +19,7 @@ from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.depth.cli import add_disagreement_option, max_disagreement
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
+from elphel_host.limits import HostLimits
 from elphel_host.preview import NO_VALUE_RGB, Swatch, save_map_picture
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.calibrated import CalibratedGeometry
@@ -250,8 +251,11 @@ def run_capture(args: argparse.Namespace) -> int:
         line.update(f"tp capture: {done}/{total} {message}", done=done, total=total)
 
     t0 = time.perf_counter()
-    # A simulated board forms each full frame when it is fetched: allow it time.
-    wait_s = DEFAULT_TIMEOUT_S if args.timeout is None else args.timeout
+    # A frame may take long to come (a simulated board forms each full frame when it is
+    # fetched, a busy host): without --timeout, as long as the request deadline allows.
+    wait_s = args.timeout
+    if wait_s is None:
+        wait_s = max(DEFAULT_TIMEOUT_S, HostLimits.from_env().deadline_s)
     try:
         with connect(args.camera, args.token, timeout_s=max(wait_s, 30.0)) as camera:
             got = capture_quad(
