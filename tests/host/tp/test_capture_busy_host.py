@@ -53,7 +53,7 @@ def test_the_period_is_chosen_from_one_timed_fetch(fetch_s: float, longer: bool,
     camera = SlowCamera(fetch_s)
     said: list[str] = []
     period = capture._period_for_fetches(
-        camera,  # type: ignore[arg-type]
+        camera,
         (2, 0, 1, 3),
         HALF_S,
         said.append,
@@ -82,7 +82,7 @@ def test_a_set_lost_from_the_buffer_names_the_period(monkeypatch, period_given) 
     with pytest.raises(QuadCaptureError) as e:
         capture._take_set_in_time(
             None, {}, QuadLayout(), (0, HALF_S), 60.0, lambda *a: None, (period_given, False)
-        )  # type: ignore[arg-type]
+        )
     message = str(e.value)
     assert "give a longer one (--trigger-period-ms 2000)" in message
     assert "--timeout" not in message
@@ -96,4 +96,4 @@ def test_a_late_camera_names_the_period_and_the_timeout(monkeypatch) -> None:
     ):
         capture._take_set_in_time(
             None, {}, QuadLayout(), (0, HALF_S), 45.0, lambda *a: None, (True, True)
-        )  # type: ignore[arg-type]
+        )
