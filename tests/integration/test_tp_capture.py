@@ -6,6 +6,7 @@ disparity of every tile.
 """
 
 import json
+import re
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -52,8 +53,12 @@ def test_capture_then_tp_recovers_the_scene_disparities(quad_rig, tmp_path):
     assert r.returncode == 0, r.stderr
     assert len(r.stdout.splitlines()) == 1
     result = json.loads(r.stdout)
-    # progress on stderr, a plain line per step (not a terminal: no bar, no \r)
-    steps = [line for line in r.stderr.splitlines() if line.startswith("tp capture: ")]
+    # progress on stderr, a plain line per step (not a terminal: no bar, no \r), after
+    # one line saying the trigger period chosen from a timed fetch
+    said, *steps = [line for line in r.stderr.splitlines() if line.startswith("tp capture: ")]
+    assert re.fullmatch(
+        r"tp capture: one frame took .* s to fetch: .*; trigger period \d+ ms", said
+    )
     assert [s.split()[2] for s in steps] == [f"{i}/8" for i in range(1, 9)], r.stderr
     assert sum("fetched" in s for s in steps) == 4 and "written" in steps[-1]
     assert "left)" in steps[-2] and "\r" not in r.stderr and "━" not in r.stderr

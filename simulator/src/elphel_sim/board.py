@@ -162,6 +162,23 @@ class SimCameraBoard:
             strip_period_ns=round(record.strip_period_s * 1e9) if record.strips else 0,
         )
 
+    def frame_record(self, port: int, frame: int) -> FrameRecord:
+        """What the board recorded of a frame taken and still kept, without forming its image.
+
+        Raises
+        ------
+        FrameNotAvailableError
+            The frame is not taken yet, or no longer kept (out of the ring buffer, not held).
+        """
+        fpga = self.fpga.get(port)
+        if fpga is None:
+            raise CaptureUnavailableError(f"port {port}: no sensor on this simulated port")
+        if frame > fpga.frame:
+            raise FrameNotAvailableError(
+                f"port {port}: frame {frame} is not taken yet (newest {fpga.frame})"
+            )
+        return self._wait_for(port, frame, 0.0)
+
     def pin_frames(self, port: int, count: int, *, frame: int | None = None) -> int:
         """Hold ``count`` consecutive frames (from the next one or ``frame``) until released.
 

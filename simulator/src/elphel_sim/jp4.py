@@ -254,6 +254,32 @@ def encode_jp4(
         decimation=decimation,
         binning=binning,
     )
+    head = file_head(
+        frame=frame,
+        port=port,
+        timestamp_ns=timestamp_ns,
+        exposure_us=exposure_us,
+        note=note,
+        model=model,
+    )
+    jpeg = jpeg_bytes(rearrange(codes, color_mode), quality)
+    return head + jpeg[2:]
+
+
+def file_head(
+    *,
+    frame: int,
+    port: int,
+    timestamp_ns: int,
+    exposure_us: int,
+    note: Sequence[int],
+    model: str = "NC393",
+) -> bytes:
+    """The first bytes of a frame's file: the JPEG's start marker and the APP1 Exif segment.
+
+    They depend on the frame's number, port, time, exposure, MakerNote (`maker_note`) and
+    camera model only, not on its pixels: `encode_jp4`'s file starts with them.
+    """
     app1 = exif_block(
         frame=frame,
         port=port,
@@ -262,8 +288,7 @@ def encode_jp4(
         maker_note=note,
         model=model,
     )
-    jpeg = jpeg_bytes(rearrange(codes, color_mode), quality)
-    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
+    return b"\xff\xd8\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1
 
 
 def check_encoding(

@@ -22,7 +22,7 @@ def firmware():
     assert fw.wait_frame(0, fw.frame(0) + 5)
     fw.service.capture(0)  # the first image builds the scene's texture (longer than the ring)
     yield fw
-    fw.service.close()
+    fw.close()
 
 
 @pytest.fixture
@@ -33,7 +33,8 @@ def web(firmware):
 
 @pytest.fixture
 def imgsrv(firmware):
-    clients = [TestClient(imgsrv_app(firmware, port)) for port in range(4)]
+    """The four ports' image servers; a frame's pixels follow its head at once."""
+    clients = [TestClient(imgsrv_app(firmware, port, pixels_after_s=0)) for port in range(4)]
     yield clients
     for c in clients:
         c.close()

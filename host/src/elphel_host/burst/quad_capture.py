@@ -65,6 +65,7 @@ class QuadRigEngine:
                 trigger_period_ms=self.trigger_period_ms,
                 timeout_s=self.timeout_s,
             )
+            self.trigger_period_ms = got.trigger_period_ms  # the next sets: no fetch timed
             tiffs = [(got.path / cam.file).read_bytes() for cam in got.manifest.cameras]
         return tiffs, got.manifest
 

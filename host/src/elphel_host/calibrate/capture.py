@@ -98,9 +98,17 @@ class QuadCamera:
     camera: CameraInterface
     timeout_s: float = 60.0
     cameras: int = 4
+    trigger_period_ms: float | None = None  # None: chosen at the first set (capture_quad)
 
     def take(self, pending: Path) -> tuple[list[NDArray[np.generic]], str | None]:
-        capture_quad(self.camera, pending, force=True, timeout_s=self.timeout_s)
+        got = capture_quad(
+            self.camera,
+            pending,
+            force=True,
+            timeout_s=self.timeout_s,
+            trigger_period_ms=self.trigger_period_ms,
+        )
+        self.trigger_period_ms = got.trigger_period_ms  # the next sets: no fetch timed
         return view_images(pending, quad=True)
 
     def name(self, index: int) -> str:

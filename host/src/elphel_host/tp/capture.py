@@ -22,6 +22,7 @@ Which port is which camera, and where it sits, is the :mod:`~elphel_host.tp.layo
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -44,13 +45,20 @@ from elphel_host.tp.io import QuadManifest, quad_cameras, write_quad_dir
 from elphel_host.tp.layout import QuadLayout
 from elphel_host.tp.trigger import (
     TICKS_PER_MS,
+    TRIG_PERIOD_MIN_REPEAT,
     TRIG_SNAPSHOT,
     choose_trigger,
     on_common_trigger,
 )
 
 AHEAD_FRAMES = 2  # the set is taken this many triggers after every port is synchronised
-SLOWER = 4  # a set lost from the buffer is taken again at this many times the period
+# Without a period given, the set's frames, fetched one after another at the time one
+# frame took, must be fetched within this many periods: half of a 64-frame ring buffer.
+FIT_PERIODS = 32
+DEFAULT_TIMEOUT_S = 60.0
+# Without a timeout given, the frames are waited for at least this many trigger periods.
+TIMEOUT_PERIODS = 16
+SLOWER = 4  # a period too short: the error suggests this many times as long
 
 # Metadata keys that are not frame parameters (kept per camera in quad.json anyway).
 _FRAME_KEYS = ("frame", "timestamp_ns", "port", "sensor", "bayer")
@@ -61,7 +69,11 @@ CaptureProgress = Callable[[int, int, str], None]
 
 @dataclass(frozen=True)
 class QuadCapture:
-    """What `capture_quad` wrote: the directory, the frames taken and their common time."""
+    """What `capture_quad` wrote: the directory, the frames taken and their common time.
+
+    ``trigger_period_ms`` is the common trigger's period the set was taken at (given or
+    chosen): a caller taking many sets passes it on, so that only the first is timed.
+    """
 
     path: Path
     frames: dict[int, int]
@@ -70,6 +82,7 @@ class QuadCapture:
     height: int
     bayer: str | None
     manifest: QuadManifest
+    trigger_period_ms: float
 
 
 def capture_quad(
@@ -79,9 +92,10 @@ def capture_quad(
     layout: QuadLayout | None = None,
     trigger_period_ms: float | None = None,
     force: bool = False,
-    timeout_s: float = 60.0,
+    timeout_s: float | None = None,
     progress: CaptureProgress | None = None,
     calibration: str | Path | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> QuadCapture:
     """Take one trigger-synchronised set from four sensor ports and write a quad directory.
 
@@ -95,30 +109,28 @@ def capture_quad(
     layout
         Ports and positions of cameras 0..3; default ports 0..3 on Elphel's square.
     trigger_period_ms
-        Period of the common trigger while capturing. None keeps the master's repeating
-        period if it has one, else
-        `~elphel_host.tp.trigger.DEFAULT_TRIGGER_PERIOD_MS`.
+        Period of the common trigger. None: the master's repeating period, else
+        `~elphel_host.tp.trigger.DEFAULT_TRIGGER_PERIOD_MS`, lengthened if one timed
+        fetch says the set would not be fetched in `FIT_PERIODS` (said through ``say``).
     force
         Replace an existing non-empty ``out``.
     timeout_s
-        How long to wait for the ports' frames (the settings to take effect, the set).
+        Seconds to wait for the ports' frames; None: `DEFAULT_TIMEOUT_S` or
+        `TIMEOUT_PERIODS` periods.
     progress
-        Called as ``progress(done, total, message)`` after each step: the common
-        trigger set, the ports synchronised, the set taken, each port's frame fetched
-        (most of the time: the frames are large) and the directory written.
+        Called as ``progress(done, total, message)`` after each step of the capture.
     calibration
         This quad's calibration.json or its directory: copied in and named in quad.json.
-
-    Returns
-    -------
-    QuadCapture
+    say
+        Called with one line saying the period chosen from the timed fetch.
 
     Raises
     ------
     QuadCaptureError
         Too few sensor ports, frames not of one trigger (different ``timestamp_ns``),
-        images of different sizes or Bayer patterns; `QuadCaptureTimeout` when the frames
-        stop coming; `InputFormatError` for an unreadable or mis-sized ``calibration``.
+        images of different sizes or Bayer patterns, a camera that did not keep up
+        (naming the options); `QuadCaptureTimeout` when the frames stop coming;
+        `InputFormatError` for an unreadable or mis-sized ``calibration``.
     FileExistsError
         ``out`` exists, is not empty and ``force`` is not set.
     CameraClientError
@@ -130,19 +142,19 @@ def capture_quad(
     info = camera.info()
     sensors = _quad_sensors(camera, info, layout)
     before = _settings_before(camera, info, layout)
-    master, period = choose_trigger(before, layout.ports, trigger_period_ms)
-    total = 4 + len(layout.ports)
-    step = progress or (lambda _done, _total, _message: None)
-    captured, period = _take_set_patiently(
-        camera, before, layout, (master, period), timeout_s, step, fixed=trigger_period_ms
+    master, period, wait_s = _trigger_and_wait(
+        camera, before, layout.ports, (trigger_period_ms, timeout_s), say
     )
+    step = progress or (lambda _done, _total, _message: None)
+    given = (trigger_period_ms is not None, timeout_s is not None)
+    captured = _take_set_in_time(camera, before, layout, (master, period), wait_s, step, given)
     timestamp_ns, (height, width), bayer = _check_set(captured, layout.ports)
     bits = max(int(sensors[p].get("bits", 16)) for p in layout.ports)
     manifest = _manifest(
         camera, info, layout, captured, master=master, period=period, bits=bits, bayer=bayer
     )
     manifest = _write_set(target, manifest, captured, layout, calibration, (width, height), force)
-    step(total, total, f"written {target}")
+    step(4 + len(layout.ports), 4 + len(layout.ports), f"written {target}")
     return QuadCapture(
         path=target,
         frames={p: captured[p].frame for p in layout.ports},
@@ -151,6 +163,7 @@ def capture_quad(
         height=height,
         bayer=bayer,
         manifest=manifest,
+        trigger_period_ms=period / TICKS_PER_MS,
     )
 
 
@@ -198,41 +211,95 @@ def _settings_before(
     return before
 
 
-def _take_set_patiently(
+def _trigger_and_wait(
+    camera: CameraInterface,
+    before: dict[int, dict[str, Any]],
+    ports: tuple[int, ...],
+    given: tuple[float | None, float | None],
+    say: Callable[[str], None] | None,
+) -> tuple[int, int, float]:
+    """The master port, ``TRIG_PERIOD`` and seconds to wait for frames (`capture_quad`).
+
+    ``given`` is the user's (period in ms, timeout in s), each None if not given.
+    """
+    period_ms, timeout_s = given
+    master, period = choose_trigger(before, ports, period_ms)
+    if period_ms is None:
+        trig, repeat = before[ports[0]]["TRIG"], before[master]["TRIG_PERIOD"]
+        # the next frame, unless the port waits for a trigger that does not repeat
+        stopped = bool(trig & TRIG_SNAPSHOT) and repeat < TRIG_PERIOD_MIN_REPEAT
+        period = _period_for_fetches(
+            camera, ports, period, say or (lambda _line: None), newest=stopped
+        )
+    if timeout_s is None:
+        timeout_s = max(DEFAULT_TIMEOUT_S, TIMEOUT_PERIODS * period / (1000 * TICKS_PER_MS))
+    return master, period, timeout_s
+
+
+def fetch_period(fetch_s: float, frames: int) -> int:
+    """``TRIG_PERIOD`` (10 ns) at which ``frames`` fetches of ``fetch_s`` s take `FIT_PERIODS`.
+
+    The fetches go one after another; the period is rounded up to whole milliseconds.
+    """
+    period_ms = math.ceil(frames * fetch_s * 1000 / FIT_PERIODS)
+    return period_ms * TICKS_PER_MS
+
+
+def _period_for_fetches(
+    camera: CameraInterface,
+    ports: tuple[int, ...],
+    period: int,
+    say: Callable[[str], None],
+    *,
+    newest: bool,
+) -> int:
+    """``period``, or longer if the set's frames would not be fetched in `FIT_PERIODS`.
+
+    One frame of the first port is fetched and timed: the next one, or with ``newest``
+    (frames do not come) the newest in its buffer. The choice is said in one line.
+    """
+    frame = camera.frame(ports[0])["frame"] if newest else None
+    started = time.monotonic()
+    camera.capture(ports[0], frame=frame)
+    fetch_s = time.monotonic() - started
+    needed = fetch_period(fetch_s, len(ports))
+    chosen = max(period, needed)
+    why = "longer than" if needed > period else "within"
+    say(
+        f"one frame took {fetch_s:.1f} s to fetch: {len(ports)} take {why} {FIT_PERIODS} "
+        f"periods of {period / TICKS_PER_MS:g} ms; trigger period {chosen / TICKS_PER_MS:g} ms"
+    )
+    return chosen
+
+
+def _take_set_in_time(
     camera: CameraInterface,
     before: dict[int, dict[str, Any]],
     layout: QuadLayout,
     trigger: tuple[int, int],
     timeout_s: float,
     step: CaptureProgress,
-    *,
-    fixed: float | None,
-) -> tuple[dict[int, CapturedFrame], int]:
-    """`_take_set`; the set and the period used.
+    given: tuple[bool, bool],
+) -> dict[int, CapturedFrame]:
+    """`_take_set`, its frames lost from the buffer or late (a busy host) said as such.
 
-    When the frames were overwritten in the camera's buffer before they were all
-    fetched, or the camera did not answer in time (a busy host, a slow link), and the
-    period was not given (``fixed``), the set is taken once more at `SLOWER` times the
-    period, with `SLOWER` times the timeout (as many periods); otherwise the error names
-    the option.
+    ``given`` says whether the user gave the trigger period and the timeout: the error
+    names the option to change, with a value for the period.
     """
     master, period = trigger
-    for last in (fixed is not None, True):
-        started = time.monotonic()
-        try:
-            taken = _take_set(camera, before, layout, (master, period), started + timeout_s, step)
-        except (FrameGoneError, DeviceTimeout) as e:
-            if last:
-                raise QuadCaptureError(
-                    f"{e}: fetching the set took {time.monotonic() - started:.1f} s at a "
-                    f"{period / TICKS_PER_MS:g} ms trigger period; give a longer one "
-                    f"(--trigger-period-ms {SLOWER * period / TICKS_PER_MS:g})"
-                ) from e
-            period *= SLOWER
-            timeout_s *= SLOWER
-            continue
-        return taken, period
-    raise QuadCaptureError("no attempt left")  # not reached: the last attempt returns or raises
+    started = time.monotonic()
+    try:
+        return _take_set(camera, before, layout, (master, period), started + timeout_s, step)
+    except (FrameGoneError, DeviceTimeout) as e:
+        period_given, timeout_given = given
+        chosen = "given" if period_given else "chosen from one frame's fetch"
+        hint = f"give a longer one (--trigger-period-ms {SLOWER * period / TICKS_PER_MS:g})"
+        if isinstance(e, DeviceTimeout):
+            hint += f" or a longer --timeout{f' than {timeout_s:g} s' if timeout_given else ''}"
+        raise QuadCaptureError(
+            f"{e}: fetching the set took {time.monotonic() - started:.1f} s at the {chosen} "
+            f"{period / TICKS_PER_MS:g} ms trigger period; the camera did not keep up: {hint}"
+        ) from e
 
 
 def _take_set(

@@ -19,10 +19,11 @@ from elphel_host.cli_common import add_camera_options, emit
 from elphel_host.depth.cli import add_disagreement_option, max_disagreement
 from elphel_host.depth.geometry import DepthOptics
 from elphel_host.depth.products import DEFAULT_MIN_STRENGTH, dsi_depth, write_depth_products
+from elphel_host.limits import HostLimits
 from elphel_host.preview import NO_VALUE_RGB, Swatch, save_map_picture
 from elphel_host.progress import ProgressLine
 from elphel_host.tp.calibrated import CalibratedGeometry
-from elphel_host.tp.capture import capture_quad
+from elphel_host.tp.capture import DEFAULT_TIMEOUT_S, TIMEOUT_PERIODS, capture_quad
 from elphel_host.tp.config import TpConfig
 from elphel_host.tp.dsi import write_ml_data
 from elphel_host.tp.io import QuadSet, read_quad_dir
@@ -93,7 +94,8 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="MS",
         help="common trigger period while capturing (default: the camera's repeating period, "
-        f"else {DEFAULT_TRIGGER_PERIOD_MS:g} ms)",
+        f"else {DEFAULT_TRIGGER_PERIOD_MS:g} ms, longer if one frame's fetch, timed first, "
+        "says the four frames would not be fetched in time)",
     )
     cap.add_argument(
         "--force", action="store_true", help="replace an existing non-empty quad directory"
@@ -101,9 +103,9 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
     cap.add_argument(
         "--timeout",
         type=float,
-        default=60.0,
         metavar="S",
-        help="seconds to wait for the frames (default 60)",
+        help=f"seconds to wait for the frames (default {DEFAULT_TIMEOUT_S:g}, "
+        f"or {TIMEOUT_PERIODS} trigger periods if longer)",
     )
 
 
@@ -266,9 +268,13 @@ def run_capture(args: argparse.Namespace) -> int:
         line.update(f"tp capture: {done}/{total} {message}", done=done, total=total)
 
     t0 = time.perf_counter()
-    # A simulated board forms each full frame when it is fetched: allow it time.
+    # A frame may take long to come (a simulated board forms each full frame when it is
+    # fetched, a busy host): without --timeout, as long as the request deadline allows.
+    wait_s = args.timeout
+    if wait_s is None:
+        wait_s = max(DEFAULT_TIMEOUT_S, HostLimits.from_env().deadline_s)
     try:
-        with connect(args.camera, args.token, timeout_s=max(args.timeout, 30.0)) as camera:
+        with connect(args.camera, args.token, timeout_s=max(wait_s, 30.0)) as camera:
             got = capture_quad(
                 camera,
                 args.out,
@@ -278,6 +284,7 @@ def run_capture(args: argparse.Namespace) -> int:
                 timeout_s=args.timeout,
                 progress=progress,
                 calibration=args.calibration,
+                say=line.say("tp capture: "),
             )
     finally:
         line.end()

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from elphel_sim.jp4 import JP4, JP46, encode_jp4, maker_note
+from elphel_sim.jp4 import JP4, JP46, encode_jp4, file_head, maker_note
 
 RAW = 15
 GAMMA_NAMES = ("GTAB_R", "GTAB_G", "GTAB_GB", "GTAB_B")  # MakerNote channels 0..3
@@ -127,25 +127,12 @@ def encode_frame(
         The sensor's sample depth.
     """
     color = compressor["COLOR"]
-    gains = [int(metadata.get(k, 0x10000)) for k in ("GAINR", "GAING", "GAINGB", "GAINB")]
     gammas = [gamma_fields(compressor[k]) for k in GAMMA_NAMES]
-    flips = (int(metadata.get("FLIPH", 0)), int(metadata.get("FLIPV", 0)))
-    left, top = int(metadata.get("WOI_LEFT", 0)), int(metadata.get("WOI_TOP", 0))
     if color == RAW:
-        h, w = image.shape
-        note = maker_note(
-            gains=gains,
-            gamma=[g[0] for g in gammas],
-            black=[g[1] for g in gammas],
-            gamma_scale=[g[2] for g in gammas],
-            woi=(left, top, w, h),
-            flips=flips,
-            bayer_mode=0,
-            color_mode=RAW,
-            quality=compressor["QUALITY"],
-        )
+        note = _note(metadata, compressor, image.shape)
         return EncodedFrame(raw_tiff(image, metadata, note), "image/tiff", "tiff")
     part = _macroblocks(image, color)
+    left, top = int(metadata.get("WOI_LEFT", 0)), int(metadata.get("WOI_TOP", 0))
     data = encode_jp4(
         part,
         bits=bits,
@@ -158,12 +145,66 @@ def encode_frame(
         gamma=[g[0] for g in gammas],
         black=[g[1] for g in gammas],
         gamma_scale=[g[2] for g in gammas],
-        gains=gains,
-        flips=flips,
+        gains=_gains(metadata),
+        flips=_flips(metadata),
         woi=(left, top, part.shape[1], part.shape[0]),
     )
     extension = "jp4" if color == JP4 else "jp46"
     return EncodedFrame(data, f"image/{extension}", extension)
+
+
+def frame_head(
+    metadata: Mapping[str, Any], compressor: Mapping[str, int], *, shape: tuple[int, int]
+) -> EncodedFrame | None:
+    """The first bytes of `encode_frame`'s JP4 or JP46 file, from the metadata alone.
+
+    The start marker and the APP1 Exif segment (frame number, port, time, exposure,
+    MakerNote) do not depend on the pixels, so a client reading only them (a frame's
+    number and time) needs no image formed. ``shape`` is the read-out frame's (H, W).
+    None for a raw frame (COLOR 15): a TIFF's tags are not all before its pixels.
+    """
+    color = compressor["COLOR"]
+    if color == RAW:
+        return None
+    h, w = shape
+    unit = 32 if color == JP4 else 16
+    note = _note(metadata, compressor, (h - h % 16, w - w % unit))
+    data = file_head(
+        frame=int(metadata["frame"]),
+        port=int(metadata["port"]),
+        timestamp_ns=int(metadata["timestamp_ns"]),
+        exposure_us=int(metadata.get("EXPOS", 0)),
+        note=note,
+    )
+    extension = "jp4" if color == JP4 else "jp46"
+    return EncodedFrame(data, f"image/{extension}", extension)
+
+
+def _gains(metadata: Mapping[str, Any]) -> list[int]:
+    return [int(metadata.get(k, 0x10000)) for k in ("GAINR", "GAING", "GAINGB", "GAINB")]
+
+
+def _flips(metadata: Mapping[str, Any]) -> tuple[int, int]:
+    return int(metadata.get("FLIPH", 0)), int(metadata.get("FLIPV", 0))
+
+
+def _note(
+    metadata: Mapping[str, Any], compressor: Mapping[str, int], shape: tuple[int, ...]
+) -> list[int]:
+    """The MakerNote of a frame encoded at ``shape`` (H, W) with these settings."""
+    gammas = [gamma_fields(compressor[k]) for k in GAMMA_NAMES]
+    left, top = int(metadata.get("WOI_LEFT", 0)), int(metadata.get("WOI_TOP", 0))
+    return maker_note(
+        gains=_gains(metadata),
+        gamma=[g[0] for g in gammas],
+        black=[g[1] for g in gammas],
+        gamma_scale=[g[2] for g in gammas],
+        woi=(left, top, int(shape[1]), int(shape[0])),
+        flips=_flips(metadata),
+        bayer_mode=0,
+        color_mode=compressor["COLOR"],
+        quality=compressor["QUALITY"],
+    )
 
 
 def ifd_bytes(entries: list[tuple[int, int, int, bytes]], start: int) -> bytes:

@@ -63,6 +63,7 @@ class StockFirmware:
         self._newest = {port: 0 for port in self.compressors}
         self.read_pointers: dict[int, int] = {}  # imgsrv "save", shared by its clients
         self._encoded: dict[tuple[int, int], tuple[EncodedFrame, dict[str, Any]]] = {}
+        self._encoding: dict[tuple[int, int], threading.Lock] = {}  # one encoder per frame
         self._encoded_lock = threading.Lock()
         board.on_frame_sync(self._frame_sync)
 
@@ -106,23 +107,86 @@ class StockFirmware:
     def encoded(self, port: int, frame: int) -> tuple[EncodedFrame, dict[str, Any]]:
         """Frame ``frame`` of a port as imgsrv serves it, and the daemon's metadata of it.
 
-        A frame taken does not change, so its encoding is kept for the next request of it
-        (the newest `ENCODED_KEPT` frames of each port).
+        A frame taken does not change: it is formed and encoded once, however many
+        requests ask for it at once, and kept for the next request of it (the newest
+        `ENCODED_KEPT` frames of each port, none once the board is closed).
         """
+        key = (port, frame)
+        with self._encoded_lock:
+            kept = self._encoded.get(key)
+            if kept is not None:
+                return kept
+            lock = self._encoding.setdefault(key, threading.Lock())
+        try:
+            with lock:
+                return self._encode_once(port, frame)
+        finally:
+            with self._encoded_lock:
+                self._encoding.pop(key, None)
+
+    def _encode_once(self, port: int, frame: int) -> tuple[EncodedFrame, dict[str, Any]]:
         with self._encoded_lock:
             kept = self._encoded.get((port, frame))
         if kept is not None:
-            return kept
+            return kept  # encoded by the request this one waited for
         got, metadata = self.service.capture(port, frame=frame)
         state = self.compressors[port].state_at(got.frame)
         bits = self.service.sensor(port).bits
         result = encode_frame(got.image, metadata, state, bits=bits), metadata
         with self._encoded_lock:
+            if self.board.closed:
+                self._encoded.clear()
+                return result
             self._encoded[(port, got.frame)] = result
             mine = sorted(f for p, f in self._encoded if p == port)
             for old in mine[:-ENCODED_KEPT]:
                 del self._encoded[(port, old)]
         return result
+
+    def kept(self, port: int, frame: int) -> tuple[EncodedFrame, dict[str, Any]] | None:
+        """The frame as `encoded` gave it before, if it is still kept; None otherwise."""
+        with self._encoded_lock:
+            return self._encoded.get((port, frame))
+
+    def head(self, port: int, frame: int) -> tuple[EncodedFrame, dict[str, Any]] | None:
+        """The first bytes of the frame's JP4/JP46 file and its metadata, with no image formed.
+
+        The start marker and the Exif segment (`compressor.frame_head`), from the frame's
+        record (its time) and the parameters in effect for it; `encoded`'s file starts
+        with them. None for a raw frame (COLOR 15), sent whole.
+
+        Raises
+        ------
+        FrameNotAvailableError
+            The frame is not taken yet or no longer kept.
+        """
+        record = self.board.frame_record(port, frame)
+        params = self.service.params(port, frame=frame)
+        state = self.compressors[port].state_at(frame)
+        metadata = {"frame": frame, "timestamp_ns": record.timestamp_ns, "port": port, **params}
+        shape = (params["WOI_HEIGHT"], params["WOI_WIDTH"])
+        head = compressor.frame_head(metadata, state, shape=shape)
+        return None if head is None else (head, metadata)
+
+    def hold(self, port: int, frame: int) -> None:
+        """Keep a frame of the ring available until `release`, even once it leaves the ring.
+
+        Raises
+        ------
+        FrameNotAvailableError
+            The frame is no longer in the ring buffer.
+        """
+        self.board.pin_frames(port, 1, frame=frame)
+
+    def release(self, port: int, frame: int) -> None:
+        """Let go of a frame `hold` kept (held by others, it stays)."""
+        self.board.release_frames(port, [frame])
+
+    def close(self) -> None:
+        """Let go of the encoded frames and close the service (and with it the board)."""
+        with self._encoded_lock:
+            self._encoded.clear()
+        self.service.close()
 
     def trigger(self, port: int) -> bool:
         """One internal trigger (imgsrv's ``trig``); False if the port is not in snapshot mode.

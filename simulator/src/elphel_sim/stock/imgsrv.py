@@ -28,11 +28,15 @@ pointers; they are ignored like unknown commands.
 from __future__ import annotations
 
 import io
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
 
 from PIL import Image
 
 from elphel_camd.errors import FrameNotAvailableError
+from elphel_sim.stock.compressor import EncodedFrame
 from elphel_sim.stock.firmware import StockFirmware
 
 HEADERS = {
@@ -64,12 +68,19 @@ GIF_1X1 = _gif_1x1()
 
 @dataclass(frozen=True)
 class Reply:
-    """An HTTP answer: status, headers (besides Content-Length) and body."""
+    """An HTTP answer: status, headers (besides Content-Length) and body.
+
+    With ``rest``, ``body`` is only the answer's first bytes (a frame's Exif head) and
+    ``rest()`` gives the others (forming the frame's image: seconds for a full frame);
+    ``release()`` lets go of the frame once the answer is done, sent or not.
+    """
 
     body: bytes
     content_type: str
     headers: dict[str, str] = field(default_factory=dict)
     status: int = 200
+    rest: Callable[[], bytes] | None = None
+    release: Callable[[], None] | None = None
 
 
 def gif() -> Reply:
@@ -136,17 +147,59 @@ class Imgsrv:
         return gif()
 
     def _image(self, frame: int, save: bool, timestamp_name: bool, base_chn: int) -> Reply:
+        """The frame's file: whole if encoded before, else its Exif head and the rest to come.
+
+        As the camera copies a frame before sending it, the frame is held from its head
+        on (`StockFirmware.hold`), so the rest comes even if it leaves the ring meanwhile.
+        """
         fw, port = self.firmware, self.port
+        name = partial(self._headers, save=save, timestamp_name=timestamp_name, base_chn=base_chn)
         if not fw.has_sensor(port) or not fw.oldest(port) <= frame <= fw.frame(port):
             return gif()  # not taken yet, or no longer in the buffer
         try:
-            encoded, metadata = fw.encoded(port, frame)
+            kept = fw.kept(port, frame)
+            if kept is not None:
+                return Reply(kept[0].data, kept[0].content_type, name(*kept))
+            fw.hold(port, frame)
         except FrameNotAvailableError:
             return gif()
+        held = True
+        try:
+            head = fw.head(port, frame)
+            if head is None:  # a raw frame: sent whole
+                encoded, metadata = fw.encoded(port, frame)
+                return Reply(encoded.data, encoded.content_type, name(encoded, metadata))
+            held = False  # the reply lets go of it
+            data = head[0].data
+            rest, release = partial(self._rest, frame, data), partial(fw.release, port, frame)
+            return Reply(data, head[0].content_type, name(*head), rest=rest, release=release)
+        finally:
+            if held:
+                fw.release(port, frame)
+
+    def _headers(
+        self,
+        encoded: EncodedFrame,
+        metadata: Mapping[str, Any],
+        *,
+        save: bool,
+        timestamp_name: bool,
+        base_chn: int,
+    ) -> dict[str, str]:
+        """A frame's headers: its file name from its time, port and format."""
         ns = int(metadata["timestamp_ns"])
         sec, usec = ns // 1_000_000_000, (ns // 1000) % 1_000_000
         prefix = "" if timestamp_name else "elphelimg_"
-        name = f"{prefix}{sec}_{usec:06d}_{port + base_chn}.{encoded.extension}"
+        name = f"{prefix}{sec}_{usec:06d}_{self.port + base_chn}.{encoded.extension}"
         disposition = f'{"attachment" if save else "inline"}; filename="{name}"'
-        headers = {**HEADERS, **IMAGE_HEADERS, "Content-Disposition": disposition}
-        return Reply(encoded.data, encoded.content_type, headers)
+        return {**HEADERS, **IMAGE_HEADERS, "Content-Disposition": disposition}
+
+    def _rest(self, frame: int, head: bytes) -> bytes:
+        """What follows ``head`` in the (held) frame's file: the frame is formed and encoded."""
+        encoded, _ = self.firmware.encoded(self.port, frame)
+        if not encoded.data.startswith(head):
+            raise RuntimeError(
+                f"port {self.port} frame {frame}: the encoded file does not start with the "
+                f"{len(head)}-byte Exif head sent before it"
+            )
+        return encoded.data[len(head) :]

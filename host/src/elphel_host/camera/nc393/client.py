@@ -41,7 +41,9 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
     address
         An `NC393Address` or an ``nc393://HOST[:HTTP_PORT][?imgsrv=BASE]`` URL.
     timeout_s
-        Per-request timeout, and how long a change may take to come into effect.
+        Per-request timeout, and how long a change may take to come into effect. A frame
+        from imgsrv may be longer in coming (``wait`` for the next one, a busy camera):
+        its reads wait up to the request deadline (``limits.deadline_s``) if longer.
     transport
         httpx transport to use instead of the network (tests); shared by all services.
     limits
@@ -69,10 +71,9 @@ class NC393Client(StockFrames, NoEventsNoRegisters, Staging, Closing):
         self._web = httpx.Client(
             base_url=self.address.parsedit_url, timeout=timeout_s, transport=transport
         )
+        frames = httpx.Timeout(timeout_s, read=max(timeout_s, self.limits.deadline_s))
         self._imgsrv = [
-            httpx.Client(
-                base_url=self.address.imgsrv_url(p), timeout=timeout_s, transport=transport
-            )
+            httpx.Client(base_url=self.address.imgsrv_url(p), timeout=frames, transport=transport)
             for p in range(PORTS)
         ]
         self._models: dict[int, StockModel] = {}
