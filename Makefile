@@ -23,17 +23,16 @@ lint: $(STAMP)
 # pytest exits 5 when it collected no tests; make treats that as a failure, as it should.
 # Four pytest-xdist workers on two cores: most of the suite's wall time is tests waiting on
 # real time (daemons starting, frame clocks, stage moves), and four workers halve it.
-# loadgroup keeps the tests of one xdist_group on one worker (the kernel tier boots once).
 # --max-worker-restart=0: a worker that dies (killed for memory, a crash) fails the run at
-# once. pytest-xdist 3.8's loadgroup scheduler hangs for ever after replacing a dead worker
-# (pytest-dev/pytest-xdist#1323, #1378): it hands the new worker work that never ends.
+# once (pytest-xdist 3.8 can hang for ever after replacing a dead worker,
+# pytest-dev/pytest-xdist#1323, #1378).
 # Two runs: the daemon's tests first, then the rest in fresh workers, so that the rest's
 # rigs (child processes) never run beside the schemathesis runs' peaks (up to 3 GB a
 # worker). tests/conftest.py fails a test that leaves a simulated board open or a thread
 # it started running: a leak is a failed test, not a machine out of memory.
 test: $(STAMP) lint
-	$(BIN)/pytest -n 4 --dist loadgroup --max-worker-restart=0 tests/camd
-	$(BIN)/pytest -n 4 --dist loadgroup --max-worker-restart=0 --ignore=tests/camd
+	$(BIN)/pytest -n 4 --max-worker-restart=0 tests/camd
+	$(BIN)/pytest -n 4 --max-worker-restart=0 --ignore=tests/camd
 
 bench: $(STAMP)
 	@for b in bench/[!_]*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done

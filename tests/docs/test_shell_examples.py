@@ -90,12 +90,15 @@ def test_quickstart_set_capture_follow(elphel_rig, tmp_path: Path) -> None:
     from elphel_host.camera.client import CameraClient
 
     def recent_frame(line: str) -> str:
-        # The ring-buffer example names frame 1234; ask for one the rig still has.
+        # The ring-buffer example names frame 1234; ask for one the rig will still have
+        # when the CLI has started: the ring holds the last 64 frames (about 6 s here),
+        # and a capture waits for a frame up to 14 ahead, so a frame 12 ahead stays there
+        # for some 8 s after this, however long a busy machine takes to start the CLI.
         if "--frame 1234" not in line:
             return line
         with CameraClient(elphel_rig.camera_url, elphel_rig.token) as cam:
             recent = cam.frame()["frame"]
-        return line.replace("--frame 1234", f"--frame {recent - 1}")
+        return line.replace("--frame 1234", f"--frame {recent + 12}")
 
     run_lines(lines, elphel_rig, tmp_path, prepare=recent_frame)
     assert (tmp_path / "again.tif").exists()

@@ -119,7 +119,7 @@ def test_absolute_frame_is_k_frames_from_now_and_a_missed_one_is_an_error():
     ("changes", "match"),
     [
         ({"WOI_WIDTH": 3000}, r"WOI_WIDTH=3000 is out of range; allowed: 2\.\.2592 \(even\)"),
-        ({"NOPE": 1}, "NOPE=1 is out of range; allowed: one of BITS, COLOR"),
+        ({"NOPE": 1}, "NOPE=1 is out of range; allowed: one of BIN_HOR, BIN_VERT, BITS, COLOR"),
         ({"FRAME": 5}, "FRAME=5 .*read-only"),
         ({"EXPOS": "5000"}, "an integer"),
         ({"COLOR": 3}, r"COLOR=3 .*allowed: 0 \(mono JPEG\), 2 \(JP46\), 5 \(JP4\) or 15"),
