@@ -180,9 +180,14 @@ def test_controls_carry_exposure_gain_and_flips_and_the_bayer_order_follows(
 def test_frames_record_the_values_read_back_from_the_driver(board: V4L2Board, nodes: Nodes) -> None:
     sensor = board.sensors()[0]
     nodes.made["/dev/video0"].set_controls({CID_ANALOGUE_GAIN: 128})  # 2.0, set behind our back
-    got = board.capture(0)
-    time.sleep(0.05)
-    read = sensor.actual_gains({"FRAME": got.frame + 1})
+    seen = board.capture(0).frame  # the change is read back when this frame arrives
+    board.capture(0, frame=seen + 2)  # so it has been read back by now
+    # and counts from the frames taken after that: take one begun after now
+    now_ns = time.monotonic_ns()
+    later = board.capture(0)
+    while later.timestamp_ns <= now_ns:
+        later = board.capture(0)
+    read = sensor.actual_gains({"FRAME": later.frame})
     assert read["GAING"] == 2 * 0x10000 and read["FLIPH"] == 0
 
 

@@ -80,7 +80,7 @@ def test_a_capture_is_the_nodes_frame_with_its_number_time_and_bayer(cam) -> Non
     assert [p["frame"] for p in pages] == [first, first + 1, first + 2]
 
 
-def test_preview_histogram_info_and_health_serve_the_port(cam) -> None:
+def test_preview_histogram_info_and_health_serve_the_port(cam, nodes: Nodes) -> None:
     c, _ = cam
     _capture(c)
     assert c.get("/api/v1/ports/0/preview").headers["content-type"] == "image/jpeg"
@@ -91,8 +91,12 @@ def test_preview_histogram_info_and_health_serve_the_port(cam) -> None:
     port = info["ports"][0]
     assert info["board"] == "v4l2" and port["sensor"]["format"] == "pRAA"
     assert port["stream"]["state"] == "streaming"
+    # Frames are lost only when the daemon's reader falls behind the node's 8 buffers (a
+    # busy machine): health counts no frame the node did not lose (the gap of a loss shows
+    # once the frames queued before it are read; injected drops: test_drops_are_events_...).
     health = c.get("/api/v1/health").json()
-    assert health["status"] == "ok" and health["ports"][0]["stream"]["dropped"] == 0
+    assert health["status"] == "ok"
+    assert 0 <= health["ports"][0]["stream"]["dropped"] <= nodes.made["/dev/video0"].lost
 
 
 def test_the_schema_offers_only_what_the_controls_carry(cam) -> None:

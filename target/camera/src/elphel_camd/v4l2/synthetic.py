@@ -150,6 +150,7 @@ class SyntheticSource:
         self.sim_silent = False
         self.sim_busy = False
         self._drop_next = 0
+        self.lost = 0  # frames lost for want of a free buffer (the reader fell behind)
         self._fail_next = False
 
     def _deliver(self, fmt: RawFormat, image: NDArray[np.uint16]) -> None:
@@ -212,7 +213,9 @@ class SyntheticSource:
             if free:
                 self._busy_buffers.add(free[0])
                 self._filled.append(Buffer(free[0], self.data, self._sequence, timestamp_ns))
-            self._sequence += 1  # without a free buffer the frame is lost: a gap
+            else:  # without a free buffer the frame is lost: a gap
+                self.lost += 1
+            self._sequence += 1
 
     def _note_applied(self, sequence: int, due_s: float) -> None:
         """Keep the control values frame ``sequence``, due at ``due_s``, was taken with."""
