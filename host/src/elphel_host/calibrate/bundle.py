@@ -88,17 +88,7 @@ class Problem:
         )
 
     def with_grid(self, cells: tuple[int, int] | None) -> Problem:
-        return Problem(
-            self.pattern,
-            self.sizes,
-            self.views,
-            self.camera,
-            self.view,
-            self.corner,
-            self.pixels,
-            self.sigma_px,
-            cells,
-        )
+        return replace(self, grid_cells=cells)
 
 
 @dataclass(frozen=True)
@@ -132,7 +122,7 @@ def pack(guess: InitialGuess) -> FloatArray:
     return np.concatenate(parts)
 
 
-def with_grid(x: FloatArray, problem: Problem, cells: tuple[int, int]) -> FloatArray:
+def add_zero_grids(x: FloatArray, problem: Problem, cells: tuple[int, int]) -> FloatArray:
     """``x`` of a solve without grids extended by zero grids of ``cells`` per camera."""
     if problem.grid_cells is not None:
         raise ValueError("the solve already has residual grids")

@@ -171,7 +171,7 @@ def _fit_residual_grids(
     cells = DEFAULT_CELLS if option == "auto" else option
     assert isinstance(cells, tuple)
     xg, jac_g, grid_problem, outliers = _solve_with_outliers(
-        obs, full.with_grid(cells), bundle.with_grid(x, full, cells)
+        obs, full.with_grid(cells), bundle.add_zero_grids(x, full, cells)
     )
     before = bundle.residuals(x, full.keep(_rows_kept(full, grid_problem)))
     after = bundle.residuals(xg, grid_problem)
