@@ -8,7 +8,14 @@ import pytest
 from elphel_host.mfsr.bayer import bayer_sites, colour_planes, frame_shifts, site_shifts
 from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.mfsr.psf import NO_OPTICS, Optics
-from elphel_host.mfsr.solve import Geometry, Plane, SolveOptions, solve, solve_planes
+from elphel_host.mfsr.solve import (
+    Geometry,
+    Plane,
+    SolveOptions,
+    measure_passes,
+    solve,
+    solve_planes,
+)
 from elphel_host.mfsr.synth import make_bayer_burst, random_shifts
 
 
@@ -68,3 +75,17 @@ def test_colour_planes_solved_together_match_each_solved_alone(hr, optics):
         assert np.array_equal(img, alone), np.abs(img - alone).max()
         assert info["noise_sigma"] == alone_info["noise_sigma"]
         assert info["shifts_refined"] == alone_info["shifts_refined"]
+
+
+def test_measured_passes_are_the_solves_details(burst2):
+    # the shifts and noise the passes measure do not need the solve after the last pass
+    frames, shifts = burst2
+    crop = [np.ascontiguousarray(f[:80, :96]) for f in frames]
+    start = [tuple(s + 0.04) for s in shifts]
+    options = SolveOptions(passes=2, refine=True, adapt_noise=True)
+    args = (crop, start, Geometry(2), Optics(0.5, None, 0.3))
+    _, info = solve(*args, tau=0.05, noise_sigma=0.02, options=options)
+    measured = measure_passes(*args, tau=0.05, noise_sigma=0.02, options=options)
+    assert measured == info
+    assert measured["shifts_refined"] != [list(s) for s in start]  # the passes moved them
+    assert measured["noise_sigma"] != 0.02

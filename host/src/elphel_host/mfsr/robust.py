@@ -32,7 +32,14 @@ from elphel_host.mfsr.psf import NO_OPTICS, Optics, cross_validated_tau, estimat
 from elphel_host.mfsr.psf_spec import EstimateBlur, GivenGrid, GivenKernel, NoBlur, PsfSpec
 from elphel_host.mfsr.robust_config import DEFAULT_CONFIG, RobustConfig
 from elphel_host.mfsr.scale import check_scale
-from elphel_host.mfsr.solve import Geometry, Plane, SolveOptions, fit_noise, solve, solve_planes
+from elphel_host.mfsr.solve import (
+    Geometry,
+    Plane,
+    SolveOptions,
+    fit_noise,
+    measure_passes,
+    solve_planes,
+)
 
 F32 = NDArray[np.float32]
 Shifts = Sequence[tuple[float, float]]
@@ -171,7 +178,7 @@ def _refined_on_window(
     # window's own image, and is the noise the blur search scores its candidates with
     adapt = config.noise_sigma is None
     options = SolveOptions(config.passes, config.huber, config.pad, True, adapt_noise=adapt)
-    _, info = solve(
+    info = measure_passes(
         crop, shifts, geometry, psf.optics, tau=psf.tau, noise_sigma=sigma, options=options
     )
     return [(a, b) for a, b in info["shifts_refined"]], float(info["noise_sigma"])

@@ -218,6 +218,26 @@ class _PlaneSolve:
         )
 
 
+def _solved(
+    planes: Sequence[Plane], geometry: Geometry, tau: float, options: SolveOptions, *, final: bool
+) -> tuple[list[_PlaneSolve], C64 | None]:
+    """The planes' first solve and robust passes, and (``final``) the solve after the last pass.
+
+    Without ``final`` the shifts and noise the passes measured are in the states, and no
+    solution is returned (the one after the last pass is not needed for them).
+    """
+    states = [_PlaneSolve(p, geometry, tau, options) for p in planes]
+    X = solve_joint([st.solver for st in states])
+    for n in range(options.passes):
+        for st, x in zip(states, X, strict=True):
+            st.robust_pass(x)
+        del X, x
+        if n + 1 == options.passes and not final:
+            return states, None
+        X = solve_joint([st.solver for st in states])
+    return states, X
+
+
 def solve_planes(
     planes: Sequence[Plane], geometry: Geometry, *, tau: float, options: SolveOptions
 ) -> list[tuple[F32, dict[str, Any]]]:
@@ -245,13 +265,8 @@ def solve_planes(
         Per plane: the HR image (float32) and ``noise_sigma`` (the one that set the prior's
         weight), ``lambda`` and ``shifts_refined``.
     """
-    states = [_PlaneSolve(p, geometry, tau, options) for p in planes]
-    X = solve_joint([st.solver for st in states])
-    for _ in range(options.passes):
-        for st, x in zip(states, X, strict=True):
-            st.robust_pass(x)
-        del X, x
-        X = solve_joint([st.solver for st in states])
+    states, X = _solved(planes, geometry, tau, options, final=True)
+    assert X is not None  # final: solved after the last pass
     return [st.result(x, geometry) for st, x in zip(states, X, strict=True)]
 
 
@@ -274,6 +289,50 @@ def solve(
     return solve_planes([plane], geometry, tau=tau, options=options)[0]
 
 
+def measure_passes(
+    frames: Sequence[F32],
+    shifts: Shifts,
+    geometry: Geometry,
+    optics: Optics,
+    *,
+    tau: float,
+    noise_sigma: float,
+    options: SolveOptions,
+) -> dict[str, Any]:
+    """What :func:`solve`'s robust passes measure, without the image: its ``info``.
+
+    The same ``noise_sigma``, ``lambda`` and ``shifts_refined`` as :func:`solve` gives with
+    these arguments; the solve after the last pass and the HR image are left out.
+    """
+    plane = Plane(frames, shifts, optics, noise_sigma)
+    [st], _ = _solved([plane], geometry, tau, options, final=False)
+    return _details(st.solver, st.t0_start, st.n_int, geometry, st.noise)
+
+
+def _details(
+    solver: FourierSolver,
+    t0_start: NDArray[np.float64],
+    n_int: NDArray[np.int_],
+    geometry: Geometry,
+    noise: float,
+) -> dict[str, Any]:
+    """The solve's noise, prior weight and shifts (LR px, on the reference's grid).
+
+    The shifts are refined jointly, the reference's too: the common part of the
+    refinements is a drift of the model's grid away from the reference frame (a global
+    shift is invisible to the data), taken out here.
+    """
+    drift = solver.t[0] - t0_start
+    refined = (
+        solver.shifts_lr() - drift / geometry.scale + n_int - np.asarray(geometry.origin_shift)
+    )
+    return {
+        "noise_sigma": noise,
+        "lambda": solver.lam,
+        "shifts_refined": [[float(a), float(b)] for a, b in refined],
+    }
+
+
 def _on_reference_grid(
     solver: FourierSolver,
     X: C64,
@@ -286,9 +345,8 @@ def _on_reference_grid(
 ) -> tuple[F32, dict[str, Any]]:
     """The solution cropped to the frames' area, moved back onto the reference's grid.
 
-    The shifts are refined jointly, the reference's too: the common part of the
-    refinements is a drift of the model's grid away from the reference frame (a global
-    shift is invisible to the data).
+    The model's grid drifts with the joint refinement (:func:`_details`): the image is
+    resampled by that drift.
     """
     scale = int(geometry.scale)
     h, w = shape
@@ -296,13 +354,7 @@ def _on_reference_grid(
     img = solver.to_image(X, shift_hr=(float(drift[0]), float(drift[1])))
     y0 = x0 = p * scale
     out = np.ascontiguousarray(img[y0 : y0 + h * scale, x0 : x0 + w * scale])
-    refined = solver.shifts_lr() - drift / scale + n_int - np.asarray(geometry.origin_shift)
-    info = {
-        "noise_sigma": noise,
-        "lambda": solver.lam,
-        "shifts_refined": [[float(a), float(b)] for a, b in refined],
-    }
-    return out, info
+    return out, _details(solver, t0_start, n_int, geometry, noise)
 
 
 # The noise fit: a central window has samples enough for a spread estimate, and a prior
@@ -332,9 +384,9 @@ def fit_noise(
     (``1 - s^2 / K`` for K frames at scale s), is the noise.
 
     The fit uses the largest scale ``s <= scale`` with at least ``2 s^2`` frames (and the
-    same pixel aperture in LR units), a central window of up to 256 px and :func:`solve`
-    with one pass, shifts refined, a 256 times weaker prior; residuals are measured by
-    their median.
+    same pixel aperture in LR units), a central window of up to 256 px and
+    :func:`measure_passes` with one pass, shifts refined, a 256 times weaker prior;
+    residuals are measured by their median.
 
     Returns
     -------
@@ -351,7 +403,7 @@ def fit_noise(
         return None
     crop = central_window(frames, _FIT_WINDOW)
     fit = Geometry(fit_scale, ap * fit_scale // scale, geometry.origin_shift)
-    _, info = solve(
+    info = measure_passes(
         crop,
         shifts,
         fit,
