@@ -37,10 +37,9 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
-import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from elphel_host.mfsr.kernels import MAX_FRAMES, accumulate, place
+from elphel_host.mfsr.kernels import MAX_FRAMES, accumulate, packed_irfft2, packed_rfft2, place
 from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.parallel import parallel_map
 
@@ -214,15 +213,14 @@ class FourierSolver:
         """rhs[a] += sign sum_k C[k, a] P_k: the FFTs a frame per core, one pass per band."""
         # one array per frame: a stack of them is large enough to be mapped afresh (and
         # page-faulted in) on every call
-        spectra = parallel_map(partial(sfft.rfft2, workers=1), [np.asarray(f) for f in frames])
+        spectra = tuple(parallel_map(packed_rfft2, list(frames)))
         coef = (sign * self.C[ks]).astype(np.complex64)  # (k, A)
         ramps = [self.ramps(k) for k in ks]
         ry, rx = np.stack([r[0] for r in ramps]), np.stack([r[1] for r in ramps])
 
         def band(r0: int) -> None:
             r1 = r0 + _BAND_ROWS
-            rows = tuple(spec[r0:r1] for spec in spectra)
-            accumulate(self.rhs[:, r0:r1], rows, coef, ry[:, r0:r1], rx)
+            accumulate(self.rhs[:, r0:r1], spectra, coef, ry[:, r0:r1], rx, first=r0)
 
         parallel_map(band, range(0, self.rhs.shape[1], _BAND_ROWS))  # memory-bound
 
@@ -310,7 +308,7 @@ class FourierSolver:
         ny, nx = self.model.lr_shape
         Ny, Nx = self.model.hr_shape
         Nxh = Nx // 2 + 1
-        spec = np.zeros((Ny, Nxh), dtype=np.complex64)
+        spec = np.zeros((Ny, Nx), dtype=np.float32)  # packed (kernels.packed_rfft2)
         blocks = [self._shifted(X[a], jy, jx, shift_hr) for a, (jy, jx) in enumerate(self.offsets)]
         # the conjugate half first, then the solved half (which wins where they meet)
         for direct in (False, True):
@@ -321,8 +319,7 @@ class FourierSolver:
                 ix[ix >= Nxh] = -1
                 if ix.max() >= 0:
                     place(spec, block, iy, ix, not direct)
-        img = sfft.irfft2(spec, s=(Ny, Nx), workers=-1, overwrite_x=True)
-        return np.ascontiguousarray(img, dtype=np.float32)
+        return packed_irfft2(spec)
 
 
 def solve_joint(solvers: Sequence[FourierSolver]) -> C64:

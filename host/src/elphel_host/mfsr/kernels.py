@@ -8,8 +8,12 @@ such operations in a row. Each kernel here is one pass over a band of rows:
   to every alias of the right-hand side;
 * :func:`predict`: one frame's model spectrum, the aliases combined by the frame's
   coupling and multiplied by its (conjugate) ramp;
-* :func:`place`: an alias block scattered into the HR half-spectrum;
+* :func:`place`: an alias block scattered into the HR spectrum;
 * :func:`pseudo_data`: a frame's Huber pseudo-data and a sample of its residual.
+
+Real images' spectra are in OpenCV's packed layout (CCS, see :func:`packed_rfft2`):
+OpenCV's real transforms take half the time of SciPy's on these sizes, and the kernels
+read and write that layout directly, so that no pass converts it.
 
 Each pixel's arithmetic does not depend on how the rows are split: the result is the
 same on any number of threads. The kernels release the GIL and are compiled on first
@@ -18,6 +22,7 @@ use (explicit signatures, cached on disk by numba).
 
 from __future__ import annotations
 
+import cv2
 import numba as nb
 import numpy as np
 from numpy.typing import NDArray
@@ -31,29 +36,125 @@ I64 = NDArray[np.int64]
 # the real arithmetic written out, not numba's complex type.
 _F32_ROWS = nb.types.Array(nb.float32, 2, "A", readonly=True)
 _F32_3D_IN = nb.types.Array(nb.float32, 3, "A", readonly=True)
+_F32_2D_OUT = nb.types.Array(nb.float32, 2, "C")
+
+
+def packed_rfft2(image: F32) -> F32:
+    """The 2-D DFT of a real float32 image, (rows, cols) float32 in OpenCV's CCS layout.
+
+    Frequency (v, u) of a rows x cols image, u = 0..cols // 2 (the rest are conjugates):
+    for 0 < u < cols / 2, row v holds Re and Im at columns 2u - 1 and 2u; the columns
+    u = 0 and u = cols / 2 (even cols) are real sequences' spectra packed down their
+    column: row 0 holds Re(0), rows 2v - 1 and 2v Re(v) and Im(v) for 0 < v < rows / 2,
+    and the last row Re(rows / 2) (even rows). The same numbers as
+    ``numpy.fft.rfft2`` (see :func:`unpacked`).
+    """
+    return np.asarray(cv2.dft(np.ascontiguousarray(image, np.float32)), np.float32)
+
+
+def packed_irfft2(packed: F32) -> F32:
+    """The real image of a CCS spectrum (:func:`packed_rfft2`), scaled as ``irfft2``.
+
+    Transformed in place: ``packed`` holds the image afterwards.
+    """
+    flags = cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE
+    return np.asarray(cv2.dft(packed, packed, flags=flags), np.float32)
+
+
+def unpacked(packed: F32) -> C64:
+    """A CCS spectrum as the half spectrum ``numpy.fft.rfft2`` gives, (rows, cols // 2 + 1)."""
+    rows, cols = packed.shape
+    out = np.empty((rows, cols // 2 + 1), np.complex64)
+    _unpack(out.view(np.float32), np.ascontiguousarray(packed, np.float32))
+    return out
+
+
+@nb.njit(inline="always")
+def _edge(packed: F32, col: int, v: int) -> tuple[np.float32, np.float32]:
+    """(Re, Im) of row ``v`` of the real sequence packed down column ``col``."""
+    rows = packed.shape[0]
+    if v == 0:
+        return packed[0, col], np.float32(0.0)
+    if 2 * v < rows:
+        return packed[2 * v - 1, col], packed[2 * v, col]
+    if 2 * v == rows:
+        return packed[rows - 1, col], np.float32(0.0)
+    w = rows - v  # the conjugate of a packed row
+    return packed[2 * w - 1, col], -packed[2 * w, col]
+
+
+@nb.njit(inline="always")
+def _put_edge(packed: F32, col: int, v: int, re: float, im: float) -> None:
+    """Row ``v`` of the real sequence packed down ``col`` (rows past the middle: none)."""
+    rows = packed.shape[0]
+    if v == 0:
+        packed[0, col] = re
+    elif 2 * v < rows:
+        packed[2 * v - 1, col] = re
+        packed[2 * v, col] = im
+    elif 2 * v == rows:
+        packed[rows - 1, col] = re
+
+
+@nb.njit(inline="always")
+def _unpack_row(packed: F32, v: int, out: F32) -> None:
+    """Row ``v`` of a CCS spectrum into ``out`` (re, im interleaved, cols // 2 + 1 pairs)."""
+    cols = packed.shape[1]
+    row = packed[v]
+    for u in range(1, (cols + 1) // 2):  # the pairs of the inner columns
+        out[2 * u] = row[2 * u - 1]
+        out[2 * u + 1] = row[2 * u]
+    out[0], out[1] = _edge(packed, 0, v)
+    if cols % 2 == 0:
+        out[cols], out[cols + 1] = _edge(packed, cols - 1, v)
+
+
+@nb.njit(inline="always")
+def _pack_row(row: F32, packed: F32, v: int) -> None:
+    """``row`` (re, im interleaved, cols // 2 + 1 pairs) as row ``v`` of a CCS spectrum."""
+    cols: int = packed.shape[1]
+    dst = packed[v]
+    for u in range(1, (cols + 1) // 2):
+        dst[2 * u - 1] = row[2 * u]
+        dst[2 * u] = row[2 * u + 1]
+    _put_edge(packed, 0, v, row[0], row[1])
+    if cols % 2 == 0:
+        _put_edge(packed, cols - 1, v, row[cols], row[cols + 1])
+
+
+@nb.njit(nb.void(_F32_2D_OUT, _F32_ROWS), cache=True, nogil=True, fastmath=True, boundscheck=False)
+def _unpack(out: F32, packed: F32) -> None:
+    for v in range(packed.shape[0]):
+        _unpack_row(packed, v, out[v])
+
+
 # one signature per number of frames a call takes (a chunk of at most MAX_FRAMES)
 MAX_FRAMES = 4
 _ACCUMULATE_SIGNATURES = [
     nb.void(
-        nb.types.Array(nb.float32, 3, "A"),  # rhs (A, rows, 2 nxh), updated
-        nb.types.UniTuple(_F32_ROWS, n),  # the frames' spectra (rows, 2 nxh)
+        nb.types.Array(nb.float32, 3, "A"),  # rhs band (A, rows, 2 nxh), updated
+        nb.types.UniTuple(_F32_ROWS, n),  # the frames' CCS spectra (ny, nx), whole
         _F32_ROWS,  # coef (K, 2 A)
-        _F32_ROWS,  # row ramps (K, 2 rows)
+        _F32_ROWS,  # the band's row ramps (K, 2 rows)
         _F32_ROWS,  # column ramps (K, 2 nxh)
+        nb.int64,  # the band's first row
     )
     for n in range(1, MAX_FRAMES + 1)
 ]
 
 
 @nb.njit(_ACCUMULATE_SIGNATURES, cache=True, nogil=True, fastmath=True, boundscheck=False)
-def _accumulate(rhs: F32, spectra: tuple[F32, ...], coef: F32, ry: F32, rx: F32) -> None:
+def _accumulate(
+    rhs: F32, spectra: tuple[F32, ...], coef: F32, ry: F32, rx: F32, first: int
+) -> None:
     n_alias, rows, cols = rhs.shape[0], rhs.shape[1], rhs.shape[2] // 2
+    sp = np.empty(2 * cols, np.float32)
     tr = np.empty(cols, np.float32)
     ti = np.empty(cols, np.float32)
     for y in range(rows):
         for k in range(len(spectra)):
+            _unpack_row(spectra[k], first + y, sp)
             rr, ri = ry[k, 2 * y], ry[k, 2 * y + 1]
-            sp = spectra[k][y]
             for x in range(cols):
                 ar = sp[2 * x] * rr - sp[2 * x + 1] * ri
                 ai = sp[2 * x] * ri + sp[2 * x + 1] * rr
@@ -68,18 +169,18 @@ def _accumulate(rhs: F32, spectra: tuple[F32, ...], coef: F32, ry: F32, rx: F32)
                     out[2 * x + 1] += cr * ti[x] + ci * tr[x]
 
 
-def accumulate(rhs: C64, spectra: tuple[C64, ...], coef: C64, ry: C64, rx: C64) -> None:
-    """``rhs[a, y, x] += sum_k coef[k, a] ry[k, y] rx[k, x] spectra[k][y, x]``, k in order.
+def accumulate(
+    rhs: C64, spectra: tuple[F32, ...], coef: C64, ry: C64, rx: C64, *, first: int
+) -> None:
+    """``rhs[a, y, x] += sum_k coef[k, a] ry[k, y] rx[k, x] S_k[first + y, x]``, k in order.
 
-    ``rhs`` (A, rows, nxh) is updated row by row, so that the rows of every alias stay in
-    the cache while the (at most :data:`MAX_FRAMES`) frames are added.
+    ``spectra`` are the frames' whole CCS spectra (:func:`packed_rfft2`), S_k their
+    frequencies; ``rhs`` (A, rows, nxh) is the band of rows from ``first`` on, with its row
+    ramps ``ry``. It is updated row by row, so that the rows of every alias stay in the
+    cache while the (at most :data:`MAX_FRAMES`) frames are added.
     """
     _accumulate(
-        rhs.view(np.float32),
-        tuple(spec.view(np.float32) for spec in spectra),
-        _floats(coef),
-        _floats(ry),
-        _floats(rx),
+        rhs.view(np.float32), tuple(spectra), _floats(coef), _floats(ry), _floats(rx), first
     )
 
 
@@ -89,10 +190,10 @@ def _floats(a: C64) -> F32:
 
 
 _PREDICT_SIGNATURE = nb.void(
-    nb.types.Array(nb.float32, 2, "A"),  # out (rows, 2 nxh)
+    _F32_2D_OUT,  # out: CCS (ny, nx)
     nb.types.Array(nb.float32, 1, "A", readonly=True),  # coef (2 A,)
-    _F32_3D_IN,  # Z (A, rows, 2 nxh)
-    nb.types.Array(nb.float32, 1, "A", readonly=True),  # row ramp (2 rows,)
+    _F32_3D_IN,  # Z (A, ny, 2 nxh)
+    nb.types.Array(nb.float32, 1, "A", readonly=True),  # row ramp (2 ny,)
     nb.types.Array(nb.float32, 1, "A", readonly=True),  # column ramp (2 nxh,)
 )
 
@@ -100,8 +201,8 @@ _PREDICT_SIGNATURE = nb.void(
 @nb.njit(_PREDICT_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
 def _predict(out: F32, coef: F32, Z: F32, ry: F32, rx: F32) -> None:
     n_alias, rows, cols = Z.shape[0], Z.shape[1], Z.shape[2] // 2
+    o = np.empty(2 * cols, np.float32)
     for y in range(rows):
-        o = out[y]
         for x in range(2 * cols):
             o[x] = 0.0
         for a in range(n_alias):
@@ -117,15 +218,20 @@ def _predict(out: F32, coef: F32, Z: F32, ry: F32, rx: F32) -> None:
             qr, qi = o[2 * x], o[2 * x + 1]
             o[2 * x] = qr * pr - qi * pi
             o[2 * x + 1] = qr * pi + qi * pr
+        _pack_row(o, out, y)
 
 
-def predict(out: C64, coef: C64, Z: C64, ry: C64, rx: C64) -> None:
-    """``out[y, x] = ry[y] rx[x] sum_a coef[a] Z[a, y, x]`` (aliases summed in order)."""
-    _predict(out.view(np.float32), _floats(coef), Z.view(np.float32), _floats(ry), _floats(rx))
+def predict(out: F32, coef: C64, Z: C64, ry: C64, rx: C64) -> None:
+    """``out = ry[y] rx[x] sum_a coef[a] Z[a, y, x]`` (aliases summed in order), as CCS.
+
+    ``out`` (ny, nx) float32 receives the spectrum in the layout of :func:`packed_rfft2`
+    (of frequencies past the middle row, the packed columns keep the conjugate's).
+    """
+    _predict(out, _floats(coef), Z.view(np.float32), _floats(ry), _floats(rx))
 
 
 _PLACE_SIGNATURE = nb.void(
-    nb.complex64[:, ::1],  # spec (Ny, Nxh), written
+    _F32_2D_OUT,  # spec: CCS (Ny, Nx), written
     nb.types.Array(nb.complex64, 2, "A", readonly=True),  # block (ny, nxh)
     nb.types.Array(nb.int64, 1, "A", readonly=True),  # destination row of each block row
     nb.types.Array(nb.int64, 1, "A", readonly=True),  # destination column, -1: none
@@ -134,15 +240,29 @@ _PLACE_SIGNATURE = nb.void(
 
 
 @nb.njit(_PLACE_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
-def place(spec: C64, block: C64, iy: I64, ix: I64, conjugate: bool) -> None:
-    """``spec[iy[i], ix[j]] = block[i, j]`` (conjugated if asked) where ``ix[j] >= 0``."""
+def place(spec: F32, block: C64, iy: I64, ix: I64, conjugate: bool) -> None:
+    """``S[iy[i], ix[j]] = block[i, j]`` (conjugated if asked) where ``ix[j] >= 0``.
+
+    S is the HR spectrum ``spec`` holds in the layout of :func:`packed_rfft2`.
+    """
+    cols = spec.shape[1]
+    sign = -1.0 if conjugate else 1.0
     for i in range(block.shape[0]):
-        dst = spec[iy[i]]
+        v = iy[i]
+        dst = spec[v]
         src = block[i]
         for j in range(block.shape[1]):
-            c = ix[j]
-            if c >= 0:
-                dst[c] = np.conj(src[j]) if conjugate else src[j]
+            u = ix[j]
+            if u < 0:
+                continue
+            re, im = src[j].real, sign * src[j].imag
+            if u == 0:
+                _put_edge(spec, 0, v, re, im)
+            elif 2 * u == cols:
+                _put_edge(spec, cols - 1, v, re, im)
+            else:
+                dst[2 * u - 1] = re
+                dst[2 * u] = im
 
 
 _F32_2D_IN = nb.types.Array(nb.float32, 2, "A", readonly=True)

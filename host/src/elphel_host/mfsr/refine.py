@@ -6,11 +6,10 @@ Huber regression by pseudo-data; :mod:`elphel_host.mfsr.forward` has the model.
 from __future__ import annotations
 
 import numpy as np
-import scipy.fft as sfft
 from numpy.typing import NDArray
 
 from elphel_host.mfsr.forward import C64, F32, FourierSolver
-from elphel_host.mfsr.kernels import predict, pseudo_data
+from elphel_host.mfsr.kernels import packed_irfft2, predict, pseudo_data
 
 _SPREAD_STEP = 3  # the residual's sample: every third row and column
 
@@ -57,7 +56,6 @@ def refine_and_pseudo(
     huber: float,
     sigma: float,
     refine: bool,
-    workers: int = -1,
 ) -> tuple[F32, tuple[float, float], F32]:
     """One frame's robust step: refine its shift against the model, then clip its residual.
 
@@ -69,30 +67,25 @@ def refine_and_pseudo(
     on).
     """
     ny, nx = solver.model.lr_shape
-    nxh = solver.nxh
     ck = solver.C[k].conj()
     ry, rx = solver.ramps(k)
     ryc, rxc = ry.conj(), rx.conj()
 
-    def model(rows: C64) -> C64:
+    def model(rows: C64) -> F32:
+        """The frame's image of the alias spectra ``rows``."""
         # no BLAS: a threaded BLAS sums in an order that depends on its thread count, and
         # a burst must fuse to the same numbers in every process (the fusion fed while
         # capturing and `elphel mfsr` afterwards agree bit for bit)
-        out = np.empty((ny, nxh), np.complex64)
+        out = np.empty((ny, nx), np.float32)
         predict(out, ck, rows, ryc, rxc)
-        return out
+        return packed_irfft2(out)
 
-    q = model(spectra.Z)
-    pred = np.asarray(sfft.irfft2(q, s=(ny, nx), workers=workers), dtype=np.float32)
-    del q
+    pred = model(spectra.Z)
     dt = (0.0, 0.0)
     if refine:
         if spectra.Zy is None or spectra.Zx is None:
             raise ValueError("refine=True with spectra made without derivatives")
-        gy, gx = model(spectra.Zy), model(spectra.Zx)
-        dy = np.asarray(sfft.irfft2(gy, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
-        dx = np.asarray(sfft.irfft2(gx, s=(ny, nx), workers=workers), dtype=np.float32).ravel()
-        del gy, gx
+        dy, dx = model(spectra.Zy).ravel(), model(spectra.Zx).ravel()
         r = (frame - pred).ravel()
         w = (valid.ravel() & (np.abs(r) <= huber * sigma)).astype(np.float32)
         dyw, dxw = dy * w, dx * w

@@ -114,7 +114,7 @@ def _robust_pass(
     def step(k: int) -> tuple[F32, tuple[float, float], float]:
         f, v = frames(k)
         pseudo, dt, sub = refine_and_pseudo(
-            solver, spectra, k, f, v, huber=opts.huber, sigma=sigma, refine=opts.refine, workers=1
+            solver, spectra, k, f, v, huber=opts.huber, sigma=sigma, refine=opts.refine
         )
         return pseudo, dt, float(np.median(sub)) if sub.size else 0.0
 

@@ -1,0 +1,91 @@
+"""The solver's compiled kernels on OpenCV's packed (CCS) spectra, against NumPy's FFTs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from elphel_host.mfsr.kernels import (
+    accumulate,
+    packed_irfft2,
+    packed_rfft2,
+    place,
+    predict,
+    unpacked,
+)
+
+# even and odd sides: the packed columns and rows differ between them
+SHAPES = [(6, 8), (7, 9), (6, 9), (7, 8), (33, 20)]
+
+
+def _image(shape, seed):
+    return np.random.default_rng(seed).random(shape, dtype=np.float32)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_packed_spectrum_is_numpys_half_spectrum(shape):
+    img = _image(shape, 1)
+    want = np.fft.rfft2(img.astype(np.float64))
+    got = unpacked(packed_rfft2(img))
+    assert got.shape == want.shape
+    assert np.abs(got - want).max() <= 1e-6 * np.abs(want).max()
+    back = packed_irfft2(packed_rfft2(img))
+    assert np.abs(back - img).max() <= 1e-6
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_accumulate_reads_packed_spectra_band_by_band(shape):
+    rng = np.random.default_rng(2)
+    ny, nx = shape
+    nxh, n_alias, k = nx // 2 + 1, 4, 3
+    imgs = [_image(shape, 10 + i) for i in range(k)]
+    coef = (rng.normal(size=(k, n_alias)) + 1j * rng.normal(size=(k, n_alias))).astype(np.complex64)
+    ry = np.exp(1j * rng.random((k, ny))).astype(np.complex64)
+    rx = np.exp(1j * rng.random((k, nxh))).astype(np.complex64)
+    rhs = np.zeros((n_alias, ny, nxh), np.complex64)
+    spectra = tuple(packed_rfft2(f) for f in imgs)
+    for r0 in range(0, ny, 4):
+        accumulate(rhs[:, r0 : r0 + 4], spectra, coef, ry[:, r0 : r0 + 4], rx, first=r0)
+    want = sum(
+        coef[i][:, None, None] * np.outer(ry[i], rx[i])[None] * np.fft.rfft2(imgs[i])[None]
+        for i in range(k)
+    )
+    assert np.abs(rhs - want).max() <= 1e-5 * np.abs(want).max()
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_predict_writes_the_packed_spectrum_of_the_model(shape):
+    rng = np.random.default_rng(3)
+    ny, nx = shape
+    nxh = nx // 2 + 1
+    imgs = [_image(shape, 20 + a) for a in range(4)]
+    Z = np.stack([np.fft.rfft2(f) for f in imgs]).astype(np.complex64)
+    # real couplings and integer-frequency ramps (a circular shift): the model is a real
+    # image, whose spectrum's packed columns need only their upper half
+    coef = rng.normal(size=4).astype(np.complex64)
+    shift = (2, 3)
+    ry = np.exp(-2j * np.pi * np.arange(ny) * shift[0] / ny).astype(np.complex64)
+    rx = np.exp(-2j * np.pi * np.arange(nxh) * shift[1] / nx).astype(np.complex64)
+    out = np.empty(shape, np.float32)
+    predict(out, coef, Z, ry, rx)
+    want = np.fft.irfft2(np.outer(ry, rx) * np.tensordot(coef, Z, axes=1), s=shape)
+    got = packed_irfft2(out)
+    assert np.abs(got - want).max() <= 1e-5 * np.abs(want).max()
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_place_scatters_blocks_into_the_packed_spectrum(shape):
+    ny, nx = shape
+    img = _image(shape, 4)
+    half = np.fft.rfft2(img).astype(np.complex64)
+    spec = np.zeros(shape, np.float32)
+    # the upper rows direct; the lower rows' conjugates onto their mirror rows (only the
+    # packed columns u = 0 and nx / 2 land in the half spectrum), then the lower rows
+    # direct (their packed columns follow from the upper rows)
+    top, cols = ny // 2 + 1, np.arange(nx // 2 + 1)
+    place(spec, half[:top], np.arange(top), cols, False)
+    mirror = (-np.arange(top, ny)) % ny
+    edge = np.where((cols == 0) | (2 * cols == nx), cols, -1)
+    place(spec, half[top:], mirror, edge, True)
+    place(spec, half[top:], np.arange(top, ny), cols, False)
+    assert np.abs(packed_irfft2(spec) - img).max() <= 1e-5
