@@ -1,16 +1,19 @@
-"""The solver's compiled kernels on OpenCV's packed (CCS) spectra, against NumPy's FFTs."""
+"""The solver's compiled kernels against NumPy: packed (CCS) spectra, padded frames, clipping."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from elphel_host.mfsr.frames import aligned, padded
 from elphel_host.mfsr.kernels import (
     accumulate,
+    fill_padded,
     packed_irfft2,
     packed_rfft2,
     place,
     predict,
+    pseudo_data,
     unpacked,
 )
 
@@ -89,3 +92,37 @@ def test_place_scatters_blocks_into_the_packed_spectrum(shape):
     place(spec, half[top:], mirror, edge, True)
     place(spec, half[top:], np.arange(top, ny), cols, False)
     assert np.abs(packed_irfft2(spec) - img).max() <= 1e-5
+
+
+@pytest.mark.parametrize("shift", [(0, 0), (2, -3), (-1, 4), (9, 0), (0, -12)])
+def test_fill_padded_is_the_aligned_frame_mirror_padded(shift):
+    frame, ref = _image((9, 12), 5), _image((9, 12), 6)
+    pads = (3, 4, 2, 5)  # top, bottom, left, right
+    out = np.full((9 + 7, 12 + 7), np.nan, np.float32)
+    fill_padded(out, frame, ref, shift, (pads[0], pads[2]))
+    moved, _ = aligned(frame, ref, shift)
+    assert np.array_equal(out, padded(moved, pads, mode="reflect"))
+
+
+@pytest.mark.parametrize("shift", [(0, 0), (2, -3), (-1, 4), (9, 0)])
+def test_pseudo_data_on_the_rectangle_a_frame_covers(shift):
+    rng = np.random.default_rng(7)
+    frame, ref = _image((10, 13), 8), _image((10, 13), 9)
+    pads = (2, 3, 4, 1)
+    (h, w), (sy, sx) = frame.shape, shift
+    pred = rng.random((15, 18), dtype=np.float32)
+    y0, y1, x0, x1 = max(0, sy), min(h, h + sy), max(0, sx), min(w, w + sx)
+    valid = (pads[0] + y0, pads[0] + max(y1, y0), pads[2] + x0, pads[2] + max(x1, x0))
+    offset = (pads[0] + sy, pads[2] + sx)
+    sample = np.empty(25, np.float32)
+    out = pred.copy()
+    n = pseudo_data(out, frame, offset, valid, np.float32(0.3), 3, sample)
+    # the same with whole padded arrays and a mask
+    moved, mask = aligned(frame, ref, shift)
+    f, v = padded(moved, pads, mode="reflect"), padded(mask, pads, mode="zero")
+    r = f - pred
+    want = np.where(v, pred + np.clip(r, -0.3, 0.3), pred)
+    assert np.array_equal(out, want.astype(np.float32))
+    on = v & (np.arange(15)[:, None] % 3 == 0) & (np.arange(18)[None, :] % 3 == 0)
+    assert n == on.sum()
+    assert np.array_equal(sample[:n], np.abs(r[on]))

@@ -203,17 +203,32 @@ class FourierSolver:
         rx = np.exp(-2j * np.pi * self._vx * tx / Nx).astype(np.complex64)
         return ry, rx
 
-    def add_frames(self, ks: Sequence[int], frames: Sequence[F32], *, sign: float = 1.0) -> None:
-        """Add (or with sign=-1 remove) frames' contributions to the right-hand side."""
+    def add_frames(
+        self,
+        ks: Sequence[int],
+        frames: Sequence[F32],
+        *,
+        sign: float = 1.0,
+        overwrite: bool = False,
+    ) -> None:
+        """Add (or with sign=-1 remove) frames' contributions to the right-hand side.
+
+        ``overwrite``: the frames (float32, C-ordered) are transformed in place, and hold
+        their spectra afterwards.
+        """
         for start in range(0, len(ks), _CHUNK_FRAMES):
             idx = list(ks[start : start + _CHUNK_FRAMES])
-            self._add_chunk(idx, frames[start : start + len(idx)], sign)
+            self._add_chunk(idx, frames[start : start + len(idx)], sign, overwrite)
 
-    def _add_chunk(self, ks: list[int], frames: Sequence[F32], sign: float) -> None:
+    def _add_chunk(
+        self, ks: list[int], frames: Sequence[F32], sign: float, overwrite: bool
+    ) -> None:
         """rhs[a] += sign sum_k C[k, a] P_k: the FFTs a frame per core, one pass per band."""
-        # one array per frame: a stack of them is large enough to be mapped afresh (and
-        # page-faulted in) on every call
-        spectra = tuple(parallel_map(packed_rfft2, list(frames)))
+
+        def spectrum(f: F32) -> F32:
+            return packed_rfft2(f, out=f if overwrite else None)
+
+        spectra = tuple(parallel_map(spectrum, list(frames)))
         coef = (sign * self.C[ks]).astype(np.complex64)  # (k, A)
         ramps = [self.ramps(k) for k in ks]
         ry, rx = np.stack([r[0] for r in ramps]), np.stack([r[1] for r in ramps])

@@ -22,12 +22,13 @@ use (explicit signatures, cached on disk by numba).
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
-B2 = NDArray[np.bool_]
 C64 = NDArray[np.complex64]
 F32 = NDArray[np.float32]
 I64 = NDArray[np.int64]
@@ -39,7 +40,7 @@ _F32_3D_IN = nb.types.Array(nb.float32, 3, "A", readonly=True)
 _F32_2D_OUT = nb.types.Array(nb.float32, 2, "C")
 
 
-def packed_rfft2(image: F32) -> F32:
+def packed_rfft2(image: F32, *, out: F32 | None = None) -> F32:
     """The 2-D DFT of a real float32 image, (rows, cols) float32 in OpenCV's CCS layout.
 
     Frequency (v, u) of a rows x cols image, u = 0..cols // 2 (the rest are conjugates):
@@ -47,9 +48,11 @@ def packed_rfft2(image: F32) -> F32:
     u = 0 and u = cols / 2 (even cols) are real sequences' spectra packed down their
     column: row 0 holds Re(0), rows 2v - 1 and 2v Re(v) and Im(v) for 0 < v < rows / 2,
     and the last row Re(rows / 2) (even rows). The same numbers as
-    ``numpy.fft.rfft2`` (see :func:`unpacked`).
+    ``numpy.fft.rfft2`` (see :func:`unpacked`). ``out`` (float32, the image's shape; it
+    may be ``image``) receives the spectrum.
     """
-    return np.asarray(cv2.dft(np.ascontiguousarray(image, np.float32)), np.float32)
+    src = np.ascontiguousarray(image, np.float32)
+    return np.asarray(cv2.dft(src) if out is None else cv2.dft(src, out), np.float32)
 
 
 def packed_irfft2(packed: F32) -> F32:
@@ -266,10 +269,61 @@ def place(spec: F32, block: C64, iy: I64, ix: I64, conjugate: bool) -> None:
 
 
 _F32_2D_IN = nb.types.Array(nb.float32, 2, "A", readonly=True)
+_INT2 = nb.types.UniTuple(nb.int64, 2)
+_INT4 = nb.types.UniTuple(nb.int64, 4)
+_FILL_SIGNATURE = nb.void(
+    _F32_2D_OUT,  # out: the padded frame (ny, nx)
+    _F32_2D_IN,  # frame (h, w)
+    _F32_2D_IN,  # reference (h, w)
+    _INT2,  # integer shift (dy, dx) of the frame onto the reference grid
+    _INT2,  # pads (top, left)
+)
+
+
+@nb.njit(inline="always")
+def _mirror(i: int, n: int) -> int:
+    """Index ``i`` reflected into 0..n-1 about the end pixels (``BORDER_REFLECT_101``)."""
+    if i < 0:
+        return -i
+    if i >= n:
+        return 2 * (n - 1) - i
+    return i
+
+
+@nb.njit(_FILL_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
+def fill_padded(out: F32, frame: F32, reference: F32, shift: tuple[int, int], pads: Any) -> None:
+    """``out`` = ``frame`` moved by ``shift`` onto the reference grid, mirror-padded.
+
+    Pixel q of the moved frame is ``frame[q - shift]`` where that is inside the frame,
+    else ``reference[q]``; ``out[top + i, left + j]`` is pixel (i, j), and the pads
+    around it mirror it about its edge pixels (``cv2.BORDER_REFLECT_101``). Every pad
+    must be smaller than the frame.
+    """
+    h, w = frame.shape
+    top, left = pads
+    sy, sx = shift
+    x0, x1 = min(max(sx, 0), w), max(min(w + sx, w), 0)  # columns the frame covers
+    for y in range(out.shape[0]):
+        q = _mirror(y - top, h)
+        row = out[y]
+        ref = reference[q]
+        for j in range(w):
+            row[left + j] = ref[j]
+        if 0 <= q - sy < h and x1 > x0:
+            src = frame[q - sy]
+            for j in range(x0, x1):
+                row[left + j] = src[j - sx]
+        for x in range(left):
+            row[x] = row[left + _mirror(x - left, w)]
+        for x in range(left + w, out.shape[1]):
+            row[x] = row[left + _mirror(x - left, w)]
+
+
 _PSEUDO_SIGNATURE = nb.int64(
-    _F32_2D_IN,  # frame (rows, cols)
-    nb.types.Array(nb.float32, 2, "A"),  # prediction in, pseudo-data out
-    nb.types.Array(nb.boolean, 2, "A", readonly=True),  # valid pixels
+    nb.types.Array(nb.float32, 2, "A"),  # prediction in, pseudo-data out (ny, nx)
+    _F32_2D_IN,  # frame (h, w)
+    _INT2,  # offset: padded pixel (y, x) shows frame pixel (y, x) - offset
+    _INT4,  # the padded pixels the frame covers: rows y0:y1, columns x0:x1
     nb.float32,  # clipping level
     nb.int64,  # the sample's step
     nb.types.Array(nb.float32, 1, "A"),  # the sample out
@@ -277,22 +331,28 @@ _PSEUDO_SIGNATURE = nb.int64(
 
 
 @nb.njit(_PSEUDO_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
-def pseudo_data(frame: F32, pred: F32, valid: B2, clip: np.float32, step: int, sample: F32) -> int:
+def pseudo_data(
+    pred: F32, frame: F32, offset: Any, valid: Any, clip: np.float32, step: int, sample: F32
+) -> int:
     """Huber pseudo-data in place of the prediction, and a sample of the residual's size.
 
-    Valid pixels get ``pred + clip(frame - pred, -clip, clip)``; the others keep ``pred``.
-    ``sample`` receives ``|frame - pred|`` of the valid pixels on every ``step``-th row
-    and column, in row order (it needs ``ceil(rows / step) * ceil(cols / step)``
-    places); returns how many.
+    The frame's pixels are the rectangle ``valid`` = (y0, y1, x0, x1) of the prediction's
+    (padded) grid, padded pixel (y, x) showing ``frame[y - oy, x - ox]``. They get
+    ``pred + clip(frame - pred, -clip, clip)``; the others keep ``pred``. ``sample``
+    receives ``|frame - pred|`` of the frame's pixels on every ``step``-th row and column
+    of the grid, in row order (it needs ``ceil(ny / step) * ceil(nx / step)`` places);
+    returns how many.
     """
+    oy, ox = offset
+    y0, y1, x0, x1 = valid
     n = 0
-    for y in range(frame.shape[0]):
-        on_row = y % step == 0
-        for x in range(frame.shape[1]):
-            r = frame[y, x] - pred[y, x]
-            if valid[y, x]:
-                pred[y, x] += min(max(r, -clip), clip)
-                if on_row and x % step == 0:
-                    sample[n] = abs(r)
-                    n += 1
+    for y in range(y0, y1):
+        p = pred[y]
+        f = frame[y - oy]
+        if y % step == 0:  # the sample first: it reads the prediction
+            for x in range(x0 + (-x0) % step, x1, step):
+                sample[n] = abs(f[x - ox] - p[x])
+                n += 1
+        for x in range(x0, x1):
+            p[x] += min(max(f[x - ox] - p[x], -clip), clip)
     return n

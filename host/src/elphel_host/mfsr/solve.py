@@ -30,9 +30,10 @@ import scipy.fft as sfft
 from numpy.typing import NDArray
 
 from elphel_host.mfsr.forward import C64, ForwardModel, FourierSolver, solve_joint
-from elphel_host.mfsr.frames import aligned, central_window, estimate_noise, padded
+from elphel_host.mfsr.frames import central_window, estimate_noise
+from elphel_host.mfsr.kernels import fill_padded
 from elphel_host.mfsr.psf import Optics
-from elphel_host.mfsr.refine import ModelSpectra, refine_and_pseudo
+from elphel_host.mfsr.refine import ModelSpectra, PaddedFrame, refine_and_pseudo
 from elphel_host.parallel import parallel_map
 
 F32 = NDArray[np.float32]
@@ -75,29 +76,51 @@ def _pads(h: int, w: int, pad: int) -> tuple[tuple[int, int], tuple[int, int, in
 
 
 class _Frames:
-    """The burst's frames aligned by their integer shifts and padded, kept for the passes.
+    """The burst's frames on the solver's padded grid, each moved by its integer shift.
 
-    The robust passes need every padded frame again: kept (memory grows by the input
-    size, N LR frames, not by N x the output size).
+    A frame's padded copy is made only for its transform, in one of the work frames
+    (:meth:`work`, reused for every chunk of frames); the robust passes read the frames
+    themselves where they cover the grid (:meth:`placed`).
     """
 
-    def __init__(self, frames: Sequence[F32], n_int: NDArray[np.int_], pads: Any, keep: bool):
-        self.frames, self.n_int, self.pads, self.keep = frames, n_int, pads, keep
-        self.ref = np.asarray(frames[0], dtype=np.float32)
-        self.kept: dict[int, tuple[F32, NDArray[np.bool_]]] = {}
+    def __init__(
+        self,
+        frames: Sequence[F32],
+        n_int: NDArray[np.int_],
+        lr_shape: tuple[int, int],
+        pads: tuple[int, int, int, int],
+    ):
+        self.frames = [np.asarray(f, np.float32) for f in frames]
+        self.ref = self.frames[0]
+        self.n_int, self.lr_shape, self.pads = n_int, lr_shape, pads
+        self._work: F32 | None = None
 
-    def __call__(self, k: int) -> tuple[F32, NDArray[np.bool_]]:
-        if k in self.kept:
-            return self.kept[k]
+    def work(self, n: int) -> list[F32]:
+        """``n`` (at most a chunk's) float32 frames of the padded size, reused by every call."""
+        if self._work is None:
+            self._work = np.empty((_CHUNK, *self.lr_shape), np.float32)
+        return list(self._work[:n])
+
+    def fill(self, k: int, out: F32) -> F32:
+        """Frame ``k`` moved onto the reference grid and mirror-padded, in ``out``.
+
+        Where it does not cover the grid, the reference's own pixels (the first solve
+        only: the passes replace them by the prediction).
+        """
         shift = (int(self.n_int[k, 0]), int(self.n_int[k, 1]))
-        f, v = aligned(np.asarray(self.frames[k], np.float32), self.ref, shift)
-        out = (
-            np.asarray(padded(f, self.pads, mode="reflect"), np.float32),
-            np.asarray(padded(v, self.pads, mode="zero"), bool),
-        )
-        if self.keep:
-            self.kept[k] = out
+        fill_padded(out, self.frames[k], self.ref, shift, (self.pads[0], self.pads[2]))
         return out
+
+    def placed(self, k: int) -> PaddedFrame:
+        """Frame ``k`` where it covers the padded grid."""
+        (h, w), (sy, sx) = self.ref.shape, (int(self.n_int[k, 0]), int(self.n_int[k, 1]))
+        top, left = self.pads[0], self.pads[2]
+        y0, y1 = max(0, sy), min(h, h + sy)
+        x0, x1 = max(0, sx), min(w, w + sx)
+        if y1 <= y0 or x1 <= x0:
+            return PaddedFrame(self.frames[k], (0, 0), (0, 0, 0, 0))
+        valid = (top + y0, top + y1, left + x0, left + x1)
+        return PaddedFrame(self.frames[k], (top + sy, left + sx), valid)
 
 
 def _robust_pass(
@@ -111,25 +134,33 @@ def _robust_pass(
     solver.reset()
     mads: list[float] = []
 
-    def step(k: int) -> tuple[F32, tuple[float, float], float]:
-        f, v = frames(k)
-        pseudo, dt, sub = refine_and_pseudo(
-            solver, spectra, k, f, v, huber=opts.huber, sigma=sigma, refine=opts.refine
+    def step(job: tuple[int, F32]) -> tuple[tuple[float, float], float]:
+        k, out = job
+        dt, sub = refine_and_pseudo(
+            solver,
+            spectra,
+            k,
+            frames.placed(k),
+            out,
+            huber=opts.huber,
+            sigma=sigma,
+            refine=opts.refine,
         )
-        return pseudo, dt, float(np.median(sub)) if sub.size else 0.0
+        return dt, float(np.median(sub)) if sub.size else 0.0
 
     # A frame's step reads only its own shift and the model of the previous solve, so the
-    # frames of a chunk run on every core; they are added in chunks (one matrix product
-    # each) once their refined shifts are in.
-    ks = list(range(len(frames.frames)))
-    for start in range(0, len(ks), _CHUNK):
-        chunk = ks[start : start + _CHUNK]
-        steps = parallel_map(step, chunk)
-        for k, (_, dt, mad) in zip(chunk, steps, strict=True):
+    # frames of a chunk run on every core, each into its work frame; they are added in
+    # chunks once their refined shifts are in.
+    n = len(frames.frames)
+    for start in range(0, n, _CHUNK):
+        chunk = list(range(start, min(start + _CHUNK, n)))
+        work = frames.work(len(chunk))
+        steps = parallel_map(step, list(zip(chunk, work, strict=True)))
+        for k, (dt, mad) in zip(chunk, steps, strict=True):
             mads.append(mad)
             if dt[0] or dt[1]:
                 solver.move(k, dt)
-        solver.add_frames(chunk, [pseudo for pseudo, _, _ in steps])
+        solver.add_frames(chunk, work, overwrite=True)
     return mads
 
 
@@ -176,7 +207,7 @@ class _PlaneSolve:
             optics.kernel,
             optics.prior_sigma,
         )
-        self.source = _Frames(plane.frames, self.n_int, self.pads, keep=opts.passes > 0)
+        self.source = _Frames(plane.frames, self.n_int, lr_shape, self.pads)
         self.span = _range(self.source.ref)
         self.tau_dn, self.sigma, self.noise = tau * self.span, plane.noise_sigma, plane.noise_sigma
         frac = [(float(a), float(b)) for a, b in sh - self.n_int]
@@ -186,7 +217,9 @@ class _PlaneSolve:
         n = len(plane.frames)
         for start in range(0, n, _CHUNK):
             chunk = list(range(start, min(start + _CHUNK, n)))
-            self.solver.add_frames(chunk, [self.source(k)[0] for k in chunk])
+            work = self.source.work(len(chunk))
+            parallel_map(lambda job: self.source.fill(*job), list(zip(chunk, work, strict=True)))
+            self.solver.add_frames(chunk, work, overwrite=True)
 
     def robust_pass(self, X: C64) -> None:
         """Refine and clip every frame against the solution ``X``; the noise re-measured."""
