@@ -233,9 +233,10 @@ class FourierSolver:
         ramps = [self.ramps(k) for k in ks]
         ry, rx = np.stack([r[0] for r in ramps]), np.stack([r[1] for r in ramps])
 
+        ny = self.rhs.shape[1]
+
         def band(r0: int) -> None:
-            r1 = r0 + _BAND_ROWS
-            accumulate(self.rhs[:, r0:r1], spectra, coef, ry[:, r0:r1], rx, first=r0)
+            accumulate(self.rhs, spectra, coef, ry, rx, first=r0, rows=min(_BAND_ROWS, ny - r0))
 
         parallel_map(band, range(0, self.rhs.shape[1], _BAND_ROWS))  # memory-bound
 
@@ -333,7 +334,7 @@ class FourierSolver:
                 ix = ((sign * (self._vx + jx * nx)) % Nx).astype(np.int64)
                 ix[ix >= Nxh] = -1
                 if ix.max() >= 0:
-                    place(spec, block, iy, ix, not direct)
+                    place(spec, np.ascontiguousarray(block), iy, ix, not direct)
         return packed_irfft2(spec)
 
 
@@ -369,7 +370,9 @@ def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
     g = np.stack([s.G for s in solvers], axis=-1).astype(np.complex64)[..., None, None]
     weight = np.array([s.lam for s in solvers], np.float32) * s2
     rhs = first.rhs[:, None] if p == 1 else np.stack([s.rhs for s in solvers], axis=1)
-    out = np.empty_like(rhs)
+    # each solver's solution C-ordered (the kernels that read it need that)
+    solutions = np.empty((p, rhs.shape[0], *rhs.shape[2:]), np.complex64)
+    out = np.moveaxis(solutions, 0, 1)
 
     # single precision is enough: the prior keeps every block well conditioned
     def rows(r0: int) -> None:
@@ -378,4 +381,4 @@ def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
         solve_blocks(*band, weight=weight, scale=float(s2), out=out[:, :, r0:r1])
 
     parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
-    return np.moveaxis(out, 1, 0)
+    return solutions

@@ -34,9 +34,12 @@ F32 = NDArray[np.float32]
 I64 = NDArray[np.int64]
 
 # Complex arrays go in as float32 views (re, im interleaved): the compiler vectorises
-# the real arithmetic written out, not numba's complex type.
-_F32_ROWS = nb.types.Array(nb.float32, 2, "A", readonly=True)
-_F32_3D_IN = nb.types.Array(nb.float32, 3, "A", readonly=True)
+# the real arithmetic written out, not numba's complex type. Every array is C-ordered:
+# with any other layout numba indexes through strides, and nothing is vectorised (the
+# accumulation took 2.7 times as long).
+_F32_1D_IN = nb.types.Array(nb.float32, 1, "C", readonly=True)
+_F32_ROWS = nb.types.Array(nb.float32, 2, "C", readonly=True)
+_F32_3D_IN = nb.types.Array(nb.float32, 3, "C", readonly=True)
 _F32_2D_OUT = nb.types.Array(nb.float32, 2, "C")
 
 
@@ -135,12 +138,13 @@ def _unpack(out: F32, packed: F32) -> None:
 MAX_FRAMES = 4
 _ACCUMULATE_SIGNATURES = [
     nb.void(
-        nb.types.Array(nb.float32, 3, "A"),  # rhs band (A, rows, 2 nxh), updated
-        nb.types.UniTuple(_F32_ROWS, n),  # the frames' CCS spectra (ny, nx), whole
+        nb.types.Array(nb.float32, 3, "C"),  # rhs (A, ny, 2 nxh), updated
+        nb.types.UniTuple(_F32_ROWS, n),  # the frames' CCS spectra (ny, nx)
         _F32_ROWS,  # coef (K, 2 A)
-        _F32_ROWS,  # the band's row ramps (K, 2 rows)
+        _F32_ROWS,  # row ramps (K, 2 ny)
         _F32_ROWS,  # column ramps (K, 2 nxh)
         nb.int64,  # the band's first row
+        nb.int64,  # its rows
     )
     for n in range(1, MAX_FRAMES + 1)
 ]
@@ -148,15 +152,15 @@ _ACCUMULATE_SIGNATURES = [
 
 @nb.njit(_ACCUMULATE_SIGNATURES, cache=True, nogil=True, fastmath=True, boundscheck=False)
 def _accumulate(
-    rhs: F32, spectra: tuple[F32, ...], coef: F32, ry: F32, rx: F32, first: int
+    rhs: F32, spectra: tuple[F32, ...], coef: F32, ry: F32, rx: F32, first: int, rows: int
 ) -> None:
-    n_alias, rows, cols = rhs.shape[0], rhs.shape[1], rhs.shape[2] // 2
+    n_alias, cols = rhs.shape[0], rhs.shape[2] // 2
     sp = np.empty(2 * cols, np.float32)
     tr = np.empty(cols, np.float32)
     ti = np.empty(cols, np.float32)
-    for y in range(rows):
+    for y in range(first, first + rows):
         for k in range(len(spectra)):
-            _unpack_row(spectra[k], first + y, sp)
+            _unpack_row(spectra[k], y, sp)
             rr, ri = ry[k, 2 * y], ry[k, 2 * y + 1]
             for x in range(cols):
                 ar = sp[2 * x] * rr - sp[2 * x + 1] * ri
@@ -173,17 +177,24 @@ def _accumulate(
 
 
 def accumulate(
-    rhs: C64, spectra: tuple[F32, ...], coef: C64, ry: C64, rx: C64, *, first: int
+    rhs: C64,
+    spectra: tuple[F32, ...],
+    coef: C64,
+    ry: C64,
+    rx: C64,
+    *,
+    first: int,
+    rows: int,
 ) -> None:
-    """``rhs[a, y, x] += sum_k coef[k, a] ry[k, y] rx[k, x] S_k[first + y, x]``, k in order.
+    """``rhs[a, y, x] += sum_k coef[k, a] ry[k, y] rx[k, x] S_k[y, x]`` for ``rows`` rows y.
 
-    ``spectra`` are the frames' whole CCS spectra (:func:`packed_rfft2`), S_k their
-    frequencies; ``rhs`` (A, rows, nxh) is the band of rows from ``first`` on, with its row
-    ramps ``ry``. It is updated row by row, so that the rows of every alias stay in the
-    cache while the (at most :data:`MAX_FRAMES`) frames are added.
+    From row ``first`` on, k in order. ``spectra`` are the frames' CCS spectra
+    (:func:`packed_rfft2`, C-ordered), S_k their frequencies; ``rhs`` (A, ny, nxh,
+    C-ordered) is updated row by row, so that the rows of every alias stay in the cache
+    while the (at most :data:`MAX_FRAMES`) frames are added.
     """
     _accumulate(
-        rhs.view(np.float32), tuple(spectra), _floats(coef), _floats(ry), _floats(rx), first
+        rhs.view(np.float32), tuple(spectra), _floats(coef), _floats(ry), _floats(rx), first, rows
     )
 
 
@@ -194,16 +205,17 @@ def _floats(a: C64) -> F32:
 
 _PREDICT_SIGNATURE = nb.void(
     _F32_2D_OUT,  # out: CCS (ny, nx)
-    nb.types.Array(nb.float32, 1, "A", readonly=True),  # coef (2 A,)
+    _F32_1D_IN,  # coef (2 A,)
     _F32_3D_IN,  # Z (A, ny, 2 nxh)
-    nb.types.Array(nb.float32, 1, "A", readonly=True),  # row ramp (2 ny,)
-    nb.types.Array(nb.float32, 1, "A", readonly=True),  # column ramp (2 nxh,)
+    _F32_1D_IN,  # row ramp (2 ny,)
+    _F32_1D_IN,  # column ramp (2 nxh,)
 )
 
 
 @nb.njit(_PREDICT_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
 def _predict(out: F32, coef: F32, Z: F32, ry: F32, rx: F32) -> None:
     n_alias, rows, cols = Z.shape[0], Z.shape[1], Z.shape[2] // 2
+    width = out.shape[1]
     o = np.empty(2 * cols, np.float32)
     for y in range(rows):
         for x in range(2 * cols):
@@ -215,13 +227,19 @@ def _predict(out: F32, coef: F32, Z: F32, ry: F32, rx: F32) -> None:
                 o[2 * x] += cr * z[2 * x] - ci * z[2 * x + 1]
                 o[2 * x + 1] += cr * z[2 * x + 1] + ci * z[2 * x]
         rr, ri = ry[2 * y], ry[2 * y + 1]
-        for x in range(cols):
+        dst = out[y]
+        for x in range(1, (width + 1) // 2):  # the inner columns, straight into place
             pr = rr * rx[2 * x] - ri * rx[2 * x + 1]
             pi = rr * rx[2 * x + 1] + ri * rx[2 * x]
             qr, qi = o[2 * x], o[2 * x + 1]
-            o[2 * x] = qr * pr - qi * pi
-            o[2 * x + 1] = qr * pi + qi * pr
-        _pack_row(o, out, y)
+            dst[2 * x - 1] = qr * pr - qi * pi
+            dst[2 * x] = qr * pi + qi * pr
+        for x, col in ((0, 0), (width // 2, width - 1)):  # the packed columns
+            if x == 0 or width % 2 == 0:
+                pr = rr * rx[2 * x] - ri * rx[2 * x + 1]
+                pi = rr * rx[2 * x + 1] + ri * rx[2 * x]
+                qr, qi = o[2 * x], o[2 * x + 1]
+                _put_edge(out, col, y, qr * pr - qi * pi, qr * pi + qi * pr)
 
 
 def predict(out: F32, coef: C64, Z: C64, ry: C64, rx: C64) -> None:
@@ -235,9 +253,9 @@ def predict(out: F32, coef: C64, Z: C64, ry: C64, rx: C64) -> None:
 
 _PLACE_SIGNATURE = nb.void(
     _F32_2D_OUT,  # spec: CCS (Ny, Nx), written
-    nb.types.Array(nb.complex64, 2, "A", readonly=True),  # block (ny, nxh)
-    nb.types.Array(nb.int64, 1, "A", readonly=True),  # destination row of each block row
-    nb.types.Array(nb.int64, 1, "A", readonly=True),  # destination column, -1: none
+    nb.types.Array(nb.complex64, 2, "C", readonly=True),  # block (ny, nxh)
+    nb.types.Array(nb.int64, 1, "C", readonly=True),  # destination row of each block row
+    nb.types.Array(nb.int64, 1, "C", readonly=True),  # destination column, -1: none
     nb.boolean,  # conjugate
 )
 
@@ -268,7 +286,7 @@ def place(spec: F32, block: C64, iy: I64, ix: I64, conjugate: bool) -> None:
                 dst[2 * u] = im
 
 
-_F32_2D_IN = nb.types.Array(nb.float32, 2, "A", readonly=True)
+_F32_2D_IN = nb.types.Array(nb.float32, 2, "C", readonly=True)
 _INT2 = nb.types.UniTuple(nb.int64, 2)
 _INT4 = nb.types.UniTuple(nb.int64, 4)
 _FILL_SIGNATURE = nb.void(
@@ -320,13 +338,13 @@ def fill_padded(out: F32, frame: F32, reference: F32, shift: tuple[int, int], pa
 
 
 _PSEUDO_SIGNATURE = nb.int64(
-    nb.types.Array(nb.float32, 2, "A"),  # prediction in, pseudo-data out (ny, nx)
+    _F32_2D_OUT,  # prediction in, pseudo-data out (ny, nx)
     _F32_2D_IN,  # frame (h, w)
     _INT2,  # offset: padded pixel (y, x) shows frame pixel (y, x) - offset
     _INT4,  # the padded pixels the frame covers: rows y0:y1, columns x0:x1
     nb.float32,  # clipping level
     nb.int64,  # the sample's step
-    nb.types.Array(nb.float32, 1, "A"),  # the sample out
+    nb.types.Array(nb.float32, 1, "C"),  # the sample out
 )
 
 

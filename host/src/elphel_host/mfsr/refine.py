@@ -61,9 +61,9 @@ class ModelSpectra:
             z *= s2
 
         parallel_map(alias, range(len(solver.offsets)))
-        self.Z = X
-        self.Zy = np.empty_like(X) if derivatives else None
-        self.Zx = np.empty_like(X) if derivatives else None
+        self.Z = np.ascontiguousarray(X)  # X itself: solutions are C-ordered
+        self.Zy = np.empty(X.shape, np.complex64) if derivatives else None
+        self.Zx = np.empty(X.shape, np.complex64) if derivatives else None
         if self.Zy is None or self.Zx is None:
             return
         for a, (jy, jx) in enumerate(solver.offsets):

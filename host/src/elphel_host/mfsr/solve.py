@@ -90,7 +90,7 @@ class _Frames:
         lr_shape: tuple[int, int],
         pads: tuple[int, int, int, int],
     ):
-        self.frames = [np.asarray(f, np.float32) for f in frames]
+        self.frames = [np.ascontiguousarray(f, np.float32) for f in frames]
         self.ref = self.frames[0]
         self.n_int, self.lr_shape, self.pads = n_int, lr_shape, pads
         self._work: F32 | None = None
