@@ -1,4 +1,4 @@
-"""The solver's compiled kernels against NumPy: packed (CCS) spectra, padded frames, clipping."""
+"""The solver's compiled kernels against NumPy: packed (CCS) spectra, frames, clipping, shifts."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from elphel_host.mfsr.kernels import (
     place,
     predict,
     pseudo_data,
+    shift_normal_equations,
     unpacked,
 )
 
@@ -126,3 +127,18 @@ def test_pseudo_data_on_the_rectangle_a_frame_covers(shift):
     on = v & (np.arange(15)[:, None] % 3 == 0) & (np.arange(18)[None, :] % 3 == 0)
     assert n == on.sum()
     assert np.array_equal(sample[:n], np.abs(r[on]))
+
+
+def test_shift_normal_equations_sum_the_voting_pixels():
+    rng = np.random.default_rng(11)
+    frame = _image((10, 13), 12)
+    pred, dy, dx = (rng.random((15, 18), dtype=np.float32) for _ in range(3))
+    offset, valid = (3, 2), (4, 13, 2, 14)  # covers frame rows 1..9, columns 0..11
+    got = shift_normal_equations(pred, dy, dx, frame, offset, valid, 0.4)
+    y0, y1, x0, x1 = valid
+    r = (frame[y0 - 3 : y1 - 3, x0 - 2 : x1 - 2] - pred[y0:y1, x0:x1]).astype(np.float64)
+    vote = np.abs(r) <= 0.4
+    assert 0 < vote.sum() < vote.size  # some pixels vote, some do not
+    gy, gx = dy[y0:y1, x0:x1][vote].astype(np.float64), dx[y0:y1, x0:x1][vote].astype(np.float64)
+    want = (gy @ gy, gy @ gx, gx @ gx, gy @ r[vote], gx @ r[vote])
+    assert np.allclose(got, want, rtol=1e-12, atol=0)

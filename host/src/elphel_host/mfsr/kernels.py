@@ -9,7 +9,8 @@ such operations in a row. Each kernel here is one pass over a band of rows:
 * :func:`predict`: one frame's model spectrum, the aliases combined by the frame's
   coupling and multiplied by its (conjugate) ramp;
 * :func:`place`: an alias block scattered into the HR spectrum;
-* :func:`pseudo_data`: a frame's Huber pseudo-data and a sample of its residual.
+* :func:`pseudo_data`: a frame's Huber pseudo-data and a sample of its residual;
+* :func:`shift_normal_equations`: the sums of a frame's shift refinement.
 
 Real images' spectra are in OpenCV's packed layout (CCS, see :func:`packed_rfft2`):
 OpenCV's real transforms take half the time of SciPy's on these sizes, and the kernels
@@ -374,3 +375,42 @@ def pseudo_data(
         for x in range(x0, x1):
             p[x] += min(max(f[x - ox] - p[x], -clip), clip)
     return n
+
+
+_SHIFT_SIGNATURE = nb.types.UniTuple(nb.float64, 5)(
+    _F32_2D_IN,  # prediction (ny, nx)
+    _F32_2D_IN,  # its derivative along y
+    _F32_2D_IN,  # along x
+    _F32_2D_IN,  # frame (h, w)
+    _INT2,  # offset (as for pseudo_data)
+    _INT4,  # the padded pixels the frame covers
+    nb.float64,  # residuals beyond this do not vote
+)
+
+
+@nb.njit(_SHIFT_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
+def shift_normal_equations(
+    pred: F32, dy: F32, dx: F32, frame: F32, offset: Any, valid: Any, limit: float
+) -> tuple[float, float, float, float, float]:
+    """Sums of the Gauss-Newton step that moves the prediction onto the frame.
+
+    Over the frame's pixels (``offset`` and ``valid`` as for :func:`pseudo_data`) whose
+    residual ``r = frame - pred`` is at most ``limit`` in size: ``sum dy^2``,
+    ``sum dy dx``, ``sum dx^2``, ``sum dy r`` and ``sum dx r`` (float64 sums of the
+    float32 values).
+    """
+    oy, ox = offset
+    y0, y1, x0, x1 = valid
+    a11 = a12 = a22 = b1 = b2 = 0.0
+    for y in range(y0, y1):
+        f, p, gy, gx = frame[y - oy], pred[y], dy[y], dx[y]
+        for x in range(x0, x1):
+            r = f[x - ox] - p[x]
+            if abs(r) <= limit:
+                vy, vx, rr = np.float64(gy[x]), np.float64(gx[x]), np.float64(r)
+                a11 += vy * vy
+                a12 += vy * vx
+                a22 += vx * vx
+                b1 += vy * rr
+                b2 += vx * rr
+    return a11, a12, a22, b1, b2

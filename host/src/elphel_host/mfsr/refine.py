@@ -10,7 +10,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from elphel_host.mfsr.forward import C64, F32, FourierSolver
-from elphel_host.mfsr.kernels import packed_irfft2, predict, pseudo_data
+from elphel_host.mfsr.kernels import (
+    packed_irfft2,
+    predict,
+    pseudo_data,
+    shift_normal_equations,
+)
 from elphel_host.parallel import parallel_map
 
 _SPREAD_STEP = 3  # the residual's sample: every third row and column
@@ -28,17 +33,6 @@ class PaddedFrame:
     frame: F32
     offset: tuple[int, int]
     valid: tuple[int, int, int, int]
-
-    def residual(self, pred: F32) -> F32:
-        """``frame - pred`` on the valid rectangle (``pred`` on the padded grid)."""
-        y0, y1, x0, x1 = self.valid
-        oy, ox = self.offset
-        return np.asarray(self.frame[y0 - oy : y1 - oy, x0 - ox : x1 - ox] - pred[y0:y1, x0:x1])
-
-    def inside(self, image: F32) -> F32:
-        """``image`` (on the padded grid) on the valid rectangle."""
-        y0, y1, x0, x1 = self.valid
-        return image[y0:y1, x0:x1]
 
 
 class ModelSpectra:
@@ -71,10 +65,6 @@ class ModelSpectra:
             wx = (2j * np.pi * (solver._vx + jx * nx) / Nx).astype(np.complex64)
             np.multiply(X[a], wy[:, None], out=self.Zy[a])
             np.multiply(X[a], wx[None, :], out=self.Zx[a])
-
-
-def _dot(a: F32, b: F32) -> float:
-    return float(np.einsum("ij,ij->", a, b, dtype=np.float64))
 
 
 def refine_and_pseudo(
@@ -117,12 +107,9 @@ def refine_and_pseudo(
             raise ValueError("refine=True with spectra made without derivatives")
         dy = model(spectra.Zy, np.empty((ny, nx), np.float32))
         dx = model(spectra.Zx, np.empty((ny, nx), np.float32))
-        r = frame.residual(pred)
-        w = (np.abs(r) <= huber * sigma).astype(np.float32)
-        vy, vx = frame.inside(dy), frame.inside(dx)
-        dyw, dxw = vy * w, vx * w
-        a11, a12, a22 = _dot(dyw, vy), _dot(dyw, vx), _dot(dxw, vx)
-        b1, b2 = _dot(dyw, r), _dot(dxw, r)
+        a11, a12, a22, b1, b2 = shift_normal_equations(
+            pred, dy, dx, frame.frame, frame.offset, frame.valid, huber * sigma
+        )
         det = a11 * a22 - a12 * a12
         if det > 1e-12 * max(a11 * a22, 1e-30):
             dt = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det)
