@@ -10,7 +10,8 @@ such operations in a row. Each kernel here is one pass over a band of rows:
   coupling and multiplied by its (conjugate) ramp;
 * :func:`place`: an alias block scattered into the HR spectrum;
 * :func:`pseudo_data`: a frame's Huber pseudo-data and a sample of its residual;
-* :func:`shift_normal_equations`: the sums of a frame's shift refinement.
+* :func:`shift_normal_equations`: the sums of a frame's shift refinement;
+* :func:`squared_residual`: a prediction's squared error on a rectangle.
 
 Real images' spectra are in OpenCV's packed layout (CCS, see :func:`packed_rfft2`):
 OpenCV's real transforms take half the time of SciPy's on these sizes, and the kernels
@@ -414,3 +415,22 @@ def shift_normal_equations(
                 b1 += vy * rr
                 b2 += vx * rr
     return a11, a12, a22, b1, b2
+
+
+@nb.njit(
+    nb.float64(_F32_2D_IN, _F32_2D_IN, _INT4),
+    cache=True,
+    nogil=True,
+    fastmath=True,
+    boundscheck=False,
+)
+def squared_residual(target: F32, pred: F32, rect: Any) -> float:
+    """``sum (target - pred)^2`` over rows y0:y1 and columns x0:x1 (a float64 sum)."""
+    y0, y1, x0, x1 = rect
+    total = 0.0
+    for y in range(y0, y1):
+        t, p = target[y], pred[y]
+        for x in range(x0, x1):
+            r = np.float64(t[x] - p[x])
+            total += r * r
+    return total
