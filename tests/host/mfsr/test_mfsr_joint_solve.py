@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from elphel_host.mfsr.bayer import bayer_sites, colour_planes, frame_shifts, site_shifts
+from elphel_host.mfsr.forward import ForwardModel, FourierSolver, solve_joint
 from elphel_host.mfsr.ldl import solve_blocks
 from elphel_host.mfsr.psf import NO_OPTICS, Optics
 from elphel_host.mfsr.solve import (
@@ -89,3 +90,20 @@ def test_measured_passes_are_the_solves_details(burst2):
     assert measured == info
     assert measured["shifts_refined"] != [list(s) for s in start]  # the passes moved them
     assert measured["noise_sigma"] != 0.02
+
+
+def test_solutions_and_images_in_given_memory_are_the_same(burst2):
+    frames, shifts = burst2
+    model = ForwardModel((64, 80), 2, 2)
+    solver = FourierSolver(model, [tuple(s - np.rint(s)) for s in shifts], lam=0.01)
+    solver.add_frames(range(len(frames)), [np.ascontiguousarray(f[:64, :80]) for f in frames])
+    X = solve_joint([solver])
+    again = solve_joint([solver], out=np.full_like(X, np.nan))
+    assert np.array_equal(again, X)
+    image = solver.to_image(X[0], shift_hr=(0.3, -0.2))
+    memory = np.full(2 * image.size + 7, np.nan, np.float32)
+    assert np.array_equal(solver.to_image(X[0], shift_hr=(0.3, -0.2), out=memory), image)
+    with pytest.raises(ValueError, match="allowed: C-ordered"):
+        solve_joint([solver], out=np.empty((1, 4, 64, 40), np.complex64))
+    with pytest.raises(ValueError, match="allowed: C-ordered float32"):
+        solver.to_image(X[0], out=memory[: image.size - 1])

@@ -315,16 +315,28 @@ class FourierSolver:
         out *= px[None, :]
         return out
 
-    def to_image(self, X: C64, *, shift_hr: tuple[float, float] = (0.0, 0.0)) -> F32:
+    def to_image(
+        self, X: C64, *, shift_hr: tuple[float, float] = (0.0, 0.0), out: F32 | None = None
+    ) -> F32:
         """Place the alias blocks into the HR half-spectrum and return the real HR image.
 
         ``shift_hr`` (dy, dx) resamples the result exactly (band-limited) so that output
-        pixel u shows the solution at u + shift.
+        pixel u shows the solution at u + shift. ``out``: C-ordered float32 of at least
+        the HR image's size, whose memory the spectrum and the image take (the image is
+        a view of it).
         """
         ny, nx = self.model.lr_shape
         Ny, Nx = self.model.hr_shape
         Nxh = Nx // 2 + 1
-        spec = np.zeros((Ny, Nx), dtype=np.float32)  # packed (kernels.packed_rfft2)
+        if out is None:
+            spec = np.zeros((Ny, Nx), dtype=np.float32)  # packed (kernels.packed_rfft2)
+        elif out.dtype != np.float32 or not out.flags.c_contiguous or out.size < Ny * Nx:
+            raise ValueError(
+                f"out {out.dtype} of {out.size}; allowed: C-ordered float32 >= {Ny * Nx}"
+            )
+        else:
+            spec = out.reshape(-1)[: Ny * Nx].reshape(Ny, Nx)
+            spec[...] = 0
         blocks = [self._shifted(X[a], jy, jx, shift_hr) for a, (jy, jx) in enumerate(self.offsets)]
         # the conjugate half first, then the solved half (which wins where they meet)
         for direct in (False, True):
@@ -338,12 +350,13 @@ class FourierSolver:
         return packed_irfft2(spec)
 
 
-def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
+def solve_joint(solvers: Sequence[FourierSolver], *, out: C64 | None = None) -> C64:
     """Solve the blocks of several solvers of one shape and scale in one batched pass.
 
     The solvers (a Bayer burst's colour planes, each with its own frames, shifts,
     optics and prior weight) share the LR shape and the scale, so their block systems
-    stack along a batch axis and are factored together (:func:`solve_blocks`).
+    stack along a batch axis and are factored together (:func:`solve_blocks`). ``out``
+    (complex64, C-ordered, the shape returned) receives the solutions.
 
     Returns
     -------
@@ -371,14 +384,17 @@ def solve_joint(solvers: Sequence[FourierSolver]) -> C64:
     weight = np.array([s.lam for s in solvers], np.float32) * s2
     rhs = first.rhs[:, None] if p == 1 else np.stack([s.rhs for s in solvers], axis=1)
     # each solver's solution C-ordered (the kernels that read it need that)
-    solutions = np.empty((p, rhs.shape[0], *rhs.shape[2:]), np.complex64)
-    out = np.moveaxis(solutions, 0, 1)
+    shape = (p, rhs.shape[0], *rhs.shape[2:])
+    solutions = np.empty(shape, np.complex64) if out is None else out
+    if solutions.shape != shape or not solutions.flags.c_contiguous:
+        raise ValueError(f"out of shape {solutions.shape}; allowed: C-ordered {shape}")
+    by_alias = np.moveaxis(solutions, 0, 1)
 
     # single precision is enough: the prior keeps every block well conditioned
     def rows(r0: int) -> None:
         r1 = min(ny, r0 + _SOLVE_ROWS)
         band = (d_all[:, :, r0:r1], g, l_all[:, :, r0:r1], rhs[:, :, r0:r1])
-        solve_blocks(*band, weight=weight, scale=float(s2), out=out[:, :, r0:r1])
+        solve_blocks(*band, weight=weight, scale=float(s2), out=by_alias[:, :, r0:r1])
 
     parallel_map(rows, range(0, ny, _SOLVE_ROWS))  # row bands on every core
     return solutions

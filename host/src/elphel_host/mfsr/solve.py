@@ -263,11 +263,10 @@ def _solved(
     X = solve_joint([st.solver for st in states])
     for n in range(options.passes):
         for st, x in zip(states, X, strict=True):
-            st.robust_pass(x)
-        del X, x
+            st.robust_pass(x)  # X holds the pass's model spectra now
         if n + 1 == options.passes and not final:
             return states, None
-        X = solve_joint([st.solver for st in states])
+        X = solve_joint([st.solver for st in states], out=X)
     return states, X
 
 
@@ -384,7 +383,9 @@ def _on_reference_grid(
     scale = int(geometry.scale)
     h, w = shape
     drift = solver.t[0] - t0_start
-    img = solver.to_image(X, shift_hr=(float(drift[0]), float(drift[1])))
+    # the right-hand side is spent after the last solve: its memory takes the image
+    spent = solver.rhs.view(np.float32)
+    img = solver.to_image(X, shift_hr=(float(drift[0]), float(drift[1])), out=spent)
     y0 = x0 = p * scale
     out = np.ascontiguousarray(img[y0 : y0 + h * scale, x0 : x0 + w * scale])
     return out, _details(solver, t0_start, n_int, geometry, noise)
