@@ -252,12 +252,16 @@ class FourierSolver:
             l2 = np.empty_like(d)
             py, px = self._prior_shape()
             f32 = partial(np.asarray, dtype=np.float32)
-            for a, (jy, jx) in enumerate(self.offsets):
+
+            def alias(a: int) -> None:
+                jy, jx = self.offsets[a]
                 np.multiply(f32(self.hy[jy])[:, None], f32(self.hx[jx])[None, :], out=d[a])
                 np.add(f32(self.ly[jy])[:, None], f32(self.lx[jx])[None, :], out=l2[a])
                 if py:
                     l2[a] *= f32(py[jy])[:, None]
                     l2[a] *= f32(px[jx])[None, :]
+
+            parallel_map(alias, range(len(self.offsets)))
             if self.model.kernel is not None:
                 d *= self._kernel_transfer().astype(np.float32)
             self._factors = (d, l2)

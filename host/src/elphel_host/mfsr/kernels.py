@@ -327,12 +327,15 @@ def fill_padded(out: F32, frame: F32, reference: F32, shift: tuple[int, int], pa
         q = _mirror(y - top, h)
         row = out[y]
         ref = reference[q]
-        for j in range(w):
+        covered = 0 <= q - sy < h and x1 > x0
+        for j in range(x0 if covered else w):
             row[left + j] = ref[j]
-        if 0 <= q - sy < h and x1 > x0:
+        if covered:
             src = frame[q - sy]
             for j in range(x0, x1):
                 row[left + j] = src[j - sx]
+            for j in range(x1, w):
+                row[left + j] = ref[j]
         for x in range(left):
             row[x] = row[left + _mirror(x - left, w)]
         for x in range(left + w, out.shape[1]):
