@@ -9,6 +9,7 @@ into one loop each, around the larger matrix products that BLAS does well:
   columns, into its colour spectra;
 * :func:`rotated_pair_products`: the pair products summed over colours (first camera
   conjugated), the fat-zero normalisation and both cameras' phase rotations, per tile;
+* :func:`image_cells`: a camera's image regrouped by Bayer cell, once per image set;
 * :func:`lens_pixels` and :func:`lens_windows`: where a calibrated camera sees each tile
   (:meth:`elphel_host.tp.calibrated.CalibratedGeometry.pixels`, the same operations in
   the same order, so the same float64 results), one loop instead of some forty NumPy
@@ -423,6 +424,39 @@ def rotated_pair_products(
             a, b = pairs[p, 0], pairs[p, 1]
             _colour_sum(spectra[a, t], spectra[b, t], sizes, acc)
             _normalised(acc, rot[a], rot[b], fz2, scale, out[p, t])
+
+
+_CELLS_SIGNATURE = nb.void(
+    nb.float32[:, ::1],  # image (H, W)
+    nb.int64[::1],  # row of each plane in the cell (planes,)
+    nb.int64[::1],  # column of each plane in the cell (planes,)
+    nb.int64,  # padding, cells
+    nb.float32[:, :, ::1],  # out (H/c + 2 pad, W/c + 2 pad, planes)
+)
+
+
+@nb.njit(_CELLS_SIGNATURE, cache=True, nogil=True, boundscheck=False)
+def image_cells(image: F32, plane_rows: I64, plane_cols: I64, pad: int, out: F32) -> None:
+    """An image regrouped by cell: ``out[i, j, p] = image[c ci + rows[p], c cj + cols[p]]``.
+
+    ``c = H / out rows`` less the padding (1 mono, 2 Bayer), ``ci = clip(i - pad)`` and
+    ``cj = clip(j - pad)`` to the image's cells: the padding repeats the border cell.
+    """
+    planes = plane_rows.shape[0]
+    cell = image.shape[0] // (out.shape[0] - 2 * pad)
+    h, w = image.shape[0] // cell, image.shape[1] // cell
+    for i in range(out.shape[0]):
+        ci = min(max(i - pad, 0), h - 1)
+        row = out[i]
+        for p in range(planes):
+            src = image[cell * ci + plane_rows[p]]
+            c0 = plane_cols[p]
+            for j in range(pad):
+                row[j, p] = src[c0]
+            for j in range(w):
+                row[pad + j, p] = src[cell * j + c0]
+            for j in range(pad + w, out.shape[1]):
+                row[j, p] = src[cell * (w - 1) + c0]
 
 
 #: The calibrated camera of :func:`lens_pixels`, packed by

@@ -236,20 +236,15 @@ def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
     Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
     in cells, that is the border cell repeated.
     """
-    img = np.asarray(image, dtype=np.float32)
+    from elphel_host.tp import fused  # loads the compiled kernels (see raw_spectra)
+
+    img = np.ascontiguousarray(image, dtype=np.float32)
     c, pc = tr.cell, tr.pad // tr.cell
     if img.ndim != 2 or img.shape[0] % c or img.shape[1] % c:
         raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
     h, w = img.shape[0] // c, img.shape[1] // c
-    grid = img.reshape(h, c, w, c)
     out = np.empty((h + 2 * pc, w + 2 * pc, tr.plane_rows.size), dtype=np.float32)
-    inner = out[pc : pc + h, pc : pc + w]
-    for p, (r, q) in enumerate(zip(tr.plane_rows, tr.plane_cols, strict=True)):
-        inner[:, :, p] = grid[:, r, :, q]
-    out[:pc] = out[pc]
-    out[pc + h :] = out[pc + h - 1]
-    out[:, :pc] = out[:, pc : pc + 1]
-    out[:, pc + w :] = out[:, pc + w - 1 : pc + w]
+    fused.image_cells(img, tr.plane_rows.astype(np.int64), tr.plane_cols.astype(np.int64), pc, out)
     return out
 
 
