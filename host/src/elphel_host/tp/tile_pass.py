@@ -292,8 +292,13 @@ def _checked_target(quad: QuadImages, target: NDArray[np.floating]) -> NDArray[n
 
 
 def _in_chunks(fn: Callable[[NDArray[np.intp]], None], n: int, config: TpConfig) -> None:
-    """``fn(tile indices)`` over chunks of ``config.chunk_tiles`` on ``config.threads``."""
-    size = config.chunk_tiles
+    """``fn(tile indices)`` over chunks of at most ``config.chunk_tiles`` on ``config.threads``.
+
+    The chunks are of equal size and a whole number per thread, so that no thread is left
+    alone with the last chunk.
+    """
+    count = config.threads * -(-n // (config.threads * config.chunk_tiles))
+    size = -(-n // count)
     bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
     with single_threaded_blas():
         parallel_map(lambda b: fn(np.arange(b[0], b[1])), bounds, threads=config.threads)
