@@ -232,7 +232,7 @@ def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
 
     Plane p of cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
     (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
-    are a few contiguous runs (:func:`elphel_host.tp.fused.gather_windowed` reads them).
+    are a few contiguous runs (:func:`elphel_host.tp.fused.tile_spectra` reads them).
     Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
     in cells, that is the border cell repeated.
     """
