@@ -8,12 +8,13 @@ the four horizontal and vertical pairs of the same quad. Timed runs take turns (
 SGBM q0, TP q1, ...; best of --repeat each), so that a drift in how fast the host runs the
 vCPUs does not favour one side. Reported per quad and as the worst over the quads: SGBM's
 time over the TP's and the RMS errors. Also: where the TP's time goes (per stage, summed
-over its threads, first quad), the arithmetic of its matrix products against a batched
-float32 matrix product of the same shapes on the same threads (the machine's rate for
-it), a quad of twice the width and height (as super-resolved quads are), and per-tile
-cv2.phaseCorrelate on the first quad, and the calibrated case (bench/_tp_calibrated.py: raw
-images of a quad whose cameras have their own distortion and rotation, with the calibration
-`elphel calibrate solve` finds). Prints exactly one JSON object; nothing is hard-coded.
+over its threads, first quad), the arithmetic of its transforms and matrix products
+against batched float32 matrix products of the transform's dense shapes on the same
+threads (the machine's matmul rate), a quad of twice the width and height (as super-resolved quads
+are), and per-tile cv2.phaseCorrelate on the first quad, and the calibrated case
+(bench/_tp_calibrated.py: raw images of a quad whose cameras have their own distortion and
+rotation, with the calibration `elphel calibrate solve` finds). Prints exactly one JSON
+object; nothing is hard-coded.
 
     .venv/bin/python bench/tp.py [--width 2592 --height 1936 --seeds 0 1 2 3 --threads 2]
                                  [--repeat 3] [--skip-large] [--skip-phase-correlate]
@@ -147,20 +148,32 @@ def region_rms(est: np.ndarray, truth: simquad.TileTruth, names: list[str]) -> d
 
 
 def pass_flops(prep: tile_pass.PreparedQuad, tiles: int) -> dict[str, float]:
-    """Floating-point operations of the matrix products of one pass over ``tiles`` tiles."""
-    # one matrix per colour applies to each tile (the one of its start parity)
-    per_camera = sum(2 * m.shape[-2] * m.shape[-1] for _, m in prep.transform.blocks)
+    """Floating-point operations of the transforms and products of one pass over ``tiles``."""
+    tr = prep.transform
+    planes, inner = tr.plane_rows.size, tr.inner
+    # separable transform, as computed: 16 (kh, re/im) lanes along the rows, then per
+    # colour plane and kv two 16-lane sums down the columns
+    rows = planes * inner * inner * 16
+    columns = sum(int(p1 - p0) * int(kvs) * inner * 32 for p0, p1, _, kvs in tr.colours)
     profiles = sum(2 * b.shape[0] * b.shape[1] for b in prep.profiles.basis)
     return {
-        "to_clt": float(tiles * 4 * per_camera),
+        "to_clt": float(tiles * 4 * 2 * (rows + columns)),
         "correlation": float(tiles * profiles),
     }
 
 
 def matmul_peak(prep: tile_pass.PreparedQuad, threads: int, seconds: float = 1.0) -> float:
-    """GFLOP/s of batched float32 products of the transform's shapes on ``threads`` threads."""
+    """GFLOP/s of batched float32 products on ``threads`` threads (the machine's rate).
+
+    The shapes are those of the transform done as one dense product per colour: a chunk's
+    samples of the colour's planes times (samples, 4 frequencies).
+    """
     rng = np.random.default_rng(0)
-    mats = [m[0] for _, m in prep.transform.blocks]
+    tr = prep.transform
+    mats = [
+        rng.random((int(p1 - p0) * tr.inner**2, 4 * int(n)), dtype=np.float32)
+        for p0, p1, n, _ in tr.colours
+    ]
     chunk = TpConfig().chunk_tiles
     data = [rng.random((chunk, m.shape[0]), dtype=np.float32) for m in mats]
     flops_one = sum(2 * chunk * m.shape[0] * m.shape[1] for m in mats)
@@ -309,7 +322,7 @@ def timed_turns(quads: list[BenchQuad], config: TpConfig, repeat: int) -> Turns:
 
 
 def matmul_figures(q: BenchQuad, config: TpConfig, threads: int, tp_s: float) -> dict[str, Any]:
-    """The DSI's matrix-product arithmetic, its rate, and the machine's rate for it."""
+    """The DSI's transform and product arithmetic, its rate, and the machine's matmul rate."""
     reach = max(abs(s) for s in config.scan) + config.radius * (config.refine_passes + 1)
     prep = tile_pass.prepare(q.quad, config, reach)
     ty, tx = q.quad.tiles

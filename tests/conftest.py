@@ -12,6 +12,16 @@ import pytest
 
 from elphel_sim.board import SimCameraBoard
 
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run the tests marked ``slow`` first, each group in its collection order.
+
+    With pytest-xdist, a long test that starts last leaves the other workers idle until it
+    ends; started first, it runs beside the many short ones.
+    """
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 # How long a thread a test started may take to end after the test (a pool told to shut
 # down without waiting, a reader noticing its stream closed).
 THREAD_GRACE_S = 2.0

@@ -35,11 +35,11 @@ def test_every_sensor_model_end_to_end(mixed_rig, tmp_path):
         start = []
         if model.startswith("MT9"):
             # A small window keeps the simulated render quick; a long exposure slows the
-            # frames so the ring buffer (64 frames) still holds the target frame when the
+            # frames so the ring buffer (64 frames, 19 s) still holds the target frame when the
             # capture command starts.
             window = ["WOI_WIDTH=128", "WOI_HEIGHT=96", "WOI_LEFT=512", "WOI_TOP=384"]
             r = run_cli(
-                *("camera", "set", "--sensor-port", str(port), *window, "EXPOS=150000", "--json"),
+                *("camera", "set", "--sensor-port", str(port), *window, "EXPOS=300000", "--json"),
                 env=mixed_rig,
             )
             assert r.returncode == 0, r.stderr

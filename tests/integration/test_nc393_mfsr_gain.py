@@ -15,6 +15,7 @@ from typing import Any
 
 import httpx
 import numpy as np
+import pytest
 import tifffile
 
 from elphel_host.camera import connect
@@ -81,6 +82,7 @@ def burst_gain(out: Path, *firmware: str) -> dict[str, float]:
     return {m: compare["methods"][m]["psnr_db"] for m in ("bicubic", "robust")}
 
 
+@pytest.mark.slow  # two simulated rigs, two bursts, four fusions
 def test_mfsr_gain_from_jp4_frames_matches_raw_frames(tmp_path: Path) -> None:
     (tmp_path / "camd").mkdir()
     (tmp_path / "nc393").mkdir()

@@ -136,6 +136,7 @@ def guest(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]
 # One test for the whole tier, so that it boots once whichever worker runs it (pytest-xdist
 # 3.8's xdist_group marks do not reach the scheduler under pytest 9: parametrized cases
 # spread over the workers and each booted its own guest).
+@pytest.mark.slow  # boots a kernel under software emulation
 def test_every_guest_test_passes_in_one_boot(guest: dict[str, tuple[str, str]]) -> None:
     missing, failed = [], {}
     for name in _guest_tests():

@@ -104,6 +104,7 @@ def _difference_px(cal: Calibration, *, margin: float = MARGIN) -> list[float]:
     ]
 
 
+@pytest.mark.slow  # its fixture solves 24 views with and without grids
 def test_a_lens_with_a_residual_gets_a_grid_that_brings_it_within_a_few_hundredths(
     solved: dict[str, Calibration],
 ) -> None:

@@ -1,14 +1,15 @@
 """Fused per-tile kernels of the tile processor, compiled by numba (host only).
 
-NumPy makes one full pass over memory, and one temporary, per element-wise operation.
-The two element-wise stretches of a pass are fused here into one loop each, around the
-matrix products that NumPy and BLAS do well:
+NumPy makes one full pass over memory, and one temporary, per element-wise operation,
+and BLAS is slow on many tiny products. The per-tile stretches of a pass are fused here
+into one loop each, around the larger matrix products that BLAS does well:
 
-* :func:`gather_windowed`: each tile's cell-aligned footprint gathered from the cells of
-  a camera and multiplied by its shifted window (separable: a row factor times a column
-  factor), straight into the rows the transform products read;
+* :func:`tile_spectra`: each tile's samples gathered from the cells of a camera,
+  multiplied by its shifted window and transformed, along the rows then down the
+  columns, into its colour spectra;
 * :func:`rotated_pair_products`: the pair products summed over colours (first camera
   conjugated), the fat-zero normalisation and both cameras' phase rotations, per tile;
+* :func:`image_cells`: a camera's image regrouped by Bayer cell, once per image set;
 * :func:`lens_pixels` and :func:`lens_windows`: where a calibrated camera sees each tile
   (:meth:`elphel_host.tp.calibrated.CalibratedGeometry.pixels`, the same operations in
   the same order, so the same float64 results), one loop instead of some forty NumPy
@@ -20,96 +21,275 @@ disk by numba), release the GIL and run on the tile processor's worker threads.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, cast
+
 import numba as nb
 import numpy as np
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 from numpy.typing import NDArray
 
 F32 = NDArray[np.float32]
 I64 = NDArray[np.int64]
+U64 = NDArray[np.uint64]
 
 
-_GATHER_SIGNATURE = nb.void(
+def _stack_floats_typing(typingctx: object, size: types.Type) -> object:
+    """Typing and code of :func:`_stack_floats`."""
+    if not isinstance(size, types.IntegerLiteral):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        count = context.get_constant(types.intp, size.literal_value)
+        return cgutils.alloca_once(builder, context.get_value_type(types.float32), size=count)
+
+    return types.CPointer(types.float32)(size), codegen
+
+
+#: ``_stack_floats(n)`` in a kernel: a pointer to n float32 on the kernel's stack (n a
+#: literal int). Scratch on the stack provably aliases no argument, so the compiler keeps
+#: a tile's partial sums in vector registers; heap scratch (``np.empty``) could alias
+#: ``out``, and the compiler then falls back to scalar loads and stores.
+_stack_floats = cast(Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_floats_typing))
+
+
+# Products without reassociation: the compiler then vectorises the 16 independent sums
+# of a tile row (one vector register) instead of each sum over its 8 terms.
+_SUMS = {"contract", "nnan", "ninf", "nsz", "arcp"}
+
+
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
+def _sum8(m: F32, r: int, s: tuple[float, ...], out: F32, row: int, accumulate: bool) -> None:
+    """``out[row, j] (+)= sum_k s[k] m[r + k, j]``, k < 8, for the 16 columns j of ``m``."""
+    s0, s1, s2, s3, s4, s5, s6, s7 = s
+    for j in range(16):
+        x = (
+            s0 * m[r, j]
+            + s1 * m[r + 1, j]
+            + s2 * m[r + 2, j]
+            + s3 * m[r + 3, j]
+            + s4 * m[r + 4, j]
+            + s5 * m[r + 5, j]
+            + s6 * m[r + 6, j]
+            + s7 * m[r + 7, j]
+        )
+        if accumulate:
+            out[row, j] += x
+        else:
+            out[row, j] = x
+
+
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
+def _tile_rows(
+    cells: F32,
+    r0: int,
+    c0: int,
+    p: int,
+    wy: F32,
+    fx: F32,
+    basis: F32,
+    out: F32,
+    first: int,
+    inner: int,
+) -> None:
+    """Rows ``first + v`` of ``out``: plane p's windowed samples times the row basis.
+
+    ``out[first + v, j] = wy[v] sum_u cells[r0 + v, c0 + u, p] fx[u] basis[u, j]``, v and
+    u below ``inner``.
+    """
+    for v in range(inner):
+        src = cells[r0 + v]
+        w = wy[v]
+        for h in range(0, inner, 8):
+            c = c0 + h
+            s = (
+                w * fx[h] * src[c, p],
+                w * fx[h + 1] * src[c + 1, p],
+                w * fx[h + 2] * src[c + 2, p],
+                w * fx[h + 3] * src[c + 3, p],
+                w * fx[h + 4] * src[c + 4, p],
+                w * fx[h + 5] * src[c + 5, p],
+                w * fx[h + 6] * src[c + 6, p],
+                w * fx[h + 7] * src[c + 7, p],
+            )
+            _sum8(basis, h, s, out, first + v, h > 0)
+
+
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
+def _tile_columns(
+    y: F32, first: int, basis: F32, kv_count: int, za: F32, zb: F32, add: bool, inner: int
+) -> None:
+    """Column transform of one plane's rows ``y[first:first + inner]`` into ``za``, ``zb``.
+
+    ``za[kv] (+)= sum_v Re(E[kv, v]) y[first + v]``, ``zb`` the same with ``Im``.
+    """
+    for k in range(kv_count):
+        a, b = basis[0, k], basis[1, k]
+        for h in range(0, inner, 8):
+            sa = (a[h], a[h + 1], a[h + 2], a[h + 3], a[h + 4], a[h + 5], a[h + 6], a[h + 7])
+            sb = (b[h], b[h + 1], b[h + 2], b[h + 3], b[h + 4], b[h + 5], b[h + 6], b[h + 7])
+            _sum8(y, first + h, sa, za, k, add or h > 0)
+            _sum8(y, first + h, sb, zb, k, add or h > 0)
+
+
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
+def _store_colour(fa: F32, fb: F32, positions: U64, n: int, root: F32, out: F32, base: int) -> None:
+    """One colour's ``(which, re/im, f)`` from the column sums (flat ``za``, ``zb``).
+
+    With ``E = a + ib`` along y and ``Y = c + id`` the row transform: ``za = (sum a c |
+    sum a d)``, ``zb = (sum b c | sum b d)``, so ``E Y`` (z2) and ``conj(E) Y`` (z1) are
+    their sums and differences.
+    """
+    for f in range(n):
+        i = positions[f]
+        ac, ad, bc, bd = fa[i], fa[i + 8], fb[i], fb[i + 8]
+        out[base + f] = root[0, f] * (ac - bd)
+        out[base + n + f] = root[0, f] * (ad + bc)
+        out[base + 2 * n + f] = root[1, f] * (ac + bd)
+        out[base + 3 * n + f] = root[1, f] * (ad - bc)
+
+
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
+def _all_tiles(
+    cells: F32,
+    at: I64,
+    trig: F32,
+    window_y: F32,
+    window_x: F32,
+    row_basis: F32,
+    col_basis: F32,
+    first_y: I64,
+    first_x: I64,
+    colours: I64,
+    positions: U64,
+    roots: F32,
+    out: F32,
+    planes: int,
+    inner: int,
+) -> None:
+    """:func:`tile_spectra` for ``planes`` planes of ``inner x inner`` samples (constants)."""
+    y = nb.carray(_stack_floats(1024), (64, 16))  # (plane, v) rows of the row transform
+    wy = nb.carray(_stack_floats(16), (16,))
+    fx = nb.carray(_stack_floats(16), (16,))
+    pa, pb = _stack_floats(128), _stack_floats(128)
+    za, zb = nb.carray(pa, (8, 16)), nb.carray(pb, (8, 16))
+    fa, fb = nb.carray(pa, (128,)), nb.carray(pb, (128,))
+    for t in range(at.shape[1]):
+        py, px = at[2, t], at[3, t]
+        for p in range(planes):
+            for v in range(inner):
+                wy[v] = trig[t, 0] * window_y[py, p, 0, v] + trig[t, 1] * window_y[py, p, 1, v]
+                fx[v] = trig[t, 2] * window_x[px, p, 0, v] + trig[t, 3] * window_x[px, p, 1, v]
+            r0, c0 = at[0, t] + first_y[py, p], at[1, t] + first_x[px, p]
+            _tile_rows(cells, r0, c0, p, wy, fx, row_basis[px, p], y, p * inner, inner)
+        base = 0
+        for c in range(colours.shape[0]):
+            p0, p1, n, kvs = colours[c, 0], colours[c, 1], colours[c, 2], colours[c, 3]
+            for p in range(p0, p1):
+                _tile_columns(y, p * inner, col_basis[py, p], kvs, za, zb, p > p0, inner)
+            _store_colour(fa, fb, positions, n, roots[c], out[t], base)
+            base += 4 * n
+
+
+_SPECTRA_SIGNATURE = nb.void(
     nb.float32[:, :, ::1],  # cells (rows, cols, planes)
-    nb.int64[::1],  # first cell row of each footprint
-    nb.int64[::1],  # first cell column
-    nb.int64[::1],  # start parity along y (0 or 1; 0 for mono)
-    nb.int64[::1],  # start parity along x
-    nb.float32[:, ::1],  # (T, 2) cos, sin of the window shift along y
-    nb.float32[:, ::1],  # (T, 2) along x
-    nb.float32[:, :, :, ::1],  # row window factors (parity, planes, 2, span)
-    nb.float32[:, :, :, ::1],  # column window factors (parity, planes, 2, span)
-    nb.int64[:, ::1],  # first footprint row inside the tile (parity, planes)
-    nb.int64[:, ::1],  # first footprint column inside the tile (parity, planes)
-    nb.int64[::1],  # row of out for each tile
-    nb.float32[:, ::1],  # out (T, planes * inner * inner)
+    nb.int64[:, ::1],  # (4, T): first cell row, first cell column, parity y, parity x
+    nb.float32[:, ::1],  # (T, 4): cos, sin of the window shift along y, then along x
+    nb.float32[:, :, :, ::1],  # window along y (parity, planes, 2, inner)
+    nb.float32[:, :, :, ::1],  # window along x (parity, planes, 2, inner)
+    nb.float32[:, :, :, ::1],  # row basis (parity, planes, inner, 16)
+    nb.float32[:, :, :, :, ::1],  # column basis (parity, planes, 2, 8, inner)
+    nb.int64[:, ::1],  # first sample inside the tile along y (parity, planes)
+    nb.int64[:, ::1],  # along x
+    nb.int64[:, ::1],  # per colour: first plane, end plane, frequencies, kv count
+    nb.uint64[::1],  # (F,) position 16 kv + kh of each frequency in the column sums
+    nb.float32[:, :, ::1],  # (colours, which, F) square root of the colour weights
+    nb.float32[:, ::1],  # out (T, 4 sum F)
 )
 
 
-@nb.njit(_GATHER_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
-def gather_windowed(
+@nb.njit(_SPECTRA_SIGNATURE, cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
+def tile_spectra(
     cells: F32,
-    rows: I64,
-    cols: I64,
-    par_y: I64,
-    par_x: I64,
-    win_y: F32,
-    win_x: F32,
-    rows_w: F32,
-    cols_w: F32,
+    at: I64,
+    trig: F32,
+    window_y: F32,
+    window_x: F32,
+    row_basis: F32,
+    col_basis: F32,
     first_y: I64,
     first_x: I64,
-    dest: I64,
+    colours: I64,
+    positions: U64,
+    roots: F32,
     out: F32,
 ) -> None:
-    """Windowed samples of tiles: ``out[dest[t], (p, v, u)] = cells[r+v, c+u, p] wy[v] wx[u]``.
+    """Colour spectra of tiles by the separable transform, gathered and windowed on the way.
 
-    Only the ``inner x inner`` samples of each plane that lie inside the tile are written
-    (``v`` from ``first_y[parity, p]``, ``u`` from ``first_x[parity, p]``), so that with
-    the rows grouped by start parity each group has one matrix per colour.
+    Per tile and plane: the samples inside the tile times the shifted window along each
+    axis (``cos * w[0] + sin * w[1]``), transformed along the rows (``row_basis``:
+    ``(re | im)`` of the basis at each sample for kh 0..7), then down the columns
+    (``col_basis``: re and im for kv 0..7) and summed over each colour's planes; the
+    colour weight's square root is applied on the way out. Row t of ``out`` is tile t.
 
     Parameters
     ----------
     cells
         ``(rows, cols, planes)`` float32 cells of one camera
         (:func:`elphel_host.tp.clt.batch.image_cells`).
-    rows, cols
-        ``(T,)`` first cell of each tile's ``span x span`` footprint.
-    par_y, par_x
-        ``(T,)`` start parity of each tile (which window tables apply).
-    win_y, win_x
-        ``(T, 2)``: cos and sin of ``pi s / 16`` for the tile's shift s along the axis.
-    rows_w, cols_w
-        ``(parities, planes, 2, span)``: the sine and the cosine window on each plane's
-        samples along the axis (zero outside the tile); the shifted window along an axis
-        is ``cos * w[0] + sin * w[1]``.
-    first_y, first_x
-        ``(parities, planes)``: the first footprint sample inside the tile.
-    dest
-        ``(T,)``: the row of ``out`` that receives tile t.
+    at
+        ``(4, T)``: each tile's first footprint cell (row, column) and start parity
+        (y, x); the tables are indexed by the parity.
+    trig
+        ``(T, 4)``: cos and sin of ``pi s / 16`` for the tile's shift s along y, then x.
+    window_y, window_x, row_basis, col_basis, first_y, first_x
+        The transform's tables (:class:`elphel_host.tp.clt.batch.CameraTransform`).
+    colours
+        ``(colours, 4)``: first and end plane, number of frequencies, kv count.
+    positions, roots
+        Where each frequency is in the column sums; the colour weights' square roots.
     out
-        ``(T, planes * inner * inner)`` float32, written plane by plane, row by row.
+        ``(T, 4 sum F)`` float32: per tile the colours one after the other, each
+        ``(which, re/im, f)``.
     """
-    planes = cells.shape[2]
-    inner = int(np.sqrt(out.shape[1] // planes))
-    fy = np.empty(inner, dtype=np.float32)
-    fx = np.empty(inner, dtype=np.float32)
-    for t in range(rows.shape[0]):
-        py, px = par_y[t], par_x[t]
-        cy, sy, cx, sx = win_y[t, 0], win_y[t, 1], win_x[t, 0], win_x[t, 1]
-        tile = out[dest[t]]
-        for p in range(planes):
-            v0, u0 = first_y[py, p], first_x[px, p]
-            for j in range(inner):
-                fy[j] = cy * rows_w[py, p, 0, v0 + j] + sy * rows_w[py, p, 1, v0 + j]
-                fx[j] = cx * cols_w[px, p, 0, u0 + j] + sx * cols_w[px, p, 1, u0 + j]
-            r0, c0 = rows[t] + v0, cols[t] + u0
-            for v in range(inner):
-                src = cells[r0 + v, c0 : c0 + inner, p]
-                start = (p * inner + v) * inner
-                dst = tile[start : start + inner]
-                w = fy[v]
-                for u in range(inner):
-                    dst[u] = src[u] * w * fx[u]
+    if row_basis.shape[2] == 8:  # Bayer: four 8x8 planes
+        _all_tiles(
+            cells,
+            at,
+            trig,
+            window_y,
+            window_x,
+            row_basis,
+            col_basis,
+            first_y,
+            first_x,
+            colours,
+            positions,
+            roots,
+            out,
+            4,
+            8,
+        )
+    else:  # mono: one 16x16 plane
+        _all_tiles(
+            cells,
+            at,
+            trig,
+            window_y,
+            window_x,
+            row_basis,
+            col_basis,
+            first_y,
+            first_x,
+            colours,
+            positions,
+            roots,
+            out,
+            1,
+            16,
+        )
 
 
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
@@ -171,7 +351,6 @@ def _normalised(acc: F32, rot_a: F32, rot_b: F32, fz2: np.float32, scale: F32, o
 
 _PAIRS_SIGNATURE = nb.void(
     nb.float32[:, :, ::1],  # spectra (cameras, T, floats): per colour (which, re/im, f)
-    nb.int64[:, ::1],  # row of spectra holding each tile (cameras, T)
     nb.float32[:, :, :, ::1],  # rotation (cameras, T, 2 axes, cos/sin) of pi s / 16
     nb.int64[:, ::1],  # pairs (P, 2)
     nb.int64[::1],  # kh (F,)
@@ -185,7 +364,6 @@ _PAIRS_SIGNATURE = nb.void(
 @nb.njit(_PAIRS_SIGNATURE, cache=True, nogil=True, fastmath=True, boundscheck=False)
 def rotated_pair_products(
     spectra: F32,
-    where: I64,
     rotation: F32,
     pairs: I64,
     kh: I64,
@@ -209,8 +387,6 @@ def rotated_pair_products(
     spectra
         ``(cameras, T, 4 sum(sizes))``: per camera and tile its colours one after the
         other, each ``(which, re/im, f)`` on its first ``sizes[c]`` frequencies.
-    where
-        ``(cameras, T)``: the row of ``spectra[c]`` that holds tile t.
     rotation
         ``(cameras, T, 2, 2)``: per axis (x, y) the cos and sin of ``pi s / 16`` for the
         camera's rotation shift s.
@@ -246,8 +422,41 @@ def rotated_pair_products(
                 rot[c, 1, 1, f] = xi * yr - xr * yi
         for p in range(pairs.shape[0]):
             a, b = pairs[p, 0], pairs[p, 1]
-            _colour_sum(spectra[a, where[a, t]], spectra[b, where[b, t]], sizes, acc)
+            _colour_sum(spectra[a, t], spectra[b, t], sizes, acc)
             _normalised(acc, rot[a], rot[b], fz2, scale, out[p, t])
+
+
+_CELLS_SIGNATURE = nb.void(
+    nb.float32[:, ::1],  # image (H, W)
+    nb.int64[::1],  # row of each plane in the cell (planes,)
+    nb.int64[::1],  # column of each plane in the cell (planes,)
+    nb.int64,  # padding, cells
+    nb.float32[:, :, ::1],  # out (H/c + 2 pad, W/c + 2 pad, planes)
+)
+
+
+@nb.njit(_CELLS_SIGNATURE, cache=True, nogil=True, boundscheck=False)
+def image_cells(image: F32, plane_rows: I64, plane_cols: I64, pad: int, out: F32) -> None:
+    """An image regrouped by cell: ``out[i, j, p] = image[c ci + rows[p], c cj + cols[p]]``.
+
+    ``c = H / out rows`` less the padding (1 mono, 2 Bayer), ``ci = clip(i - pad)`` and
+    ``cj = clip(j - pad)`` to the image's cells: the padding repeats the border cell.
+    """
+    planes = plane_rows.shape[0]
+    cell = image.shape[0] // (out.shape[0] - 2 * pad)
+    h, w = image.shape[0] // cell, image.shape[1] // cell
+    for i in range(out.shape[0]):
+        ci = min(max(i - pad, 0), h - 1)
+        row = out[i]
+        for p in range(planes):
+            src = image[cell * ci + plane_rows[p]]
+            c0 = plane_cols[p]
+            for j in range(pad):
+                row[j, p] = src[c0]
+            for j in range(w):
+                row[pad + j, p] = src[cell * j + c0]
+            for j in range(pad + w, out.shape[1]):
+                row[j, p] = src[cell * (w - 1) + c0]
 
 
 #: The calibrated camera of :func:`lens_pixels`, packed by

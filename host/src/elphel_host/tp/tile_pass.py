@@ -216,14 +216,13 @@ def _products(
     t = tiles.size
     spectra = np.empty((4, t, spectrum_floats(tr)), dtype=np.float32)
     shifts = np.empty((4, t, 2), dtype=np.float32)
-    where = np.empty((4, t), dtype=np.int64)
     for cam, (px, py) in enumerate(quad.geometry.positions):
         at = quad.geometry.place_camera(cam, cx, cy, target)
         kernels, index = None, None
         if prep.kernels is not None:
             kernels = prep.kernels[cam]
             index = _kernel_index(quad, cx - target * px, cy - target * py)
-        shifts[cam], where[cam] = raw_spectra(
+        shifts[cam] = raw_spectra(
             prep.cells[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
         )
     if t0 is not None:
@@ -236,7 +235,6 @@ def _products(
     rotation = np.stack([np.cos(angle), np.sin(angle)], axis=-1)  # (cameras, T, x/y, cos/sin)
     rotated_pair_products(
         spectra,
-        where,
         rotation,
         pairs,
         fset.kh.astype(np.int64),
@@ -294,8 +292,13 @@ def _checked_target(quad: QuadImages, target: NDArray[np.floating]) -> NDArray[n
 
 
 def _in_chunks(fn: Callable[[NDArray[np.intp]], None], n: int, config: TpConfig) -> None:
-    """``fn(tile indices)`` over chunks of ``config.chunk_tiles`` on ``config.threads``."""
-    size = config.chunk_tiles
+    """``fn(tile indices)`` over chunks of at most ``config.chunk_tiles`` on ``config.threads``.
+
+    The chunks are of equal size and a whole number per thread, so that no thread is left
+    alone with the last chunk.
+    """
+    count = config.threads * -(-n // (config.threads * config.chunk_tiles))
+    size = -(-n // count)
     bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
     with single_threaded_blas():
         parallel_map(lambda b: fn(np.arange(b[0], b[1])), bounds, threads=config.threads)

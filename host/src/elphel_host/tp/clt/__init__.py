@@ -7,7 +7,8 @@
   lattice of one camera, for a batch of shifted tiles, written straight from the
   definition. It is what the fast path is tested against, not what production runs.
 * :mod:`~elphel_host.tp.clt.batch` — the production path: every colour of one camera's
-  tiles in a few matrix products, only on the frequencies the correlation keeps.
+  tiles by a separable transform in one compiled pass, only on the frequencies the
+  correlation keeps.
 """
 
 from __future__ import annotations

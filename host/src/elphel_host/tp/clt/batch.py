@@ -13,17 +13,18 @@ definition):
   its four pixels side by side, in colour order), so a tile's samples are a few
   contiguous runs. The footprint is cell-aligned: 9x9 cells per tile (a tile starting
   on an odd pixel starts one pixel into its first cell), of which each plane has 8x8
-  samples inside the tile; which 8x8 depends on the tile's start parity, so tiles are
-  grouped by parity and each group and colour has its own matrix. The basis is a pure
-  exponential in the sample index (``E[k, j+1] = E[k, j] exp(i OMEGA[k])``), so the
-  one-pixel offset of an odd start is a phase rotation, folded into the rotation by the
-  fractional shift. The matrices also
-  hold the colour weight and colour LPF (as square roots, so a pair product carries them
-  once) and, for green, the sum of the two green lattices.
+  samples inside the tile; which 8x8 depends on the tile's start parity, so each table
+  has one entry per parity. The basis is a pure exponential in the sample index
+  (``E[k, j+1] = E[k, j] exp(i OMEGA[k])``), so the one-pixel offset of an odd start is a
+  phase rotation, folded into the rotation by the fractional shift.
 * The shifted window is ``w_s(j) = cos(pi s/16) w0(j) + sin(pi s/16) w1(j)`` along each
-  axis (one pair of fixed windows per start parity, zero outside the tile), so the
-  gather and the window are one fused pass (:func:`elphel_host.tp.fused.gather_windowed`)
-  that writes the rows the colour products read.
+  axis (one pair of fixed windows per start parity, zero outside the tile).
+* The 2-D basis is the product of a basis along x and one along y, so each plane is
+  transformed along its rows, then down its columns (about a quarter of the
+  multiply-adds of one dense product per colour), in one compiled pass per tile that
+  also gathers and windows the samples (:func:`elphel_host.tp.fused.tile_spectra`).
+  Green's two planes are summed in the column pass; the colour weight and colour LPF
+  (as square roots, so a pair product carries them once) are applied on the way out.
 * What is left per tile is one phase rotation by the camera's fractional shift and start
   parity, common to all colours: :func:`camera_spectra` applies it, the tile processor
   folds it into its pair products (:func:`raw_spectra` returns the shifts).
@@ -83,11 +84,13 @@ class CameraTransform:
     plane_cols: NDArray[np.intp]  # (planes,) column parity of each plane
     first_y: NDArray[np.int64]  # (parities, planes) first footprint row inside the tile
     first_x: NDArray[np.int64]  # (parities, planes) first footprint column inside the tile
-    # per colour: its planes, and per start parity (2 py + px) its matrix
-    # (planes * inner^2, 2*2*F_c) from the samples inside the tile
-    blocks: tuple[tuple[slice, F32], ...]
-    rows_w: F32  # (parities, planes, 2, span): sine and cosine window down the columns
-    cols_w: F32  # (parities, planes, 2, span): along the rows
+    window_y: F32  # (parities, planes, 2, inner): sine and cosine window down the columns
+    window_x: F32  # (parities, planes, 2, inner): along the rows
+    row_basis: F32  # (parities, planes, inner, 16): (re | im) of the basis along x, kh 0..7
+    col_basis: F32  # (parities, planes, 2, 8, inner): re, im of the basis along y, kv 0..7
+    colours: NDArray[np.int64]  # (colours, 4): first plane, end plane, frequencies, kv count
+    positions: NDArray[np.uint64]  # (F,): 16 kv + kh, where frequency f is in a column sum
+    roots: F32  # (colours, 2, F): square root of the colour weight (x LPF) per (which, f)
     angles: F32  # (2, 2F): rotation angle per (shift_x, shift_y) for (which, f)
     pad: int
 
@@ -99,20 +102,6 @@ def _extended_basis(length: int) -> NDArray[np.complex128]:
     return out
 
 
-def _plane_matrix(lat: Lattice, span: int, fset: FrequencySet, nf: int) -> NDArray[np.float64]:
-    """Plane samples (v, u) at cell positions ``step * v + row`` -> (which, re/im, f)."""
-    e = _extended_basis(lat.step * span)
-    ys = lat.step * np.arange(span) + lat.row
-    xs = lat.step * np.arange(span) + lat.col
-    ev = e[fset.kv[:nf]][:, ys]  # (F, v)
-    eh = e[fset.kh[:nf]][:, xs]  # (F, u)
-    z2 = ev[:, :, None] * eh[:, None, :]  # (F, v, u)
-    z1 = np.conj(ev)[:, :, None] * eh[:, None, :]
-    coef = np.stack([z2, z1]).reshape(2, nf, span * span)  # (which, f, samples)
-    out = np.stack([coef.real, coef.imag], axis=1)  # (which, re/im, f, samples)
-    return out.transpose(3, 0, 1, 2).reshape(span * span, 2 * 2 * nf) * lat.scale
-
-
 def camera_transform(
     bayer: str | None,
     colour_weights: NDArray[np.floating],
@@ -120,7 +109,7 @@ def camera_transform(
     green_band: int,
     pad: int,
 ) -> CameraTransform:
-    """Prepare the transform matrices of a sensor.
+    """Prepare the transform tables of a sensor.
 
     Parameters
     ----------
@@ -136,24 +125,24 @@ def camera_transform(
     if pad % 2:
         raise ValueError(f"pad={pad}; allowed: even (keeps the Bayer parity)")
     fset = frequency_set(bayer, green_band=green_band)
-    lats = lattices(bayer)
     ncol = 1 if bayer is None else 3
+    planes = sorted(lattices(bayer), key=lambda lat: lat.colour)  # stable: colour order
     sizes = tuple(fset.size if (bayer is None or c == 2) else fset.n_box for c in range(ncol))
     cell = 1 if bayer is None else 2
     # a tile starts on either parity; its cell-aligned footprint is one sample wider
     span = TILE if bayer is None else TILE // 2 + 1
-    rows, cols, full = _colour_blocks(lats, colour_weights, fset, sizes, span)
+    inner = TILE // cell
     f = fset.size
     angles = np.zeros((2, 2 * f))
     angles[0] = np.tile(OMEGA[fset.kh], 2)
     angles[1] = np.concatenate([OMEGA[fset.kv], -OMEGA[fset.kv]])
-    plane_rows = np.array(rows, dtype=np.intp)
-    plane_cols = np.array(cols, dtype=np.intp)
+    plane_rows = np.array([lat.row for lat in planes], dtype=np.intp)
+    plane_cols = np.array([lat.col for lat in planes], dtype=np.intp)
     first_y, first_x = _first_inside(cell, plane_rows), _first_inside(cell, plane_cols)
-    inner = TILE // cell
-    blocks = [
-        (planes, _parity_matrices(m, planes, span, inner, first_y, first_x)) for planes, m in full
-    ]
+    along_x = _axis_basis(planes, plane_cols, first_x, inner)  # (parity, plane, k, u)
+    along_y = _axis_basis(planes, plane_rows, first_y, inner)
+    scale = np.array([lat.scale for lat in planes])[None, :, None, None]
+    row_basis = np.concatenate([along_x.real, along_x.imag], axis=2) * scale
     return CameraTransform(
         fset=fset,
         colour_sizes=sizes,
@@ -164,12 +153,68 @@ def camera_transform(
         plane_cols=plane_cols,
         first_y=first_y,
         first_x=first_x,
-        blocks=tuple(blocks),
-        rows_w=_window_factors(cell, span, plane_rows),
-        cols_w=_window_factors(cell, span, plane_cols),
+        window_y=_window_inside(_window_factors(cell, span, plane_rows), first_y, inner),
+        window_x=_window_inside(_window_factors(cell, span, plane_cols), first_x, inner),
+        row_basis=np.ascontiguousarray(row_basis.transpose(0, 1, 3, 2), dtype=np.float32),
+        col_basis=np.stack([along_y.real, along_y.imag], axis=2).astype(np.float32),
+        colours=_colour_table(planes, fset, sizes),
+        positions=(16 * fset.kv + fset.kh).astype(np.uint64),
+        roots=_colour_roots(colour_weights, fset, sizes),
         angles=angles.astype(np.float32),
         pad=pad,
     )
+
+
+def _axis_basis(
+    planes: Sequence[Lattice], offsets: NDArray[np.intp], first: NDArray[np.int64], inner: int
+) -> NDArray[np.complex128]:
+    """``(parities, planes, 8, inner)``: the basis along one axis at each plane's samples.
+
+    Sample j of plane p inside a tile of start parity q lies at footprint sample
+    ``first[q, p] + j``, i.e. at ``step (first + j) + offset`` from the footprint's start.
+    """
+    step = planes[0].step
+    e = _extended_basis(step * (inner + 2))
+    out = np.empty((first.shape[0], len(planes), 8, inner), dtype=np.complex128)
+    for q in range(first.shape[0]):
+        for p in range(len(planes)):
+            out[q, p] = e[:, step * (first[q, p] + np.arange(inner)) + offsets[p]]
+    return out
+
+
+def _window_inside(factors: F32, first: NDArray[np.int64], inner: int) -> F32:
+    """``(parities, planes, 2, inner)``: the window factors at the samples inside the tile."""
+    out = np.empty((*factors.shape[:3], inner), dtype=np.float32)
+    for q in range(first.shape[0]):
+        for p in range(first.shape[1]):
+            out[q, p] = factors[q, p, :, first[q, p] : first[q, p] + inner]
+    return out
+
+
+def _colour_table(
+    planes: Sequence[Lattice], fset: FrequencySet, sizes: tuple[int, ...]
+) -> NDArray[np.int64]:
+    """``(colours, 4)``: first plane, end plane, frequencies, kv count of each colour."""
+    out = np.zeros((len(sizes), 4), dtype=np.int64)
+    colour = np.array([lat.colour for lat in planes])
+    for c, n in enumerate(sizes):
+        members = np.nonzero(colour == c)[0]
+        out[c] = members[0], members[-1] + 1, n, int(fset.kv[:n].max()) + 1
+    return out
+
+
+def _colour_roots(
+    colour_weights: NDArray[np.floating], fset: FrequencySet, sizes: tuple[int, ...]
+) -> F32:
+    """``(colours, 2, F)``: square root of each colour's weight per (which, f), 0 past F_c.
+
+    A pair product of two cameras' spectra then carries the weight once.
+    """
+    out = np.zeros((len(sizes), 2, fset.size), dtype=np.float32)
+    for c, n in enumerate(sizes):
+        wgt = colour_weights[c][fset.kh[:n], :, fset.kv[:n]]  # (F_c, which)
+        out[c, :, :n] = np.sqrt(np.maximum(wgt.T, 0.0))
+    return out
 
 
 def _first_inside(cell: int, offsets: NDArray[np.intp]) -> NDArray[np.int64]:
@@ -182,83 +227,24 @@ def _first_inside(cell: int, offsets: NDArray[np.intp]) -> NDArray[np.int64]:
     return out
 
 
-def _parity_matrices(
-    m: F32,
-    planes: slice,
-    span: int,
-    inner: int,
-    first_y: NDArray[np.int64],
-    first_x: NDArray[np.int64],
-) -> F32:
-    """A colour's footprint matrix restricted, per start parity, to the samples inside the tile.
-
-    Returns ``(parities, planes * inner^2, columns)``, parity ``py * cell + px``.
-    """
-    cell = first_y.shape[0]
-    out = []
-    for py in range(cell):
-        for px in range(cell):
-            rows = [
-                k * span * span + (first_y[py, p] + v) * span + first_x[px, p] + u
-                for k, p in enumerate(range(planes.start, planes.stop))
-                for v in range(inner)
-                for u in range(inner)
-            ]
-            out.append(m[rows])
-    return np.stack(out)
-
-
-def _colour_blocks(
-    lats: Sequence[Lattice],
-    colour_weights: NDArray[np.floating],
-    fset: FrequencySet,
-    sizes: tuple[int, ...],
-    span: int,
-) -> tuple[list[int], list[int], list[tuple[slice, F32]]]:
-    """Per colour, its planes' (row, col) in the cell and its weighted footprint matrix."""
-    rows: list[int] = []
-    cols: list[int] = []
-    blocks: list[tuple[slice, F32]] = []
-    for colour, size in enumerate(sizes):
-        members = [lat for lat in lats if lat.colour == colour]
-        first = len(rows)
-        mats = []
-        for lat in members:
-            rows.append(lat.row)
-            cols.append(lat.col)
-            mats.append(_plane_matrix(lat, span, fset, size))
-        m = np.concatenate(mats, axis=0)
-        # fold in the square root of the colour weight: the pair product then carries it once
-        wgt = colour_weights[colour][fset.kh[:size], :, fset.kv[:size]]  # (F, which)
-        root = np.sqrt(np.maximum(wgt.T, 0.0))  # (which, F)
-        m = m * np.repeat(root, 2, axis=0).ravel()[None, :]  # columns (which, re/im, f)
-        blocks.append((slice(first, len(rows)), m.astype(np.float32)))
-    return rows, cols, blocks
-
-
 def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
     """One camera's image, padded by ``tr.pad`` pixels, by cell: ``(rows/c, cols/c, planes)``.
 
     Plane p of cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
     (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
-    are a few contiguous runs (:func:`elphel_host.tp.fused.gather_windowed` reads them).
+    are a few contiguous runs (:func:`elphel_host.tp.fused.tile_spectra` reads them).
     Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
     in cells, that is the border cell repeated.
     """
-    img = np.asarray(image, dtype=np.float32)
+    from elphel_host.tp import fused  # loads the compiled kernels (see raw_spectra)
+
+    img = np.ascontiguousarray(image, dtype=np.float32)
     c, pc = tr.cell, tr.pad // tr.cell
     if img.ndim != 2 or img.shape[0] % c or img.shape[1] % c:
         raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
     h, w = img.shape[0] // c, img.shape[1] // c
-    grid = img.reshape(h, c, w, c)
     out = np.empty((h + 2 * pc, w + 2 * pc, tr.plane_rows.size), dtype=np.float32)
-    inner = out[pc : pc + h, pc : pc + w]
-    for p, (r, q) in enumerate(zip(tr.plane_rows, tr.plane_cols, strict=True)):
-        inner[:, :, p] = grid[:, r, :, q]
-    out[:pc] = out[pc]
-    out[pc + h :] = out[pc + h - 1]
-    out[:, :pc] = out[:, pc : pc + 1]
-    out[:, pc + w :] = out[:, pc + w - 1 : pc + w]
+    fused.image_cells(img, tr.plane_rows.astype(np.int64), tr.plane_cols.astype(np.int64), pc, out)
     return out
 
 
@@ -309,10 +295,10 @@ def camera_spectra(
     """
     t = at.left_x.shape[0]
     packed = np.empty((t, spectrum_floats(tr)), dtype=np.float32)
-    shifts, rows = raw_spectra(cells, tr, at, packed, kernels=kernels, kernel_index=kernel_index)
+    shifts = raw_spectra(cells, tr, at, packed, kernels=kernels, kernel_index=kernel_index)
     phase = _rotations(shifts, tr)
     return [
-        (v[rows, :, 0] + 1j * v[rows, :, 1]).astype(np.complex64) * phase[:, :, : v.shape[3]]
+        (v[:, :, 0] + 1j * v[:, :, 1]).astype(np.complex64) * phase[:, :, : v.shape[3]]
         for v in colour_views(packed, tr)
     ]
 
@@ -341,12 +327,11 @@ def raw_spectra(
     *,
     kernels: list[C64] | None = None,
     kernel_index: NDArray[np.intp] | None = None,
-) -> tuple[F32, NDArray[np.int64]]:
+) -> F32:
     """One camera's colour spectra before the phase rotation, into ``out``; the rotation.
 
-    Each tile's samples inside the tile are gathered and windowed in one pass
-    (:func:`elphel_host.tp.fused.gather_windowed`) into rows grouped by the tile's start
-    parity, then transformed by one matrix product per parity and colour. ``kernels`` and
+    Each tile's samples inside the tile are gathered, windowed and transformed in one
+    compiled pass (:func:`elphel_host.tp.fused.tile_spectra`). ``kernels`` and
     ``kernel_index`` as in :func:`camera_spectra`.
 
     Parameters
@@ -354,76 +339,49 @@ def raw_spectra(
     cells, tr, at
         As in :func:`camera_spectra`.
     out
-        ``(T, spectrum_floats(tr))`` float32, filled with the colours one after the
-        other, each ``(which, re/im, f)`` (the layout of :func:`colour_views`).
+        ``(T, spectrum_floats(tr))`` float32, row t for tile t, filled with the colours
+        one after the other, each ``(which, re/im, f)`` (the layout of
+        :func:`colour_views`).
 
     Returns
     -------
-    shifts, rows
+    numpy.ndarray
         ``(T, 2)`` float32: the shift (x, y) each tile's spectra still need to be rotated
-        by (the fractional shift less the start parity); ``(T,)``: the row of ``out``
-        that holds tile t.
-    """
-    t = at.left_x.shape[0]
-    samples, par_x, par_y, order = _windowed_samples(cells, tr, at)
-    n_plane = tr.inner * tr.inner
-    bounds = np.searchsorted((par_y * tr.cell + par_x)[order], np.arange(tr.cell * tr.cell + 1))
-    for g in range(tr.cell * tr.cell):
-        lo, hi = int(bounds[g]), int(bounds[g + 1])
-        start = 0
-        for (planes, mats), n in zip(tr.blocks, tr.colour_sizes, strict=True):
-            part = samples[lo:hi, planes.start * n_plane : planes.stop * n_plane]
-            np.matmul(part, mats[g], out=out[lo:hi, start : start + 4 * n])
-            start += 4 * n
-    if kernels is not None and kernel_index is not None:
-        for colour, n in enumerate(tr.colour_sizes):
-            kern = kernels[colour][kernel_index[order]][:, :, :n]
-            _convolve(colour_views(out, tr)[colour], kern)
-    shifts = np.empty((t, 2), dtype=np.float32)
-    shifts[:, 0] = at.shift_x - par_x
-    shifts[:, 1] = at.shift_y - par_y
-    dest = np.empty(t, dtype=np.int64)
-    dest[order] = np.arange(t)
-    return shifts, dest
-
-
-def _windowed_samples(
-    cells: F32, tr: CameraTransform, at: TilePlacement
-) -> tuple[F32, NDArray[np.int64], NDArray[np.int64], NDArray[np.intp]]:
-    """Each tile's windowed samples inside the tile, rows grouped by start parity.
-
-    Returns the samples ``(T, planes * inner^2)``, each tile's start parity along x and
-    y, and ``order``: row i holds tile ``order[i]`` (parity groups in order 2 py + px).
+        by (the fractional shift less the start parity).
     """
     # the compiled kernels load on first use: commands that never run a pass skip numba
-    from elphel_host.tp.fused import gather_windowed
+    from elphel_host.tp.fused import tile_spectra
 
     c, span = tr.cell, tr.span
+    t = at.left_x.shape[0]
     # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
-    par_x = np.ascontiguousarray(at.left_x & (c - 1), dtype=np.int64)
-    par_y = np.ascontiguousarray(at.top_y & (c - 1), dtype=np.int64)
-    cols = np.clip((at.left_x + tr.pad - par_x) // c, 0, cells.shape[1] - span).astype(np.int64)
-    rows = np.clip((at.top_y + tr.pad - par_y) // c, 0, cells.shape[0] - span).astype(np.int64)
-    order = np.argsort(par_y * c + par_x, kind="stable")
-    dest = np.empty(order.size, dtype=np.int64)
-    dest[order] = np.arange(order.size)
-    samples = np.empty((order.size, tr.plane_rows.size * tr.inner**2), dtype=np.float32)
-    gather_windowed(
+    place = np.empty((4, t), dtype=np.int64)
+    place[2] = at.top_y & (c - 1)
+    place[3] = at.left_x & (c - 1)
+    place[0] = np.clip((at.top_y + tr.pad - place[2]) // c, 0, cells.shape[0] - span)
+    place[1] = np.clip((at.left_x + tr.pad - place[3]) // c, 0, cells.shape[1] - span)
+    tile_spectra(
         cells,
-        rows,
-        cols,
-        par_y,
-        par_x,
-        _window_trig(at.shift_y),
-        _window_trig(at.shift_x),
-        tr.rows_w,
-        tr.cols_w,
+        place,
+        _window_trig(at.shift_y, at.shift_x),
+        tr.window_y,
+        tr.window_x,
+        tr.row_basis,
+        tr.col_basis,
         tr.first_y,
         tr.first_x,
-        dest,
-        samples,
+        tr.colours,
+        tr.positions,
+        tr.roots,
+        out,
     )
-    return samples, par_x, par_y, order
+    if kernels is not None and kernel_index is not None:
+        for colour, n in enumerate(tr.colour_sizes):
+            _convolve(colour_views(out, tr)[colour], kernels[colour][kernel_index][:, :, :n])
+    shifts = np.empty((t, 2), dtype=np.float32)
+    shifts[:, 0] = at.shift_x - place[3]
+    shifts[:, 1] = at.shift_y - place[2]
+    return shifts
 
 
 def _convolve(planar: F32, kernel: C64) -> None:
@@ -433,10 +391,11 @@ def _convolve(planar: F32, kernel: C64) -> None:
     planar[:, :, 1] = re * kernel.imag + im * kernel.real
 
 
-def _window_trig(shift: NDArray[np.floating]) -> F32:
-    """``(T, 2)``: cos and sin of ``pi s / 16``, the weights of the two fixed windows."""
-    a = np.pi / TILE * np.asarray(shift, dtype=np.float64)
-    out: F32 = np.stack([np.cos(a), np.sin(a)], axis=1).astype(np.float32)
+def _window_trig(shift_y: NDArray[np.floating], shift_x: NDArray[np.floating]) -> F32:
+    """``(T, 4)``: cos and sin of ``pi s / 16`` along y, then along x (the window weights)."""
+    ay = np.pi / TILE * np.asarray(shift_y, dtype=np.float64)
+    ax = np.pi / TILE * np.asarray(shift_x, dtype=np.float64)
+    out: F32 = np.stack([np.cos(ay), np.sin(ay), np.cos(ax), np.sin(ax)], axis=1).astype(np.float32)
     return out
 
 
