@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from elphel_host.mfsr.forward import threads_for
 from elphel_host.mfsr.psf_cv import CrossValidation
 from elphel_host.parallel import parallel_map
 
@@ -170,7 +171,9 @@ def cross_validated_tau(
         return None
     fit = optics.at_scale(cv.fit_scale / float(scale))
     totals = parallel_map(
-        lambda t: float(cv.errors(fit.blur_sigma, t, fit.kernel, fit.prior_sigma).sum()), TAU_GRID
+        lambda t: float(cv.errors(fit.blur_sigma, t, fit.kernel, fit.prior_sigma).sum()),
+        TAU_GRID,
+        threads=threads_for(cv.shape),
     )
     return TAU_GRID[int(np.argmin(totals))]
 
@@ -191,7 +194,10 @@ class _Search:
     def fill(self, candidates: Sequence[tuple[float, float]]) -> None:
         """Compute the candidates (sigma, tau) not yet known, on every core."""
         todo = sorted({(round(sg, 4), t) for sg, t in candidates} - set(self.cache))
-        for key, e in zip(todo, parallel_map(lambda c: self.cv.errors(*c), todo), strict=True):
+        errors = parallel_map(
+            lambda c: self.cv.errors(*c), todo, threads=threads_for(self.cv.shape)
+        )
+        for key, e in zip(todo, errors, strict=True):
             self.cache[key] = e
 
     def total(self, sig: float, tau: float) -> float:

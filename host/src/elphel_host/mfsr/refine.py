@@ -54,7 +54,7 @@ class ModelSpectra:
             np.multiply(z, d_all[a][:, :, None], out=z)
             z *= s2
 
-        parallel_map(alias, range(len(solver.offsets)))
+        parallel_map(alias, range(len(solver.offsets)), threads=solver.threads)
         self.Z = np.ascontiguousarray(X)  # X itself: solutions are C-ordered
         self.Zy = np.empty(X.shape, np.complex64) if derivatives else None
         self.Zx = np.empty(X.shape, np.complex64) if derivatives else None

@@ -155,7 +155,7 @@ def _robust_pass(
     for start in range(0, n, _CHUNK):
         chunk = list(range(start, min(start + _CHUNK, n)))
         work = frames.work(len(chunk))
-        steps = parallel_map(step, list(zip(chunk, work, strict=True)))
+        steps = parallel_map(step, list(zip(chunk, work, strict=True)), threads=solver.threads)
         for k, (dt, mad) in zip(chunk, steps, strict=True):
             mads.append(mad)
             if dt[0] or dt[1]:
@@ -218,7 +218,8 @@ class _PlaneSolve:
         for start in range(0, n, _CHUNK):
             chunk = list(range(start, min(start + _CHUNK, n)))
             work = self.source.work(len(chunk))
-            parallel_map(lambda job: self.source.fill(*job), list(zip(chunk, work, strict=True)))
+            jobs = list(zip(chunk, work, strict=True))
+            parallel_map(lambda job: self.source.fill(*job), jobs, threads=self.solver.threads)
             self.solver.add_frames(chunk, work, overwrite=True)
 
     def robust_pass(self, X: C64) -> None:
