@@ -23,7 +23,7 @@ from elphel_host.calibrate.capture import (
     capture_views,
     open_session,
 )
-from elphel_host.calibrate.guide import placement
+from elphel_host.calibrate.guide import CaptureLimits, placement
 from elphel_host.calibrate.pattern import Checkerboard
 from elphel_host.camera.backends import connect
 from elphel_host.cli import main as elphel_main
@@ -41,11 +41,13 @@ def _board(rig: Rig, pose: dict[str, Any]) -> dict[str, Any]:
 
 
 def _new_pose(rig: Rig, session: CaptureSession, candidates: list[dict[str, Any]]) -> None:
-    """Pose the board at the first candidate whose true placement no kept view has."""
+    """Pose the board at the first candidate whose true placement no kept view has, and
+    large enough to be kept."""
     for pose in candidates:
         corners = np.asarray(_board(rig, pose)["cameras"][0]["corners"])
         where = placement(corners, session.pattern, (640, 480))
-        if all(where.distance(p) > 1.5 for v in session.views if (p := v.placements[0])):
+        new = all(where.distance(p) > 1.5 for v in session.views if (p := v.placements[0]))
+        if new and where.area_percent > CaptureLimits().min_area_percent:
             return
     raise AssertionError("no candidate pose is new; give more")
 
@@ -71,6 +73,16 @@ def _moved(pose: dict[str, Any], *, scale: float = 1.0, dx_mm: float = 0.0) -> d
     return {**pose, "t_mm": t.tolist()}
 
 
+def _half_out(rig: Rig, pose: dict[str, Any]) -> dict[str, Any]:
+    """``pose`` moved along the board's x until half its corners leave camera 0's image."""
+    for dx_mm in np.arange(10.0, 3000.0, 10.0):
+        moved = _moved(pose, dx_mm=dx_mm)
+        xs = np.asarray(_board(rig, moved)["cameras"][0]["corners"])[:, 0]
+        if not 0 <= np.median(xs) <= 639:
+            return moved
+    raise AssertionError("the board never left camera 0's image")
+
+
 @pytest.mark.elphel_rig(scenario="calib-small", seed=2)
 def test_a_scripted_board_is_captured_judged_resumed_and_solved(
     elphel_rig: Rig, tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -79,7 +91,7 @@ def test_a_scripted_board_is_captured_judged_resumed_and_solved(
     poses = _poses(elphel_rig, 12, 3, 4)
     plan = [
         {**poses[0], "blur_px": 3.0},  # moving or out of focus
-        _moved(poses[0], dx_mm=250.0),  # half out of camera 0's image
+        _half_out(elphel_rig, poses[0]),  # half out of camera 0's image
         _moved(poses[1], scale=2.5),  # far away
         poses[0],
         poses[0],  # the same view again
@@ -128,7 +140,9 @@ def test_a_scripted_board_is_captured_judged_resumed_and_solved(
     out, err = capsys.readouterr()
     assert code == 0, err
     result = json.loads(out)
-    assert result["views"] == len(kept) + 1 and result["kept"] == 1 and result["attempts"] == 1
+    assert result["views"] == len(kept) + 1 and result["kept"] == 1 and result["attempts"] == 1, (
+        result["not_kept"]
+    )
     assert "views per cell" in err and result["hints"]  # six views leave corners to cover
 
     calib = tmp_path / "calib"

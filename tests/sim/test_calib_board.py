@@ -155,7 +155,13 @@ def test_outside_the_lens_image_is_the_background() -> None:
     view = scene.view(0)
     pose = board_poses(scene.rig, scene.board, 1, seed=2, min_cameras=4)[0]
     # the board moved left until it straddles the lens image's left edge
-    state = BoardState(BoardPose(pose.R, pose.t_mm - np.array([700.0, 0.0, 0.0])))
+    moved = (
+        BoardPose(pose.R, pose.t_mm - np.array([dx_mm, 0.0, 0.0]))
+        for dx_mm in np.arange(0.0, 3000.0, 10.0)
+    )
+    state = BoardState(
+        next(m for m in moved if np.median(corner_truth(scene.rig, scene.board, m)[0][:, 0]) < 0)
+    )
     corners_x = corner_truth(scene.rig, scene.board, state.pose)[0][:, 0]
     assert corners_x.min() < -20 < 20 < corners_x.max()
     left, top = view.origin

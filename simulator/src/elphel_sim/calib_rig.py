@@ -13,7 +13,9 @@ a views directory.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -325,6 +327,69 @@ def whole_board_seen(
     return out
 
 
+#: The ninths of an image as (column, row): its centre, its corners, its edges.
+CENTRE_NINTH = (1, 1)
+CORNER_NINTHS = ((0, 0), (2, 2), (2, 0), (0, 2))
+EDGE_NINTHS = ((1, 0), (0, 1), (2, 1), (1, 2))
+#: Draws after which `board_poses` passes over a ninth no pose reached.
+MISSES_PER_AIM = 500
+#: Bisection steps that push a pose towards its ninth's outer corner or edge.
+OUTWARD_STEPS = 6
+
+
+def _ninth(aim: int, cameras: int) -> tuple[int, int]:
+    """The ninth of its camera's image that pose number ``aim`` aims at.
+
+    The cameras take turns. Each camera's turns go through its image's centre, then its
+    four corners (starting at a different corner for each camera), then its edges.
+    """
+    camera, turn = aim % cameras, aim // cameras
+    start = camera % len(CORNER_NINTHS)
+    order = (CENTRE_NINTH, *CORNER_NINTHS[start:], *CORNER_NINTHS[:start], *EDGE_NINTHS)
+    return order[turn % len(order)]
+
+
+def _aimed_pose(
+    cam: RigCamera,
+    pixel: FloatArray,
+    *,
+    rot: FloatArray,
+    z_mm: float,
+    centre_mm: FloatArray,
+    warp_mm: tuple[float, float],
+) -> BoardPose:
+    """The board turned by ``rot``, its centre ``z_mm`` deep on ``cam``'s ray of ``pixel``."""
+    ray = cam.lens.rays(pixel[None])[0]
+    point = cam.R.T @ (np.array([ray[0] * z_mm, ray[1] * z_mm, z_mm]) - cam.t_mm)
+    return BoardPose(rot, point - rot @ centre_mm, warp_mm)
+
+
+def _in_view(
+    rig: CalibRig, board: PrintedBoard, pose: BoardPose, *, index: int, need: int, margin_px: float
+) -> bool:
+    """Whether camera ``index`` and ``need`` cameras in all see the whole board."""
+    seen = whole_board_seen(rig, board, pose, margin_px=margin_px)
+    return bool(seen[index] and sum(seen) >= need)
+
+
+def _outward(
+    start: FloatArray,
+    outer: FloatArray,
+    make: Callable[[FloatArray], BoardPose],
+    whole: Callable[[BoardPose], bool],
+) -> BoardPose:
+    """The pose ``make`` gives nearest ``outer`` on the way from ``start`` that is ``whole``.
+
+    ``make(start)`` must be whole. Bisection in `OUTWARD_STEPS` steps: a board aimed at a
+    corner of the image is pushed into that corner as far as it stays whole in view.
+    """
+    lo, hi = 0.0, 1.0
+    for _ in range(OUTWARD_STEPS):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if whole(make(start + mid * (outer - start))) else (lo, mid)
+    return make(start + lo * (outer - start))
+
+
 def board_poses(
     rig: CalibRig,
     board: PrintedBoard,
@@ -340,8 +405,11 @@ def board_poses(
 
     The board spans ``fill`` of the image width, is tilted about its x and y axes by up to
     ``max_tilt_deg`` (0: all fronto-parallel) and turned by up to 15 degrees in its plane.
-    It is aimed at a random point of a random camera's image; at least ``min_cameras``
-    cameras (None: all) see it whole, the one aimed at among them.
+    The poses aim at the cameras in turn, and each camera's aims go through the ninths of
+    its image (a random point inside the ninth): its centre, its corners, its edges, as
+    the capture's hints ask; the corners are where a calibration is least certain. At least
+    ``min_cameras`` cameras (None: all) see the board whole, the one aimed at among them;
+    a ninth that no pose reaches in `MISSES_PER_AIM` draws is passed over.
     """
     need = len(rig.cameras) if min_cameras is None else min_cameras
     rng = np.random.default_rng(seed)
@@ -352,22 +420,28 @@ def board_poses(
     width_mm = (p.cols + 1 + 2 * board.margin_squares) * p.square_mm
     margin = 0.02 * w
     poses: list[BoardPose] = []
-    for _ in range(200 * count):
+    aim, misses = 0, 0
+    for _ in range(MISSES_PER_AIM * (count + 9)):  # room for each ninth to be passed over once
         if len(poses) == count:
             break
         tilt = np.radians(max_tilt_deg) * rng.uniform(-1, 1, 2)
         roll = np.radians(15.0) * rng.uniform(-1, 1) * (max_tilt_deg > 0)
         rot = _tilted(tilt[0], tilt[1], roll)
         z = lens.fx * width_mm / (rng.uniform(*fill) * w)
-        index = int(rng.integers(len(rig.cameras)))
-        cam = rig.cameras[index]  # each camera's whole field covered
-        target = np.array([rng.uniform(0.05, 0.95) * w, rng.uniform(0.05, 0.95) * h])
-        ray = cam.lens.rays(target[None])[0]
-        point = cam.R.T @ (np.array([ray[0] * z, ray[1] * z, z]) - cam.t_mm)
-        pose = BoardPose(rot, point - rot @ centre_b, warp_mm)
-        seen = whole_board_seen(rig, board, pose, margin_px=margin)
-        if seen[index] and sum(seen) >= need:
-            poses.append(pose)
+        index, (col, row) = aim % len(rig.cameras), _ninth(aim, len(rig.cameras))
+        cam = rig.cameras[index]
+        target = (0.05 + 0.3 * (np.array([col, row]) + rng.uniform(0, 1, 2))) * np.array([w, h])
+
+        make = partial(_aimed_pose, cam, rot=rot, z_mm=z, centre_mm=centre_b, warp_mm=warp_mm)
+        whole = partial(_in_view, rig, board, index=index, need=need, margin_px=margin)
+        found = whole(make(target))
+        if found and (col, row) in CORNER_NINTHS:  # pushed into the image's corner
+            poses.append(_outward(target, np.array([col, row]) / 2 * [w - 1, h - 1], make, whole))
+        elif found:
+            poses.append(make(target))
+        misses = 0 if found else misses + 1
+        if found or misses == MISSES_PER_AIM:
+            aim, misses = aim + 1, 0
     if len(poses) < count:
         raise ValueError(
             f"found {len(poses)} of {count} board poses that {need} cameras see whole; "

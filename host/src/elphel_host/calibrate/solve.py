@@ -112,7 +112,9 @@ def _worst_per_image(
     """Of the corners ``above`` the threshold, only the worst of each image.
 
     One bad corner pulls its view's pose and so its neighbours' errors: it goes first,
-    and the others are judged again after the next solve.
+    and the others are judged again after the next solve. (Its caller also holds back
+    corners under half the worst error: with few views a bad corner pulls the lens too,
+    and the far corners of other views with it.)
     """
     out = np.zeros_like(above)
     rows = np.flatnonzero(above)
@@ -135,7 +137,8 @@ def _solve_with_outliers(
         err = bundle.residuals(x, problem).reshape(-1, 2)
         norm = np.linalg.norm(err, axis=1)
         spread = np.median(norm) / np.sqrt(2 * np.log(2))  # per-axis sigma of a Rayleigh law
-        bad = _worst_per_image(problem, norm, norm > OUTLIER_SIGMAS * spread)
+        above = (norm > OUTLIER_SIGMAS * spread) & (norm >= norm.max() / 2)
+        bad = _worst_per_image(problem, norm, above)
         if not bad.any():
             break
         px = np.linalg.norm(bundle.project(x, problem) - problem.pixels, axis=1)
