@@ -448,7 +448,7 @@ def arguments() -> argparse.Namespace:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3], help="one quad per seed")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument(
-        "--repeat", type=int, default=3, help="timing rounds, TP and SGBM taking turns (best)"
+        "--repeat", type=int, default=5, help="timing rounds, TP and SGBM taking turns (best)"
     )
     ap.add_argument("--skip-phase-correlate", action="store_true")
     ap.add_argument(
