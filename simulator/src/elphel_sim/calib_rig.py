@@ -333,7 +333,7 @@ CORNER_NINTHS = ((0, 0), (2, 2), (2, 0), (0, 2))
 EDGE_NINTHS = ((1, 0), (0, 1), (2, 1), (1, 2))
 #: Draws after which `board_poses` passes over a ninth no pose reached.
 MISSES_PER_AIM = 500
-#: Bisection steps that push a pose towards its ninth's outer corner or edge.
+#: Bisection steps that push a corner-aimed pose into the image's corner.
 OUTWARD_STEPS = 6
 
 
@@ -407,7 +407,9 @@ def board_poses(
     ``max_tilt_deg`` (0: all fronto-parallel) and turned by up to 15 degrees in its plane.
     The poses aim at the cameras in turn, and each camera's aims go through the ninths of
     its image (a random point inside the ninth): its centre, its corners, its edges, as
-    the capture's hints ask; the corners are where a calibration is least certain. At least
+    the capture's hints ask. A corner-aimed board is then pushed into the image's corner
+    as far as it stays whole in view: the corners are where a calibration is least
+    certain. At least
     ``min_cameras`` cameras (None: all) see the board whole, the one aimed at among them;
     a ninth that no pose reaches in `MISSES_PER_AIM` draws is passed over.
     """
@@ -431,7 +433,6 @@ def board_poses(
         index, (col, row) = aim % len(rig.cameras), _ninth(aim, len(rig.cameras))
         cam = rig.cameras[index]
         target = (0.05 + 0.3 * (np.array([col, row]) + rng.uniform(0, 1, 2))) * np.array([w, h])
-
         make = partial(_aimed_pose, cam, rot=rot, z_mm=z, centre_mm=centre_b, warp_mm=warp_mm)
         whole = partial(_in_view, rig, board, index=index, need=need, margin_px=margin)
         found = whole(make(target))
