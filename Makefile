@@ -30,9 +30,12 @@ lint: $(STAMP)
 # rigs (child processes) never run beside the schemathesis runs' peaks (up to 3 GB a
 # worker). tests/conftest.py fails a test that leaves a simulated board open or a thread
 # it started running: a leak is a failed test, not a machine out of memory.
+# --maxschedchunk 1: the tests marked slow are collected first (tests/conftest.py), and
+# each worker takes the next test as it frees up, so the long ones spread over the
+# workers at the start (by default the first worker's first chunk would hold them all).
 test: $(STAMP) lint
 	$(BIN)/pytest -n 4 --max-worker-restart=0 tests/camd
-	$(BIN)/pytest -n 4 --max-worker-restart=0 --ignore=tests/camd
+	$(BIN)/pytest -n 4 --max-worker-restart=0 --maxschedchunk 1 --durations 15 --ignore=tests/camd
 
 bench: $(STAMP)
 	@for b in bench/[!_]*.py; do echo "== $$b" >&2; $(BIN)/python $$b || exit 1; done

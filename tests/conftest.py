@@ -17,7 +17,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Run the tests marked ``slow`` first, each group in its collection order.
 
     With pytest-xdist, a long test that starts last leaves the other workers idle until it
-    ends; started first, it runs beside the many short ones.
+    ends; started first, it runs beside the many short ones (make test hands the tests out
+    one at a time, ``--maxschedchunk 1``, so the long ones go to different workers).
     """
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 

@@ -45,7 +45,7 @@ class TpConfig:
         Smallest disparity searched (a little below 0 = infinity, for calibration errors);
         keeps weak far-off noise peaks from winning against a strong near object.
     chunk_tiles
-        Most tiles per chunk (chunks are equal, a whole number per thread).
+        Most tiles per chunk (chunks are equal, their number a multiple of 4).
     threads
         Worker threads (1 = run in the calling thread).
     pairs

@@ -291,13 +291,19 @@ def _checked_target(quad: QuadImages, target: NDArray[np.floating]) -> NDArray[n
     return tgt
 
 
+#: The number of chunks of a pass is a multiple of this (see `_in_chunks`).
+CHUNK_GROUP = 4
+
+
 def _in_chunks(fn: Callable[[NDArray[np.intp]], None], n: int, config: TpConfig) -> None:
     """``fn(tile indices)`` over chunks of at most ``config.chunk_tiles`` on ``config.threads``.
 
-    The chunks are of equal size and a whole number per thread, so that no thread is left
-    alone with the last chunk.
+    The chunks are of equal size and a multiple of `CHUNK_GROUP` in number, so that no
+    thread of 1, 2 or 4 is left alone with the last chunk. Their sizes do not depend on
+    the thread count, so neither does the DSI (a matrix product of another size may round
+    differently).
     """
-    count = config.threads * -(-n // (config.threads * config.chunk_tiles))
+    count = CHUNK_GROUP * -(-n // (CHUNK_GROUP * config.chunk_tiles))
     size = -(-n // count)
     bounds = [(s, min(s + size, n)) for s in range(0, n, size)]
     with single_threaded_blas():
