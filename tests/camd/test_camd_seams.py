@@ -7,6 +7,7 @@ closure.
 
 import gc
 import re
+import time
 import weakref
 
 import numpy as np
@@ -115,7 +116,11 @@ def test_a_closed_and_dropped_app_is_freed_with_its_service_and_board():
     service.close()
     gone = [weakref.ref(app), weakref.ref(service), weakref.ref(service.board)]
     del app, service, client
-    gc.collect()
+    # the service's frame thread, told to stop, may still be on its way out
+    deadline = time.monotonic() + 2.0
+    while any(ref() is not None for ref in gone) and time.monotonic() < deadline:
+        gc.collect()
+        time.sleep(0.05)
     assert [ref() for ref in gone] == [None, None, None]
 
 
