@@ -402,6 +402,16 @@ def _gaussian_peak(
     return good, lag_of_idx + step, g * np.exp(lg_peak)
 
 
+def centroid_taper(half_width: int = 2) -> NDArray[np.float64]:
+    """Weights of :func:`windowed_centroid` at offsets ``-half_width..half_width``.
+
+    A half-flat-top taper, so samples entering the window do not make the centroid jump.
+    """
+    offs = np.arange(-half_width, half_width + 1)
+    out: NDArray[np.float64] = np.cos(0.5 * np.pi * offs / (half_width + 1)) ** 2
+    return out
+
+
 def windowed_centroid(
     samples: F32, profiles: Profiles, index: NDArray[np.intp], *, half_width: int = 2
 ) -> F32:
@@ -413,8 +423,7 @@ def windowed_centroid(
     pos = index[..., None] + offs
     valid = (pos >= 0) & (pos < nl)
     vals = np.take_along_axis(profile, np.clip(pos, 0, nl - 1), axis=-1)
-    # half-flat-top taper, so samples entering the window do not make the centroid jump
-    taper = np.cos(0.5 * np.pi * offs / (half_width + 1)) ** 2
+    taper = centroid_taper(half_width)
     wgt = np.where(valid, np.maximum(vals, 0.0), 0.0) * taper
     s0 = wgt.sum(-1)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -296,7 +296,7 @@ def tile_spectra(
 def _exponentials(cos1: np.float32, sin1: np.float32, out: F32) -> None:
     """``out[k] = exp(i (2k + 1) a)`` (re, im), k = 0..7, from ``cos a``, ``sin a``."""
     step_r = cos1 * cos1 - sin1 * sin1  # exp(2 i a)
-    step_i = 2 * cos1 * sin1
+    step_i = np.float32(2.0) * cos1 * sin1
     r, i = cos1, sin1
     for k in range(8):
         out[k, 0] = r
@@ -337,7 +337,8 @@ def _normalised(acc: F32, rot_a: F32, rot_b: F32, fz2: np.float32, scale: F32, o
     """``out[which, re/im, f] = acc conj(rot_a) rot_b / sqrt(fz2 + mean |acc|^2 over which)``."""
     nf = acc.shape[2]
     for f in range(nf):
-        m = acc[0, 0, f] ** 2 + acc[0, 1, f] ** 2 + acc[1, 0, f] ** 2 + acc[1, 1, f] ** 2
+        a, b, c, d = acc[0, 0, f], acc[0, 1, f], acc[1, 0, f], acc[1, 1, f]
+        m = a * a + b * b + c * c + d * d
         scale[f] = np.float32(1.0) / np.sqrt(np.float32(0.5) * m + fz2)
     for w in range(2):
         for f in range(nf):
@@ -347,6 +348,23 @@ def _normalised(acc: F32, rot_a: F32, rot_b: F32, fz2: np.float32, scale: F32, o
             pr, pi = acc[w, 0, f] * scale[f], acc[w, 1, f] * scale[f]
             out[w, 0, f] = pr * qr - pi * qi
             out[w, 1, f] = pr * qi + pi * qr
+
+
+@nb.njit(inline="always", cache=True, nogil=True, fastmath=True, boundscheck=False)
+def _rotations(rotation: F32, t: int, kh: I64, kv: I64, rot: F32) -> None:
+    """``rot[c, which, re/im, f]``: camera c's phase rotation of tile t at each frequency."""
+    ex = nb.carray(_stack_floats(16), (8, 2))
+    ey = nb.carray(_stack_floats(16), (8, 2))
+    for c in range(rotation.shape[0]):
+        _exponentials(rotation[c, t, 0, 0], rotation[c, t, 0, 1], ex)
+        _exponentials(rotation[c, t, 1, 0], rotation[c, t, 1, 1], ey)
+        for f in range(kh.shape[0]):
+            xr, xi = ex[kh[f], 0], ex[kh[f], 1]
+            yr, yi = ey[kv[f], 0], ey[kv[f], 1]
+            rot[c, 0, 0, f] = xr * yr - xi * yi
+            rot[c, 0, 1, f] = xr * yi + xi * yr
+            rot[c, 1, 0, f] = xr * yr + xi * yi
+            rot[c, 1, 1, f] = xi * yr - xr * yi
 
 
 _PAIRS_SIGNATURE = nb.void(
@@ -401,29 +419,159 @@ def rotated_pair_products(
     out
         ``(P, T, 2, 2, F)`` float32: (which, re/im, f) per pair and tile.
     """
-    ncam = rotation.shape[0]
     nf = kh.shape[0]
-    ex = np.empty((8, 2), dtype=np.float32)
-    ey = np.empty((8, 2), dtype=np.float32)
-    rot = np.empty((ncam, 2, 2, nf), dtype=np.float32)
-    acc = np.empty((2, 2, nf), dtype=np.float32)
-    scale = np.empty(nf, dtype=np.float32)
+    # scratch on the stack (see _stack_floats): at most 4 cameras and 64 frequencies
+    rot = nb.carray(_stack_floats(1024), (rotation.shape[0], 2, 2, nf))
+    acc = nb.carray(_stack_floats(256), (2, 2, nf))
+    scale = nb.carray(_stack_floats(64), (nf,))
     fz2 = fat_zero * fat_zero
     for t in range(rotation.shape[1]):
-        for c in range(ncam):
-            _exponentials(rotation[c, t, 0, 0], rotation[c, t, 0, 1], ex)
-            _exponentials(rotation[c, t, 1, 0], rotation[c, t, 1, 1], ey)
-            for f in range(nf):
-                xr, xi = ex[kh[f], 0], ex[kh[f], 1]
-                yr, yi = ey[kv[f], 0], ey[kv[f], 1]
-                rot[c, 0, 0, f] = xr * yr - xi * yi
-                rot[c, 0, 1, f] = xr * yi + xi * yr
-                rot[c, 1, 0, f] = xr * yr + xi * yi
-                rot[c, 1, 1, f] = xi * yr - xr * yi
+        _rotations(rotation, t, kh, kv, rot)
         for p in range(pairs.shape[0]):
             a, b = pairs[p, 0], pairs[p, 1]
             _colour_sum(spectra[a, t], spectra[b, t], sizes, acc)
             _normalised(acc, rot[a], rot[b], fz2, scale, out[p, t])
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _group_profiles(
+    prof: F32, means: F32, envelope: F32, scratch: F32, combined: F32, levelled: F32
+) -> None:
+    """One tile's pair profiles averaged per group (``combined``), and levelled (lags).
+
+    ``scratch``: ``(pairs, lags)`` for each pair's profile over its envelope.
+    """
+    npairs, nl = envelope.shape
+    for p in range(npairs):
+        for s in range(nl):
+            scratch[p, s] = prof[p, s] / envelope[p, s]
+    for g in range(means.shape[0]):
+        for s in range(prof.shape[1]):
+            combined[g, s] = np.float32(0.0)
+        for s in range(nl):
+            levelled[g, s] = np.float32(0.0)
+        for p in range(npairs):
+            m = means[g, p]
+            if m != 0:
+                for s in range(prof.shape[1]):
+                    combined[g, s] += m * prof[p, s]
+                for s in range(nl):
+                    levelled[g, s] += m * scratch[p, s]
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _integer_max(select: F32, lags: NDArray[np.float64], lag_min: float) -> int:
+    """``numpy.argmax`` of ``select`` over the lags at or above ``lag_min - 0.5``."""
+    best, at = -np.inf, 0
+    for i in range(lags.shape[0]):
+        v = -np.inf if lags[i] < lag_min - 0.5 else select[i]
+        if np.isnan(v):
+            return i
+        if v > best:
+            best, at = v, i
+    return at
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _parabola(c: F32, nl: int, idx: int) -> tuple[float, np.float32]:
+    """Fraction and value of the parabola's peak through ``c[idx]`` and its neighbours."""
+    inner = min(max(idx, 1), nl - 2)
+    c0, cm, cp = c[inner], c[inner - 1], c[inner + 1]
+    curv = cm + cp - np.float32(2.0) * c0
+    if curv < 0 and idx == inner:
+        frac = min(max(np.float32(0.5) * (cm - cp) / curv, np.float32(-0.5)), np.float32(0.5))
+        return frac, c0 - np.float32(0.25) * (cm - cp) * frac
+    return 0.0, c[idx]
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _gaussian(
+    c: F32, nl: int, deriv_lags: NDArray[np.float64], lag: float, idx: int
+) -> tuple[bool, float, np.float32]:
+    """Where the log-parabola fit from the derivatives at ``lag`` holds, its step and peak."""
+    nd = deriv_lags.shape[0]
+    for j in range(nd):
+        if deriv_lags[j] == lag:
+            g, g1, g2 = c[idx], c[nl + j], c[nl + nd + j]
+            den = g * g2 - g1 * g1
+            if g > 0 and den < 0:
+                step = -g * g1 / den
+                if abs(step) <= 1.0:
+                    return True, step, g * np.float32(np.exp(np.float32(0.5) * g1 * step / g))
+            break
+    return False, 0.0, np.float32(0.0)
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _centroid(c: F32, nl: int, idx: int, taper: NDArray[np.float64]) -> float:
+    """Offset of the centre of mass of ``c``'s positive values around ``idx`` (tapered)."""
+    half = taper.shape[0] // 2
+    s0, s1 = 0.0, 0.0
+    for k in range(-half, half + 1):
+        i = idx + k
+        if 0 <= i < nl:
+            w = max(np.float64(c[i]), 0.0) * taper[k + half]
+            s0 += w
+            s1 += w * k
+    return s1 / s0 if s0 > 0 else 0.0
+
+
+_PEAKS_SIGNATURE = nb.void(
+    nb.float32[:, :, ::1],  # pair profiles (T, P, S): at the lags, then derivatives 1 and 2
+    nb.float32[:, ::1],  # group means (G, P)
+    nb.float32[:, ::1],  # window envelope (P, L)
+    nb.float64[::1],  # lags (L,)
+    nb.float64[::1],  # deriv lags (D,)
+    nb.float64[::1],  # centroid taper (2 h + 1,)
+    nb.float64[::1],  # lag_min (T,)
+    nb.float32[:, ::1],  # out: residual (T, G)
+    nb.float32[:, ::1],  # out: strength (T, G)
+    nb.float32[::1],  # out: centroid residual of group 0 (T,)
+    nb.float32[:, ::1],  # out: levelled profile of group 0 (T, L)
+)
+
+
+@nb.njit(_PEAKS_SIGNATURE, cache=True, nogil=True, boundscheck=False)
+def correlation_peaks(
+    profiles: F32,
+    means: F32,
+    envelope: F32,
+    lags: NDArray[np.float64],
+    deriv_lags: NDArray[np.float64],
+    taper: NDArray[np.float64],
+    lag_min: NDArray[np.float64],
+    residual: F32,
+    strength: F32,
+    centroid: F32,
+    levelled0: F32,
+) -> None:
+    """Per tile and group of pairs the sub-pixel correlation maximum, in one pass.
+
+    The compiled form of averaging the pair profiles over each group (``means``), the
+    integer maximum of the levelled profile (each pair's divided by its ``envelope``)
+    above ``lag_min - 0.5``, and :func:`elphel_host.tp.correlation.subpixel_max` and
+    :func:`~elphel_host.tp.correlation.windowed_centroid` there (their NumPy reference),
+    with the same float32 and float64 steps.
+    """
+    ng, nl = means.shape[0], lags.shape[0]
+    comb = np.empty((ng, profiles.shape[2]), dtype=np.float32)
+    lev = np.empty((ng, nl), dtype=np.float32)
+    scratch = np.empty(envelope.shape, dtype=np.float32)
+    for t in range(profiles.shape[0]):
+        _group_profiles(profiles[t], means, envelope, scratch, comb, lev)
+        for g in range(ng):
+            c = comb[g]
+            idx = _integer_max(lev[g], lags, lag_min[t])
+            frac, value = _parabola(c, nl, idx)
+            pos = lags[0] + idx + frac
+            good, step, peak = _gaussian(c, nl, deriv_lags, lags[idx], idx)
+            if good:
+                pos, value = lags[idx] + step, peak
+            residual[t, g] = max(pos, lag_min[t] - 0.5)
+            strength[t, g] = value
+            if g == 0:
+                centroid[t] = lags[0] + idx + _centroid(c, nl, idx, taper)
+        levelled0[t] = lev[0]
 
 
 _CELLS_SIGNATURE = nb.void(

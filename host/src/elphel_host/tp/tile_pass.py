@@ -37,15 +37,13 @@ from elphel_host.tp.clt.batch import (
 from elphel_host.tp.config import DEFAULT_CONFIG, TpConfig
 from elphel_host.tp.correlation import (
     Profiles,
+    centroid_taper,
     compact_profiles,
     correlation_2d,
-    integer_max,
     lpf_mask,
     pair_profiles,
     profile_basis,
-    subpixel_max,
     window_envelope,
-    windowed_centroid,
 )
 from elphel_host.tp.geometry import tile_centres
 from elphel_host.tp.images import QuadImages
@@ -69,7 +67,7 @@ MEASURED = (
 
 
 #: The stages of a pass, as :func:`stage_times` names them.
-STAGES = ("to_clt", "pair_products", "correlation", "argmax", "subpixel")
+STAGES = ("to_clt", "pair_products", "correlation", "peaks")
 
 _stage_lock = threading.Lock()
 _stage_sums: list[dict[str, float]] = []
@@ -83,8 +81,8 @@ def stage_times() -> Iterator[dict[str, float]]:
     over all chunks and threads (so with 2 threads the sum is about twice the wall time).
     ``to_clt``: placing the tiles and the four cameras' transforms; ``pair_products``:
     the six pair products and their normalisation; ``correlation``: the inverse
-    transform to correlation values along each pair's disparity direction;
-    ``argmax``: the integer maximum; ``subpixel``: the sub-pixel fits (and the centroid).
+    transform to correlation values along each pair's disparity direction; ``peaks``:
+    the means over groups of pairs, their integer maxima, sub-pixel fits and centroids.
     """
     sums = dict.fromkeys(STAGES, 0.0)
     with _stage_lock:
@@ -249,38 +247,55 @@ def _products(
     return p
 
 
+def _group_means(config: TpConfig, npairs: int, full: bool) -> F32:
+    """``(groups, pairs)``: each group's mean over its pairs (the rows of :data:`_GROUPS`).
+
+    The groups: the pairs of ``config.pairs``, then (when ``full``) the horizontal,
+    vertical and diagonal pairs.
+    """
+    members = [list(config.pairs), [0, 1], [2, 3], [4, 5]][: len(_GROUPS) if full else 1]
+    means = np.zeros((len(members), npairs), dtype=np.float32)
+    for g, m in enumerate(members):
+        means[g, m] = 1.0 / len(m)
+    return means
+
+
+#: The suffixes of :data:`MEASURED` of each group of pairs (:func:`_group_means`).
+_GROUPS = ("", "_hor", "_vert", "_diag")
+
+
 def _measure_chunk(
     prep: PreparedQuad, tiles: NDArray[np.intp], target: NDArray[np.float64], full: bool
 ) -> dict[str, F32]:
-    config = prep.config
+    from elphel_host.tp.fused import correlation_peaks  # see load_kernels
+
     t0 = time.perf_counter()
     p = _products(prep, tiles, target, t0)
     t0 = time.perf_counter()
-    prof = pair_profiles(p, prep.profiles)  # (T, pairs, lags)
+    prof = pair_profiles(p, prep.profiles)  # (T, pairs, samples)
     t0 = _record("correlation", t0)
-    # every group of pairs at once: a mean over pairs is one product with a (groups, pairs) matrix
-    names = ("", "_hor", "_vert", "_diag") if full else ("",)
-    members = [list(config.pairs), [0, 1], [2, 3], [4, 5]][: len(names)]
-    mean = np.zeros((len(names), prof.shape[1]), dtype=np.float32)
-    for g, m in enumerate(members):
-        mean[g, m] = 1.0 / len(m)
-    nl = prep.profiles.lags.size
-    combined = mean @ prof  # (T, groups, samples)
-    levelled = mean @ (prof[:, :, :nl] / prep.envelope)
-    lag_min = (config.min_disparity - target)[:, None]
-    t0 = _record("correlation", t0)
-    idx = integer_max(combined, prep.profiles, lag_min=lag_min, select=levelled)
-    t0 = _record("argmax", t0)
-    pos, val, idx = subpixel_max(
-        combined, prep.profiles, lag_min=lag_min, select=levelled, index=idx
+    means = _group_means(prep.config, prof.shape[1], full)
+    n, nl = tiles.size, prep.profiles.lags.size
+    residual = np.empty((n, means.shape[0]), dtype=np.float32)
+    strength = np.empty_like(residual)
+    out = {"residual_cm": np.empty(n, dtype=np.float32), "levelled": np.empty((n, nl), np.float32)}
+    correlation_peaks(
+        prof,
+        means,
+        prep.envelope,
+        prep.profiles.lags,
+        prep.profiles.deriv_lags,
+        centroid_taper(),
+        prep.config.min_disparity - target,
+        residual,
+        strength,
+        out["residual_cm"],
+        out["levelled"],
     )
-    out: dict[str, F32] = {}
-    for g, suffix in enumerate(names):
-        out["residual" + suffix] = pos[:, g]
-        out["strength" + suffix] = val[:, g]
-    out["residual_cm"] = windowed_centroid(combined[:, 0], prep.profiles, idx[:, 0])
-    out["levelled"] = levelled[:, 0]
-    _record("subpixel", t0)
+    for g in range(means.shape[0]):
+        out["residual" + _GROUPS[g]] = residual[:, g]
+        out["strength" + _GROUPS[g]] = strength[:, g]
+    _record("peaks", t0)
     return out
 
 
