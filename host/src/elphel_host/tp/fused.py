@@ -151,11 +151,16 @@ def _store_colour(fa: F32, fb: F32, positions: U64, n: int, root: F32, out: F32,
         out[base + 3 * n + f] = root[1, f] * (ad - bc)
 
 
+#: ``pi / 16``: the window's phase per pixel of shift.
+_WINDOW_ANGLE = np.pi / 16
+
+
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
 def _all_tiles(
     cells: F32,
     at: I64,
-    trig: F32,
+    shift_y: NDArray[np.float64],
+    shift_x: NDArray[np.float64],
     window_y: F32,
     window_x: F32,
     row_basis: F32,
@@ -178,10 +183,13 @@ def _all_tiles(
     fa, fb = nb.carray(pa, (128,)), nb.carray(pb, (128,))
     for t in range(at.shape[1]):
         py, px = at[2, t], at[3, t]
+        ay, ax = _WINDOW_ANGLE * shift_y[t], _WINDOW_ANGLE * shift_x[t]
+        cy, sy = np.float32(np.cos(ay)), np.float32(np.sin(ay))
+        cx, sx = np.float32(np.cos(ax)), np.float32(np.sin(ax))
         for p in range(planes):
             for v in range(inner):
-                wy[v] = trig[t, 0] * window_y[py, p, 0, v] + trig[t, 1] * window_y[py, p, 1, v]
-                fx[v] = trig[t, 2] * window_x[px, p, 0, v] + trig[t, 3] * window_x[px, p, 1, v]
+                wy[v] = cy * window_y[py, p, 0, v] + sy * window_y[py, p, 1, v]
+                fx[v] = cx * window_x[px, p, 0, v] + sx * window_x[px, p, 1, v]
             r0, c0 = at[0, t] + first_y[py, p], at[1, t] + first_x[px, p]
             _tile_rows(cells, r0, c0, p, wy, fx, row_basis[px, p], y, p * inner, inner)
         base = 0
@@ -196,7 +204,8 @@ def _all_tiles(
 _SPECTRA_SIGNATURE = nb.void(
     nb.float32[:, :, ::1],  # cells (rows, cols, planes)
     nb.int64[:, ::1],  # (4, T): first cell row, first cell column, parity y, parity x
-    nb.float32[:, ::1],  # (T, 4): cos, sin of the window shift along y, then along x
+    nb.float64[::1],  # (T,) the window's shift along y
+    nb.float64[::1],  # (T,) along x
     nb.float32[:, :, :, ::1],  # window along y (parity, planes, 2, inner)
     nb.float32[:, :, :, ::1],  # window along x (parity, planes, 2, inner)
     nb.float32[:, :, :, ::1],  # row basis (parity, planes, inner, 16)
@@ -214,7 +223,8 @@ _SPECTRA_SIGNATURE = nb.void(
 def tile_spectra(
     cells: F32,
     at: I64,
-    trig: F32,
+    shift_y: NDArray[np.float64],
+    shift_x: NDArray[np.float64],
     window_y: F32,
     window_x: F32,
     row_basis: F32,
@@ -242,8 +252,9 @@ def tile_spectra(
     at
         ``(4, T)``: each tile's first footprint cell (row, column) and start parity
         (y, x); the tables are indexed by the parity.
-    trig
-        ``(T, 4)``: cos and sin of ``pi s / 16`` for the tile's shift s along y, then x.
+    shift_y, shift_x
+        ``(T,)``: the tile's window shift s along each axis; the window is
+        ``cos(pi s / 16) w[0] + sin(pi s / 16) w[1]``.
     window_y, window_x, row_basis, col_basis, first_y, first_x
         The transform's tables (:class:`elphel_host.tp.clt.batch.CameraTransform`).
     colours
@@ -258,7 +269,8 @@ def tile_spectra(
         _all_tiles(
             cells,
             at,
-            trig,
+            shift_y,
+            shift_x,
             window_y,
             window_x,
             row_basis,
@@ -276,7 +288,8 @@ def tile_spectra(
         _all_tiles(
             cells,
             at,
-            trig,
+            shift_y,
+            shift_x,
             window_y,
             window_x,
             row_basis,

@@ -363,7 +363,8 @@ def raw_spectra(
     tile_spectra(
         cells,
         place,
-        _window_trig(at.shift_y, at.shift_x),
+        np.ascontiguousarray(at.shift_y, dtype=np.float64),
+        np.ascontiguousarray(at.shift_x, dtype=np.float64),
         tr.window_y,
         tr.window_x,
         tr.row_basis,
@@ -389,14 +390,6 @@ def _convolve(planar: F32, kernel: C64) -> None:
     re, im = planar[:, :, 0].copy(), planar[:, :, 1]
     planar[:, :, 0] = re * kernel.real - im * kernel.imag
     planar[:, :, 1] = re * kernel.imag + im * kernel.real
-
-
-def _window_trig(shift_y: NDArray[np.floating], shift_x: NDArray[np.floating]) -> F32:
-    """``(T, 4)``: cos and sin of ``pi s / 16`` along y, then along x (the window weights)."""
-    ay = np.pi / TILE * np.asarray(shift_y, dtype=np.float64)
-    ax = np.pi / TILE * np.asarray(shift_x, dtype=np.float64)
-    out: F32 = np.stack([np.cos(ay), np.sin(ay), np.cos(ax), np.sin(ax)], axis=1).astype(np.float32)
-    return out
 
 
 def _rotations(shifts: F32, tr: CameraTransform) -> C64:
