@@ -44,8 +44,7 @@ def fast(
 ) -> tuple[list[np.ndarray], batch.CameraTransform]:
     weights = colour_masks(pattern, TpConfig())
     tr = batch.camera_transform(pattern, weights, green_band=TpConfig().green_band, pad=PAD)
-    cells = batch.image_cells(image, tr)
-    return [np.asarray(z) for z in batch.camera_spectra(cells, tr, at)], tr
+    return [np.asarray(z) for z in batch.camera_spectra(image, tr, at)], tr
 
 
 def compact(full: np.ndarray, fset: batch.FrequencySet, n: int) -> np.ndarray:

@@ -4,12 +4,11 @@ NumPy makes one full pass over memory, and one temporary, per element-wise opera
 and BLAS is slow on many tiny products. The per-tile stretches of a pass are fused here
 into one loop each, around the larger matrix products that BLAS does well:
 
-* :func:`tile_spectra`: each tile's samples gathered from the cells of a camera,
-  multiplied by its shifted window and transformed, along the rows then down the
-  columns, into its colour spectra;
+* :func:`tile_spectra`: each tile's samples of every Bayer plane gathered from a
+  camera's image (border pixels repeated outside it), multiplied by its shifted window
+  and transformed, along the rows then down the columns, into its colour spectra;
 * :func:`rotated_pair_products`: the pair products summed over colours (first camera
   conjugated), the fat-zero normalisation and both cameras' phase rotations, per tile;
-* :func:`image_cells`: a camera's image regrouped by Bayer cell, once per image set;
 * :func:`lens_pixels` and :func:`lens_windows`: where a calibrated camera sees each tile
   (:meth:`elphel_host.tp.calibrated.CalibratedGeometry.pixels`, the same operations in
   the same order, so the same float64 results), one loop instead of some forty NumPy
@@ -36,23 +35,31 @@ I64 = NDArray[np.int64]
 U64 = NDArray[np.uint64]
 
 
-def _stack_floats_typing(typingctx: object, size: types.Type) -> object:
-    """Typing and code of :func:`_stack_floats`."""
-    if not isinstance(size, types.IntegerLiteral):
-        return None
+def _stack_typing(element: types.Type) -> Callable[[object, types.Type], object]:
+    """Typing and code of a stack allocation of n ``element`` values (n a literal int)."""
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        count = context.get_constant(types.intp, size.literal_value)
-        return cgutils.alloca_once(builder, context.get_value_type(types.float32), size=count)
+    def typing(typingctx: object, size: types.Type) -> object:
+        if not isinstance(size, types.IntegerLiteral):
+            return None
 
-    return types.CPointer(types.float32)(size), codegen
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            count = context.get_constant(types.intp, size.literal_value)
+            return cgutils.alloca_once(builder, context.get_value_type(element), size=count)
+
+        return types.CPointer(element)(size), codegen
+
+    return typing
 
 
 #: ``_stack_floats(n)`` in a kernel: a pointer to n float32 on the kernel's stack (n a
 #: literal int). Scratch on the stack provably aliases no argument, so the compiler keeps
 #: a tile's partial sums in vector registers; heap scratch (``np.empty``) could alias
 #: ``out``, and the compiler then falls back to scalar loads and stores.
-_stack_floats = cast(Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_floats_typing))
+_stack_floats = cast(
+    Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_typing(types.float32))
+)
+#: ``_stack_ints(n)``: the same for n int64.
+_stack_ints = cast(Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_typing(types.int64)))
 
 
 # Products without reassociation: the compiler then vectorises the 16 independent sums
@@ -83,10 +90,9 @@ def _sum8(m: F32, r: int, s: tuple[float, ...], out: F32, row: int, accumulate: 
 
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
 def _tile_rows(
-    cells: F32,
-    r0: int,
-    c0: int,
-    p: int,
+    image: F32,
+    rows: I64,
+    cols: I64,
     wy: F32,
     fx: F32,
     basis: F32,
@@ -94,27 +100,39 @@ def _tile_rows(
     first: int,
     inner: int,
 ) -> None:
-    """Rows ``first + v`` of ``out``: plane p's windowed samples times the row basis.
+    """Rows ``first + v`` of ``out``: one plane's windowed samples times the row basis.
 
-    ``out[first + v, j] = wy[v] sum_u cells[r0 + v, c0 + u, p] fx[u] basis[u, j]``, v and
+    ``out[first + v, j] = wy[v] sum_u image[rows[v], cols[u]] fx[u] basis[u, j]``, v and
     u below ``inner``.
     """
     for v in range(inner):
-        src = cells[r0 + v]
+        src = image[rows[v]]
         w = wy[v]
         for h in range(0, inner, 8):
-            c = c0 + h
             s = (
-                w * fx[h] * src[c, p],
-                w * fx[h + 1] * src[c + 1, p],
-                w * fx[h + 2] * src[c + 2, p],
-                w * fx[h + 3] * src[c + 3, p],
-                w * fx[h + 4] * src[c + 4, p],
-                w * fx[h + 5] * src[c + 5, p],
-                w * fx[h + 6] * src[c + 6, p],
-                w * fx[h + 7] * src[c + 7, p],
+                w * fx[h] * src[cols[h]],
+                w * fx[h + 1] * src[cols[h + 1]],
+                w * fx[h + 2] * src[cols[h + 2]],
+                w * fx[h + 3] * src[cols[h + 3]],
+                w * fx[h + 4] * src[cols[h + 4]],
+                w * fx[h + 5] * src[cols[h + 5]],
+                w * fx[h + 6] * src[cols[h + 6]],
+                w * fx[h + 7] * src[cols[h + 7]],
             )
             _sum8(basis, h, s, out, first + v, h > 0)
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _plane_samples(
+    first: int, pad: int, cells: int, cell: int, offset: int, inner: int, out: I64
+) -> None:
+    """Image rows (or columns) of one plane's ``inner`` samples from padded cell ``first``.
+
+    The cells of the padding repeat the border cell: ``cell * clip(first + v - pad, 0,
+    cells - 1) + offset``, the plane's pixel of the same Bayer parity at the border.
+    """
+    for v in range(inner):
+        out[v] = cell * min(max(first + v - pad, 0), cells - 1) + offset
 
 
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
@@ -157,7 +175,10 @@ _WINDOW_ANGLE = np.pi / 16
 
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
 def _all_tiles(
-    cells: F32,
+    image: F32,
+    plane_rows: I64,
+    plane_cols: I64,
+    pad: int,
     at: I64,
     shift_y: NDArray[np.float64],
     shift_x: NDArray[np.float64],
@@ -173,11 +194,15 @@ def _all_tiles(
     out: F32,
     planes: int,
     inner: int,
+    cell: int,
 ) -> None:
     """:func:`tile_spectra` for ``planes`` planes of ``inner x inner`` samples (constants)."""
     y = nb.carray(_stack_floats(1024), (64, 16))  # (plane, v) rows of the row transform
     wy = nb.carray(_stack_floats(16), (16,))
     fx = nb.carray(_stack_floats(16), (16,))
+    rows = nb.carray(_stack_ints(16), (16,))
+    cols = nb.carray(_stack_ints(16), (16,))
+    h, w = image.shape[0] // cell, image.shape[1] // cell
     pa, pb = _stack_floats(128), _stack_floats(128)
     za, zb = nb.carray(pa, (8, 16)), nb.carray(pb, (8, 16))
     fa, fb = nb.carray(pa, (128,)), nb.carray(pb, (128,))
@@ -190,8 +215,9 @@ def _all_tiles(
             for v in range(inner):
                 wy[v] = cy * window_y[py, p, 0, v] + sy * window_y[py, p, 1, v]
                 fx[v] = cx * window_x[px, p, 0, v] + sx * window_x[px, p, 1, v]
-            r0, c0 = at[0, t] + first_y[py, p], at[1, t] + first_x[px, p]
-            _tile_rows(cells, r0, c0, p, wy, fx, row_basis[px, p], y, p * inner, inner)
+            _plane_samples(at[0, t] + first_y[py, p], pad, h, cell, plane_rows[p], inner, rows)
+            _plane_samples(at[1, t] + first_x[px, p], pad, w, cell, plane_cols[p], inner, cols)
+            _tile_rows(image, rows, cols, wy, fx, row_basis[px, p], y, p * inner, inner)
         base = 0
         for c in range(colours.shape[0]):
             p0, p1, n, kvs = colours[c, 0], colours[c, 1], colours[c, 2], colours[c, 3]
@@ -202,7 +228,10 @@ def _all_tiles(
 
 
 _SPECTRA_SIGNATURE = nb.void(
-    nb.float32[:, :, ::1],  # cells (rows, cols, planes)
+    nb.float32[:, ::1],  # image (H, W)
+    nb.int64[::1],  # row of each plane in its cell (planes,)
+    nb.int64[::1],  # column of each plane in its cell (planes,)
+    nb.int64,  # padding, cells
     nb.int64[:, ::1],  # (4, T): first cell row, first cell column, parity y, parity x
     nb.float64[::1],  # (T,) the window's shift along y
     nb.float64[::1],  # (T,) along x
@@ -221,7 +250,10 @@ _SPECTRA_SIGNATURE = nb.void(
 
 @nb.njit(_SPECTRA_SIGNATURE, cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
 def tile_spectra(
-    cells: F32,
+    image: F32,
+    plane_rows: I64,
+    plane_cols: I64,
+    pad: int,
     at: I64,
     shift_y: NDArray[np.float64],
     shift_x: NDArray[np.float64],
@@ -246,12 +278,14 @@ def tile_spectra(
 
     Parameters
     ----------
-    cells
-        ``(rows, cols, planes)`` float32 cells of one camera
-        (:func:`elphel_host.tp.clt.batch.image_cells`).
+    image
+        ``(H, W)`` float32 image of one camera.
+    plane_rows, plane_cols, pad
+        Each plane's pixel in its cell (2x2 Bayer, 1x1 mono); the cells of padding
+        around the image the footprint cells count from (they repeat the border cell).
     at
-        ``(4, T)``: each tile's first footprint cell (row, column) and start parity
-        (y, x); the tables are indexed by the parity.
+        ``(4, T)``: each tile's first footprint cell (row, column, counted from the
+        padding's first) and start parity (y, x); the tables are indexed by the parity.
     shift_y, shift_x
         ``(T,)``: the tile's window shift s along each axis; the window is
         ``cos(pi s / 16) w[0] + sin(pi s / 16) w[1]``.
@@ -267,7 +301,10 @@ def tile_spectra(
     """
     if row_basis.shape[2] == 8:  # Bayer: four 8x8 planes
         _all_tiles(
-            cells,
+            image,
+            plane_rows,
+            plane_cols,
+            pad,
             at,
             shift_y,
             shift_x,
@@ -283,10 +320,14 @@ def tile_spectra(
             out,
             4,
             8,
+            2,
         )
     else:  # mono: one 16x16 plane
         _all_tiles(
-            cells,
+            image,
+            plane_rows,
+            plane_cols,
+            pad,
             at,
             shift_y,
             shift_x,
@@ -302,6 +343,7 @@ def tile_spectra(
             out,
             1,
             16,
+            1,
         )
 
 
@@ -585,39 +627,6 @@ def correlation_peaks(
             if g == 0:
                 centroid[t] = lags[0] + idx + _centroid(c, nl, idx, taper)
         levelled0[t] = lev[0]
-
-
-_CELLS_SIGNATURE = nb.void(
-    nb.float32[:, ::1],  # image (H, W)
-    nb.int64[::1],  # row of each plane in the cell (planes,)
-    nb.int64[::1],  # column of each plane in the cell (planes,)
-    nb.int64,  # padding, cells
-    nb.float32[:, :, ::1],  # out (H/c + 2 pad, W/c + 2 pad, planes)
-)
-
-
-@nb.njit(_CELLS_SIGNATURE, cache=True, nogil=True, boundscheck=False)
-def image_cells(image: F32, plane_rows: I64, plane_cols: I64, pad: int, out: F32) -> None:
-    """An image regrouped by cell: ``out[i, j, p] = image[c ci + rows[p], c cj + cols[p]]``.
-
-    ``c = H / out rows`` less the padding (1 mono, 2 Bayer), ``ci = clip(i - pad)`` and
-    ``cj = clip(j - pad)`` to the image's cells: the padding repeats the border cell.
-    """
-    planes = plane_rows.shape[0]
-    cell = image.shape[0] // (out.shape[0] - 2 * pad)
-    h, w = image.shape[0] // cell, image.shape[1] // cell
-    for i in range(out.shape[0]):
-        ci = min(max(i - pad, 0), h - 1)
-        row = out[i]
-        for p in range(planes):
-            src = image[cell * ci + plane_rows[p]]
-            c0 = plane_cols[p]
-            for j in range(pad):
-                row[j, p] = src[c0]
-            for j in range(w):
-                row[pad + j, p] = src[cell * j + c0]
-            for j in range(pad + w, out.shape[1]):
-                row[j, p] = src[cell * (w - 1) + c0]
 
 
 #: The calibrated camera of :func:`lens_pixels`, packed by

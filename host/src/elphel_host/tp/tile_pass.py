@@ -3,8 +3,8 @@
 A pass places every camera's tile at the target disparity, transforms the four cameras
 (:mod:`elphel_host.tp.clt.batch`), correlates the six pairs and measures the residual
 disparity at the correlation maximum (:mod:`elphel_host.tp.correlation`). What does not
-depend on the target (the padded mosaics, the transform plans, the profile basis, the
-kernel spectra) is prepared once per image set and shared by every pass.
+depend on the target (the transform plans, the profile basis, the kernel spectra) is
+prepared once per image set and shared by every pass.
 
 Work is split into chunks of tiles (sized to stay in cache) processed by a few threads;
 NumPy and BLAS release the GIL, and BLAS is kept single-threaded meanwhile so the
@@ -30,7 +30,6 @@ from elphel_host.tp.clt.batch import (
     CameraTransform,
     camera_transform,
     expand,
-    image_cells,
     raw_spectra,
     spectrum_floats,
 )
@@ -119,7 +118,7 @@ class PreparedQuad:
 
     quad: QuadImages
     config: TpConfig
-    cells: list[F32]
+    images: list[F32]
     transform: CameraTransform
     centres: tuple[NDArray[np.float64], NDArray[np.float64]]
     profiles: Profiles
@@ -152,9 +151,6 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
         green_band=config.green_band,
         pad=pad,
     )
-    cells = parallel_map(
-        lambda img: image_cells(img, transform), list(quad.images), threads=config.threads
-    )
     ty, tx = quad.tiles
     lags = np.arange(-config.radius, config.radius + 1, dtype=np.float64)
     vectors = quad.geometry.pair_vectors()
@@ -162,7 +158,7 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
     return PreparedQuad(
         quad=quad,
         config=config,
-        cells=cells,
+        images=[np.ascontiguousarray(img, dtype=np.float32) for img in quad.images],
         transform=transform,
         centres=tile_centres(ty, tx),
         profiles=compact_profiles(full, transform.fset, lpf_mask(config.lpf_sigma)),
@@ -221,7 +217,7 @@ def _products(
             kernels = prep.kernels[cam]
             index = _kernel_index(quad, cx - target * px, cy - target * py)
         shifts[cam] = raw_spectra(
-            prep.cells[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
+            prep.images[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
         )
     if t0 is not None:
         t0 = _record("to_clt", t0)

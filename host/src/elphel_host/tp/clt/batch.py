@@ -9,12 +9,12 @@ definition):
   4x4 lowest, below their lattice's alias band; green: ``kh + kv <= green_band``; mono:
   all 64). The box of red/blue frequencies comes first in the frequency list, so red and
   blue are a prefix of green.
-* The mosaic is regrouped once per image by Bayer cell (:func:`image_cells`: per cell
-  its four pixels side by side, in colour order), so a tile's samples are a few
-  contiguous runs. The footprint is cell-aligned: 9x9 cells per tile (a tile starting
-  on an odd pixel starts one pixel into its first cell), of which each plane has 8x8
-  samples inside the tile; which 8x8 depends on the tile's start parity, so each table
-  has one entry per parity. The basis is a pure exponential in the sample index
+* Each tile's samples are read from the mosaic by Bayer cell (a plane is one pixel of
+  each 2x2 cell; mono: one plane of single pixels). The footprint is cell-aligned: 9x9
+  cells per tile (a tile starting on an odd pixel starts one pixel into its first cell),
+  of which each plane has 8x8 samples inside the tile; which 8x8 depends on the tile's
+  start parity, so each table has one entry per parity. Outside the image a plane's
+  samples repeat its border pixel (reference 1). The basis is a pure exponential in the sample index
   (``E[k, j+1] = E[k, j] exp(i OMEGA[k])``), so the one-pixel offset of an odd start is a
   phase rotation, folded into the rotation by the fractional shift.
 * The shifted window is ``w_s(j) = cos(pi s/16) w0(j) + sin(pi s/16) w1(j)`` along each
@@ -227,27 +227,6 @@ def _first_inside(cell: int, offsets: NDArray[np.intp]) -> NDArray[np.int64]:
     return out
 
 
-def image_cells(image: NDArray[np.floating], tr: CameraTransform) -> F32:
-    """One camera's image, padded by ``tr.pad`` pixels, by cell: ``(rows/c, cols/c, planes)``.
-
-    Plane p of cell (i, j) is the padded pixel ``(c i + plane_rows[p], c j + plane_cols[p])``
-    (c = 1 mono, 2 Bayer; planes in colour order), so one tile's samples of every colour
-    are a few contiguous runs (:func:`elphel_host.tp.fused.tile_spectra` reads them).
-    Out-of-image samples repeat the border pixel of the same Bayer parity (reference 1):
-    in cells, that is the border cell repeated.
-    """
-    from elphel_host.tp import fused  # loads the compiled kernels (see raw_spectra)
-
-    img = np.ascontiguousarray(image, dtype=np.float32)
-    c, pc = tr.cell, tr.pad // tr.cell
-    if img.ndim != 2 or img.shape[0] % c or img.shape[1] % c:
-        raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
-    h, w = img.shape[0] // c, img.shape[1] // c
-    out = np.empty((h + 2 * pc, w + 2 * pc, tr.plane_rows.size), dtype=np.float32)
-    fused.image_cells(img, tr.plane_rows.astype(np.int64), tr.plane_cols.astype(np.int64), pc, out)
-    return out
-
-
 def _window_factors(cell: int, span: int, offsets: NDArray[np.intp]) -> F32:
     """Per start parity, plane and window, the window on the planes' samples along an axis.
 
@@ -269,7 +248,7 @@ def _window_factors(cell: int, span: int, offsets: NDArray[np.intp]) -> F32:
 
 
 def camera_spectra(
-    cells: F32,
+    image: F32,
     tr: CameraTransform,
     at: TilePlacement,
     *,
@@ -286,8 +265,8 @@ def camera_spectra(
 
     Parameters
     ----------
-    cells
-        :func:`image_cells` of the camera (prepare it once per image).
+    image
+        The camera's ``(H, W)`` image.
     tr
         :func:`camera_transform` of the sensor.
     at
@@ -295,7 +274,7 @@ def camera_spectra(
     """
     t = at.left_x.shape[0]
     packed = np.empty((t, spectrum_floats(tr)), dtype=np.float32)
-    shifts = raw_spectra(cells, tr, at, packed, kernels=kernels, kernel_index=kernel_index)
+    shifts = raw_spectra(image, tr, at, packed, kernels=kernels, kernel_index=kernel_index)
     phase = _rotations(shifts, tr)
     return [
         (v[:, :, 0] + 1j * v[:, :, 1]).astype(np.complex64) * phase[:, :, : v.shape[3]]
@@ -320,7 +299,7 @@ def colour_views(packed: F32, tr: CameraTransform) -> list[F32]:
 
 
 def raw_spectra(
-    cells: F32,
+    image: F32,
     tr: CameraTransform,
     at: TilePlacement,
     out: F32,
@@ -336,7 +315,7 @@ def raw_spectra(
 
     Parameters
     ----------
-    cells, tr, at
+    image, tr, at
         As in :func:`camera_spectra`.
     out
         ``(T, spectrum_floats(tr))`` float32, row t for tile t, filled with the colours
@@ -352,16 +331,23 @@ def raw_spectra(
     # the compiled kernels load on first use: commands that never run a pass skip numba
     from elphel_host.tp.fused import tile_spectra
 
-    c, span = tr.cell, tr.span
+    c, span, pc = tr.cell, tr.span, tr.pad // tr.cell
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    if img.ndim != 2 or img.shape[0] % c or img.shape[1] % c:
+        raise ValueError(f"image {img.shape}; allowed: 2-D, sides multiples of {c}")
     t = at.left_x.shape[0]
-    # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16
+    # cell-aligned footprint: an odd start is one cell earlier, its samples at 1..16; cells
+    # counted from the first of the padding (tr.pad pixels of repeated border each side)
     place = np.empty((4, t), dtype=np.int64)
     place[2] = at.top_y & (c - 1)
     place[3] = at.left_x & (c - 1)
-    place[0] = np.clip((at.top_y + tr.pad - place[2]) // c, 0, cells.shape[0] - span)
-    place[1] = np.clip((at.left_x + tr.pad - place[3]) // c, 0, cells.shape[1] - span)
+    place[0] = np.clip((at.top_y + tr.pad - place[2]) // c, 0, img.shape[0] // c + 2 * pc - span)
+    place[1] = np.clip((at.left_x + tr.pad - place[3]) // c, 0, img.shape[1] // c + 2 * pc - span)
     tile_spectra(
-        cells,
+        img,
+        tr.plane_rows.astype(np.int64),
+        tr.plane_cols.astype(np.int64),
+        pc,
         place,
         np.ascontiguousarray(at.shift_y, dtype=np.float64),
         np.ascontiguousarray(at.shift_x, dtype=np.float64),
