@@ -144,3 +144,46 @@ def test_correlation_peaks_equal_the_numpy_reference() -> None:
     gaussian = _gaussian_peak(combined, profiles, idx)[0]
     assert 0.1 < gaussian.mean() < 0.9
     assert np.sum(pos == (lag_min[:, None] - 0.5).astype(np.float32)) > 10
+
+
+def _neighbourhood_reference(
+    levelled: np.ndarray, own: np.ndarray, lags: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`fused.neighbourhood_peaks` by its definition, in NumPy."""
+    finite = np.isfinite(levelled)
+    p = np.pad(np.where(finite, levelled, 0.0).astype(np.float64), ((1, 1), (1, 1), (0, 0)), "edge")
+    ty, tx = levelled.shape[:2]
+    smooth = np.zeros((ty, tx, lags.size))
+    for dy in range(3):
+        for dx in range(3):
+            smooth += p[dy : dy + ty, dx : dx + tx]
+    smooth = np.where(finite, smooth, -np.inf)
+    i = np.argmax(smooth, axis=-1)[..., None]
+    top = np.take_along_axis(smooth, i, -1)[..., 0]
+    lo = np.take_along_axis(smooth, np.maximum(i - 1, 0), -1)[..., 0]
+    hi = np.take_along_axis(smooth, np.minimum(i + 1, lags.size - 1), -1)[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        curv = lo + hi - 2 * top
+        frac = np.where(np.isfinite(curv) & (curv < 0), 0.5 * (lo - hi) / curv, 0.0)
+        r = lags[i[..., 0]] + np.clip(frac, -0.5, 0.5)
+        return np.where(np.abs(own - r) <= 1.0, own, r), top
+
+
+def test_neighbourhood_peaks_equal_their_definition() -> None:
+    rng = np.random.default_rng(5)
+    lags = np.arange(-7.0, 8.0)
+    centre = rng.uniform(-6, 6, size=(23, 31, 1))
+    levelled = (np.exp(-0.5 * (lags - centre) ** 2) + 0.3 * rng.normal(size=(23, 31, 15))).astype(
+        np.float32
+    )
+    levelled[3, 4, 5] = np.nan
+    levelled[0, :, :4] = -np.inf  # lags below min_disparity
+    levelled[10, 10] = -np.inf
+    own = (centre[..., 0] + rng.normal(scale=0.8, size=(23, 31))).astype(np.float32)
+    own[7, 8] = np.nan
+    residual, peak = np.empty((23, 31)), np.empty((23, 31))
+    fused.neighbourhood_peaks(levelled, own, lags, residual, peak)
+    want_residual, want_peak = _neighbourhood_reference(levelled, own, lags)
+    np.testing.assert_array_equal(residual, want_residual)
+    np.testing.assert_array_equal(peak, want_peak)
+    assert 0.2 < np.mean(residual == own) < 0.9  # both the own and the neighbourhood's

@@ -58,6 +58,10 @@ def _stack_typing(element: types.Type) -> Callable[[object, types.Type], object]
 _stack_floats = cast(
     Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_typing(types.float32))
 )
+#: ``_stack_doubles(n)``: the same for n float64.
+_stack_doubles = cast(
+    Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_typing(types.float64))
+)
 #: ``_stack_ints(n)``: the same for n int64.
 _stack_ints = cast(Callable[[int], Any], intrinsic(prefer_literal=True)(_stack_typing(types.int64)))
 
@@ -627,6 +631,69 @@ def correlation_peaks(
             if g == 0:
                 centroid[t] = lags[0] + idx + _centroid(c, nl, idx, taper)
         levelled0[t] = lev[0]
+
+
+@nb.njit(inline="always", cache=True, nogil=True, boundscheck=False)
+def _box_profile(levelled: F32, y: int, x: int, out: NDArray[np.float64]) -> None:
+    """Sum of the finite ``levelled[y, x]`` profiles of the 3x3 tiles around (y, x).
+
+    Edge tiles repeated; -inf where the tile's own value is not finite.
+    """
+    ty, tx, nl = levelled.shape
+    for k in range(nl):
+        out[k] = 0.0
+    for dy in range(-1, 2):
+        row = levelled[min(max(y + dy, 0), ty - 1)]
+        for dx in range(-1, 2):
+            src = row[min(max(x + dx, 0), tx - 1)]
+            for k in range(nl):
+                v = np.float64(src[k])
+                out[k] += v if np.isfinite(v) else 0.0
+    own = levelled[y, x]
+    for k in range(nl):
+        if not np.isfinite(own[k]):
+            out[k] = -np.inf
+
+
+_NEIGHBOURHOOD_SIGNATURE = nb.void(
+    nb.float32[:, :, ::1],  # levelled correlation (ty, tx, L)
+    nb.float32[:, ::1],  # each tile's own residual (ty, tx)
+    nb.float64[::1],  # lags (L,)
+    nb.float64[:, ::1],  # out: residual (ty, tx)
+    nb.float64[:, ::1],  # out: peak value (ty, tx)
+)
+
+
+@nb.njit(_NEIGHBOURHOOD_SIGNATURE, cache=True, nogil=True, boundscheck=False)
+def neighbourhood_peaks(
+    levelled: F32,
+    own: F32,
+    lags: NDArray[np.float64],
+    residual: NDArray[np.float64],
+    peak: NDArray[np.float64],
+) -> None:
+    """Per tile the maximum of its 3x3 neighbourhood's summed levelled correlation.
+
+    Its lag plus the parabola's fraction through it and its neighbours (within +-0.5),
+    or the tile's ``own`` residual where that is within 1 px of it; ``peak`` the summed
+    value there (the first pass of :func:`elphel_host.tp.processor.disparity_map`).
+    """
+    nl = lags.shape[0]
+    smooth = nb.carray(_stack_doubles(64), (nl,))  # at most 64 lags
+    for y in range(levelled.shape[0]):
+        for x in range(levelled.shape[1]):
+            _box_profile(levelled, y, x, smooth)
+            i = 0
+            for k in range(1, nl):
+                if smooth[k] > smooth[i]:
+                    i = k
+            top, lo, hi = smooth[i], smooth[max(i - 1, 0)], smooth[min(i + 1, nl - 1)]
+            curv = lo + hi - 2 * top
+            frac = 0.5 * (lo - hi) / curv if np.isfinite(curv) and curv < 0 else 0.0
+            r = lags[i] + min(max(frac, -0.5), 0.5)
+            near = abs(np.float64(own[y, x]) - r) <= 1.0
+            residual[y, x] = own[y, x] if near else r
+            peak[y, x] = top
 
 
 #: The calibrated camera of :func:`lens_pixels`, packed by

@@ -107,41 +107,22 @@ def _neighbourhood_peak(
     neighbouring tiles (surfaces are mostly smooth in depth), so a weak far peak of a near
     object is not lost to a noise peak; a parabola through it and its neighbours gives the
     fraction. Where the tile's own maximum agrees with the neighbourhood (within 1 px),
-    its own sub-pixel estimate is the better one.
+    its own sub-pixel estimate is the better one. One compiled loop
+    (:func:`elphel_host.tp.fused.neighbourhood_peaks`).
     """
-    levelled = measured["levelled"]
-    smooth = _box3(np.where(np.isfinite(levelled), levelled, 0.0))
-    smooth = np.where(np.isfinite(levelled), smooth, -np.inf)
-    i = np.argmax(smooth, axis=-1)
-    peak = np.take_along_axis(smooth, i[..., None], -1)[..., 0]
-    lo = np.take_along_axis(smooth, np.clip(i - 1, 0, lags.size - 1)[..., None], -1)[..., 0]
-    hi = np.take_along_axis(smooth, np.clip(i + 1, 0, lags.size - 1)[..., None], -1)[..., 0]
-    curv = lo + hi - 2 * peak
-    with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.where(
-            np.isfinite(curv) & (curv < 0),
-            0.5 * (lo - hi) / np.where(curv < 0, curv, -1.0),
-            0.0,
-        )
-    residual = lags[i] + np.clip(frac, -0.5, 0.5)
-    agree = np.abs(measured["residual"] - residual) <= 1.0
-    return np.where(agree, measured["residual"], residual), peak
+    from elphel_host.tp.fused import neighbourhood_peaks  # see tile_pass.load_kernels
+
+    levelled = np.ascontiguousarray(measured["levelled"], dtype=np.float32)
+    if levelled.shape[2] > 64:  # the kernel's scratch
+        raise ValueError(f"{levelled.shape[2]} lags; allowed: at most 64")
+    residual = np.empty(levelled.shape[:2])
+    peak = np.empty(levelled.shape[:2])
+    own = np.ascontiguousarray(measured["residual"], dtype=np.float32)
+    neighbourhood_peaks(levelled, own, np.asarray(lags, dtype=np.float64), residual, peak)
+    return residual, peak
 
 
 def _nearest_measured(a: F32, step: int, shape: tuple[int, int]) -> F32:
     """Values of the tiles ``(step * i, step * j)`` spread to the whole grid ``shape``."""
     out: F32 = np.repeat(np.repeat(a, step, axis=0), step, axis=1)[: shape[0], : shape[1]]
-    return out
-
-
-def _box3(a: NDArray[np.floating]) -> NDArray[np.float64]:
-    """Sum over the 3x3 neighbouring tiles (edges replicated) of a (ty, tx, ...) array."""
-    p = np.pad(
-        np.asarray(a, dtype=np.float64), ((1, 1), (1, 1)) + ((0, 0),) * (a.ndim - 2), mode="edge"
-    )
-    ty, tx = a.shape[:2]
-    out = np.zeros(p[1:-1, 1:-1].shape)
-    for dy in range(3):
-        for dx in range(3):
-            out += p[dy : dy + ty, dx : dx + tx]
     return out
