@@ -94,7 +94,7 @@ def _weighted_products(prep: PreparedQuad, cx: F64, cy: F64, target: F64) -> C12
     """Normalised pair products with the correlation LPF: ``(T, pairs, 8, 2, 8)``."""
     quad, config = prep.quad, prep.config
     places = [quad.geometry.place_camera(cam, cx, cy, target) for cam in range(4)]
-    spectra = [camera_spectra(prep.images[cam], prep.transform, places[cam]) for cam in range(4)]
+    spectra = [camera_spectra(quad.images[cam], prep.transform, places[cam]) for cam in range(4)]
     p = compact_pair_products(spectra, quad.geometry.pairs, prep.transform.fset)
     p = normalise(p, config.fat_zero)
     lpf = lpf_mask(config.lpf_sigma)

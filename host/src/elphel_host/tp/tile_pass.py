@@ -118,7 +118,6 @@ class PreparedQuad:
 
     quad: QuadImages
     config: TpConfig
-    images: list[F32]
     transform: CameraTransform
     centres: tuple[NDArray[np.float64], NDArray[np.float64]]
     profiles: Profiles
@@ -158,7 +157,6 @@ def prepare(quad: QuadImages, config: TpConfig, reach_px: float) -> PreparedQuad
     return PreparedQuad(
         quad=quad,
         config=config,
-        images=[np.ascontiguousarray(img, dtype=np.float32) for img in quad.images],
         transform=transform,
         centres=tile_centres(ty, tx),
         profiles=compact_profiles(full, transform.fset, lpf_mask(config.lpf_sigma)),
@@ -217,7 +215,7 @@ def _products(
             kernels = prep.kernels[cam]
             index = _kernel_index(quad, cx - target * px, cy - target * py)
         shifts[cam] = raw_spectra(
-            prep.images[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
+            quad.images[cam], tr, at, spectra[cam], kernels=kernels, kernel_index=index
         )
     if t0 is not None:
         t0 = _record("to_clt", t0)
