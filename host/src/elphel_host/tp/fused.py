@@ -180,12 +180,10 @@ _WINDOW_ANGLE = np.pi / 16
 @nb.njit(inline="always", cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
 def _all_tiles(
     image: F32,
-    plane_rows: I64,
-    plane_cols: I64,
+    cell_at: I64,
     pad: int,
     at: I64,
-    shift_y: NDArray[np.float64],
-    shift_x: NDArray[np.float64],
+    shifts: NDArray[np.float64],
     window_y: F32,
     window_x: F32,
     row_basis: F32,
@@ -212,15 +210,15 @@ def _all_tiles(
     fa, fb = nb.carray(pa, (128,)), nb.carray(pb, (128,))
     for t in range(at.shape[1]):
         py, px = at[2, t], at[3, t]
-        ay, ax = _WINDOW_ANGLE * shift_y[t], _WINDOW_ANGLE * shift_x[t]
+        ay, ax = _WINDOW_ANGLE * shifts[0, t], _WINDOW_ANGLE * shifts[1, t]
         cy, sy = np.float32(np.cos(ay)), np.float32(np.sin(ay))
         cx, sx = np.float32(np.cos(ax)), np.float32(np.sin(ax))
         for p in range(planes):
             for v in range(inner):
                 wy[v] = cy * window_y[py, p, 0, v] + sy * window_y[py, p, 1, v]
                 fx[v] = cx * window_x[px, p, 0, v] + sx * window_x[px, p, 1, v]
-            _plane_samples(at[0, t] + first_y[py, p], pad, h, cell, plane_rows[p], inner, rows)
-            _plane_samples(at[1, t] + first_x[px, p], pad, w, cell, plane_cols[p], inner, cols)
+            _plane_samples(at[0, t] + first_y[py, p], pad, h, cell, cell_at[0, p], inner, rows)
+            _plane_samples(at[1, t] + first_x[px, p], pad, w, cell, cell_at[1, p], inner, cols)
             _tile_rows(image, rows, cols, wy, fx, row_basis[px, p], y, p * inner, inner)
         base = 0
         for c in range(colours.shape[0]):
@@ -233,12 +231,10 @@ def _all_tiles(
 
 _SPECTRA_SIGNATURE = nb.void(
     nb.float32[:, ::1],  # image (H, W)
-    nb.int64[::1],  # row of each plane in its cell (planes,)
-    nb.int64[::1],  # column of each plane in its cell (planes,)
+    nb.int64[:, ::1],  # (2, planes): row, column of each plane's pixel in its cell
     nb.int64,  # padding, cells
     nb.int64[:, ::1],  # (4, T): first cell row, first cell column, parity y, parity x
-    nb.float64[::1],  # (T,) the window's shift along y
-    nb.float64[::1],  # (T,) along x
+    nb.float64[:, ::1],  # (2, T): the window's shift along y, along x
     nb.float32[:, :, :, ::1],  # window along y (parity, planes, 2, inner)
     nb.float32[:, :, :, ::1],  # window along x (parity, planes, 2, inner)
     nb.float32[:, :, :, ::1],  # row basis (parity, planes, inner, 16)
@@ -255,12 +251,10 @@ _SPECTRA_SIGNATURE = nb.void(
 @nb.njit(_SPECTRA_SIGNATURE, cache=True, nogil=True, fastmath=_SUMS, boundscheck=False)
 def tile_spectra(
     image: F32,
-    plane_rows: I64,
-    plane_cols: I64,
+    cell_at: I64,
     pad: int,
     at: I64,
-    shift_y: NDArray[np.float64],
-    shift_x: NDArray[np.float64],
+    shifts: NDArray[np.float64],
     window_y: F32,
     window_x: F32,
     row_basis: F32,
@@ -274,44 +268,26 @@ def tile_spectra(
 ) -> None:
     """Colour spectra of tiles by the separable transform, gathered and windowed on the way.
 
-    Per tile and plane: the samples inside the tile times the shifted window along each
-    axis (``cos * w[0] + sin * w[1]``), transformed along the rows (``row_basis``:
-    ``(re | im)`` of the basis at each sample for kh 0..7), then down the columns
-    (``col_basis``: re and im for kv 0..7) and summed over each colour's planes; the
-    colour weight's square root is applied on the way out. Row t of ``out`` is tile t.
-
-    Parameters
-    ----------
-    image
-        ``(H, W)`` float32 image of one camera.
-    plane_rows, plane_cols, pad
-        Each plane's pixel in its cell (2x2 Bayer, 1x1 mono); the cells of padding
-        around the image the footprint cells count from (they repeat the border cell).
-    at
-        ``(4, T)``: each tile's first footprint cell (row, column, counted from the
-        padding's first) and start parity (y, x); the tables are indexed by the parity.
-    shift_y, shift_x
-        ``(T,)``: the tile's window shift s along each axis; the window is
-        ``cos(pi s / 16) w[0] + sin(pi s / 16) w[1]``.
-    window_y, window_x, row_basis, col_basis, first_y, first_x
-        The transform's tables (:class:`elphel_host.tp.clt.batch.CameraTransform`).
-    colours
-        ``(colours, 4)``: first and end plane, number of frequencies, kv count.
-    positions, roots
-        Where each frequency is in the column sums; the colour weights' square roots.
-    out
-        ``(T, 4 sum F)`` float32: per tile the colours one after the other, each
-        ``(which, re/im, f)``.
+    Per tile and plane: the samples inside the tile, read from ``image`` (a plane is
+    the pixel ``cell_at`` of each cell; the ``pad`` cells around the image the footprint
+    cells ``at`` count from repeat the border cell), times the shifted window along each
+    axis (``cos(pi s / 16) w[0] + sin(pi s / 16) w[1]`` for the tile's ``shifts`` s),
+    transformed along the rows (``row_basis``: ``(re | im)`` of the basis at each sample
+    for kh 0..7), then down the columns (``col_basis``: re and im for kv 0..7) and summed
+    over each colour's planes; the square root of the colour weight (``roots``) is
+    applied on the way out. ``at`` also holds each tile's start parity, which indexes
+    the transform's tables (:class:`elphel_host.tp.clt.batch.CameraTransform`);
+    ``colours``: per colour its first and end plane, frequencies and kv count;
+    ``positions``: where each frequency is in the column sums. Row t of ``out``, ``(T, 4
+    sum F)``, is tile t: its colours one after the other, each ``(which, re/im, f)``.
     """
     if row_basis.shape[2] == 8:  # Bayer: four 8x8 planes
         _all_tiles(
             image,
-            plane_rows,
-            plane_cols,
+            cell_at,
             pad,
             at,
-            shift_y,
-            shift_x,
+            shifts,
             window_y,
             window_x,
             row_basis,
@@ -329,12 +305,10 @@ def tile_spectra(
     else:  # mono: one 16x16 plane
         _all_tiles(
             image,
-            plane_rows,
-            plane_cols,
+            cell_at,
             pad,
             at,
-            shift_y,
-            shift_x,
+            shifts,
             window_y,
             window_x,
             row_basis,

@@ -345,12 +345,10 @@ def raw_spectra(
     place[1] = np.clip((at.left_x + tr.pad - place[3]) // c, 0, img.shape[1] // c + 2 * pc - span)
     tile_spectra(
         img,
-        tr.plane_rows.astype(np.int64),
-        tr.plane_cols.astype(np.int64),
+        np.stack([tr.plane_rows, tr.plane_cols]).astype(np.int64),
         pc,
         place,
-        np.ascontiguousarray(at.shift_y, dtype=np.float64),
-        np.ascontiguousarray(at.shift_x, dtype=np.float64),
+        np.stack([at.shift_y, at.shift_x]).astype(np.float64),
         tr.window_y,
         tr.window_x,
         tr.row_basis,
