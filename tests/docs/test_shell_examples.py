@@ -51,7 +51,14 @@ def runnable(lines: list[str]) -> tuple[list[str], list[str]]:
     return run, left
 
 
-def run_lines(lines: list[str], rig, cwd: Path, prepare=lambda line: line) -> None:
+def run_lines(
+    lines: list[str], rig, cwd: Path, prepare=lambda line: line, again_if: str | None = None
+) -> None:
+    """Run each line in bash; ``prepare`` rewrites a line before each run of it.
+
+    ``again_if``: a line whose stderr says this is prepared and run again (3 runs at most),
+    for a line that names something as fleeting as a recent frame.
+    """
     env = {k: v for k, v in os.environ.items() if not k.startswith("ELPHEL_")}
     env |= {
         "ELPHEL_CAMERA_URL": rig.camera_url,
@@ -62,16 +69,19 @@ def run_lines(lines: list[str], rig, cwd: Path, prepare=lambda line: line) -> No
     (cwd / ".venv").mkdir()
     (cwd / ".venv" / "bin").symlink_to(Path(sys.executable).parent)
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    for line in lines:
-        line = prepare(line)
-        done = subprocess.run(
-            ["bash", "-c", f"set -e -o pipefail\n{line}\n"],
-            cwd=cwd,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
+    for given in lines:
+        for _ in range(3):
+            line = prepare(given)
+            done = subprocess.run(
+                ["bash", "-c", f"set -e -o pipefail\n{line}\n"],
+                cwd=cwd,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=600,
+            )
+            if done.returncode == 0 or again_if is None or again_if not in done.stderr:
+                break
         assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}"
 
 
@@ -93,12 +103,14 @@ def test_quickstart_set_capture_follow(elphel_rig, tmp_path: Path) -> None:
         # The ring-buffer example names frame 1234; ask for one the rig will still have
         # when the CLI has started: the ring holds the last 64 frames (about 6 s here),
         # and a capture waits for a frame up to 14 ahead, so a frame 12 ahead stays there
-        # for some 8 s after this, however long a busy machine takes to start the CLI.
+        # for some 8 s after this. A CI run with four workers on two cores once took
+        # longer to start the CLI: the line is then run again, with a new frame.
         if "--frame 1234" not in line:
             return line
         with CameraClient(elphel_rig.camera_url, elphel_rig.token) as cam:
             recent = cam.frame()["frame"]
         return line.replace("--frame 1234", f"--frame {recent + 12}")
 
-    run_lines(lines, elphel_rig, tmp_path, prepare=recent_frame)
+    gone = "is no longer in the ring buffer"
+    run_lines(lines, elphel_rig, tmp_path, prepare=recent_frame, again_if=gone)
     assert (tmp_path / "again.tif").exists()
