@@ -227,16 +227,20 @@ def test_a_mono_node_gives_frames_without_a_bayer_label() -> None:
     assert preview.status_code == 200 and preview.headers["content-type"] == "image/jpeg"
 
 
-def _served(**node: Any) -> tuple[CameraService, Any]:
+def _served(**node: Any) -> tuple[CameraService, Any, list[SyntheticSource]]:
+    """A daemon on a synthetic RG10 node; the list gets each node the board opens."""
+    made: list[SyntheticSource] = []
+
     def opener(port: V4L2Port) -> SyntheticSource:
-        return SyntheticSource(_image(), fourcc="RG10", fps=50.0, path=port.video, **node)
+        made.append(SyntheticSource(_image(), fourcc="RG10", fps=50.0, path=port.video, **node))
+        return made[-1]
 
     service = CameraService(V4L2Board(["/dev/video0"], open_source=opener, ring_frames=32))
-    return service, serve(service)
+    return service, serve(service), made
 
 
 def test_a_window_through_the_drivers_crop_starts_at_the_frame_the_patch_names() -> None:
-    service, served_cm = _served(crop=True, pad=6)
+    service, served_cm, made = _served(crop=True, pad=6)
     try:
         with served_cm as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
             schema = c.get("/api/v1/ports/0/params/schema").json()
@@ -264,11 +268,14 @@ def test_a_window_through_the_drivers_crop_starts_at_the_frame_the_patch_names()
     assert refused.status_code == 422, refused.text
     assert refused.json()["allowed"] == "0..16 (even), inside the driver's crop bounds 32x16"
     assert odd.status_code == 422 and odd.json()["allowed"].startswith("0..8 (even)")
-    assert health["dropped"] == 0 and health["restarts"] == 0
+    # The crop change loses no frame: health counts only what the node lost when the
+    # daemon's reader fell behind its buffers (a busy machine), and the stream never restarts.
+    assert len(made) == 1 and health["restarts"] == 0
+    assert 0 <= health["dropped"] <= made[0].lost
 
 
 def test_a_window_through_the_sensors_modes_is_a_size_it_offers() -> None:
-    service, served_cm = _served(sizes=((WIDTH, HEIGHT), (16, 8), (8, 4)))
+    service, served_cm, _ = _served(sizes=((WIDTH, HEIGHT), (16, 8), (8, 4)))
     try:
         with served_cm as served, httpx.Client(base_url=served.url, headers=AUTH) as c:
             schema = c.get("/api/v1/ports/0/params/schema").json()
