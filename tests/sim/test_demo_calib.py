@@ -69,7 +69,7 @@ def test_the_dsi_error_is_over_textured_tiles_inside_one_region() -> None:
     assert dsi_rms_error_px(disparity, truth) == pytest.approx(0.03)
 
 
-@pytest.mark.slow  # the whole step: a minute and a half on two quiet cores
+@pytest.mark.slow  # the whole step: two and a half minutes on two quiet cores
 def test_the_demo_calibrates_the_quad_and_gets_depth_from_its_raw_images(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -32,7 +32,7 @@ from elphel_host.preview import FAR_RGB, NO_VALUE_RGB, Swatch, map_picture, robu
 from elphel_host.tp.io import QuadManifest
 from elphel_sim.demo.rig import DemoError, elphel, elphel_sim, simulated_rig, step
 
-VIEWS = 8
+VIEWS = 16  # enough for each plane's depth within 0.5 % whatever noise the frames have
 MIN_CAMERAS = 3  # each suggested pose shows the whole board to at least 3 cameras
 PATTERN = "checkerboard:9x6:25"
 # `elphel` commands of this step: 4 windows, one capture per view, the solve, 3 DSIs.
