@@ -39,8 +39,8 @@ class TpConfig:
         Target disparities of the first pass; with several, each tile keeps the one whose
         correlation is strongest (for objects nearer than ``radius`` allows from 0).
     disparity_scale
-        Measured residuals are divided by this (Elphel's ``corr_magic_scale``): the window
-        pulls the correlation peak towards lag 0 by about 15 %.
+        Measured residuals are divided by this (Elphel's ``corr_magic_scale``, 0.85 there):
+        the window pulls the correlation peak towards lag 0 by about 13 % here.
     min_disparity
         Smallest disparity searched (a little below 0 = infinity, for calibration errors);
         keeps weak far-off noise peaks from winning against a strong near object.
@@ -62,7 +62,7 @@ class TpConfig:
     refine_passes: int = 1
     first_pass_step: int = 2
     scan: tuple[float, ...] = (0.0,)
-    disparity_scale: float = 0.85
+    disparity_scale: float = 0.87
     min_disparity: float = -1.0
     chunk_tiles: int = 2048
     threads: int = 2
