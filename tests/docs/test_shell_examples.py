@@ -103,7 +103,7 @@ def test_quickstart_set_capture_follow(elphel_rig, tmp_path: Path) -> None:
         # The ring-buffer example names frame 1234; ask for one the rig will still have
         # when the CLI has started: the ring holds the last 64 frames (about 6 s here),
         # and a capture waits for a frame up to 14 ahead, so a frame 12 ahead stays there
-        # for some 8 s after this. A CI run with four workers on two cores once took
+        # for some 8 s after this. A busy machine (four test workers on two cores) can take
         # longer to start the CLI: the line is then run again, with a new frame.
         if "--frame 1234" not in line:
             return line
